@@ -1,0 +1,99 @@
+r"""What rays that miss the sphere see.
+
+Three kinds, all emitting (unlit) linear radiance:
+
+- ``"color"``: a constant colour.
+- ``"checkerboard"``: an infinite plane through ``point`` with normal ``normal``, squares of
+  side ``square_size`` alternating ``colors[0]`` and ``colors[1]``; rays that miss the plane
+  see ``color``. Square edges are softened,
+  :math:`w = \tfrac12 + \tfrac12\tanh(k \sin(\pi u/a)\sin(\pi v/a))` with sharpness
+  :math:`k` = ``sharpness``, so that an image seen through a refracting sphere is
+  differentiable in the index of refraction (a hard-edged board has zero gradient
+  almost everywhere).
+- ``"environment"``: a latitude–longitude image (rows: polar angle from +y at the top to
+  −y at the bottom; columns: azimuth, the centre column looking toward −z, increasing
+  toward +x), bilinearly interpolated.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jax import Array
+
+from .camera import Rays
+from .numerics import dot, safe_arccos, safe_divide, safe_normalize
+
+BACKGROUND_KINDS = ("color", "checkerboard", "environment")
+
+
+class Background(eqx.Module):
+    """A background; see the module docstring for the kinds and their fields."""
+
+    kind: str = eqx.field(static=True, default="color")
+    color: Array = eqx.field(default_factory=lambda: jnp.zeros(3))
+    point: Array = eqx.field(default_factory=lambda: jnp.array([0.0, 0.0, -2.0]))
+    normal: Array = eqx.field(default_factory=lambda: jnp.array([0.0, 0.0, 1.0]))
+    square_size: Array = eqx.field(default_factory=lambda: jnp.asarray(0.5))
+    colors: Array = eqx.field(default_factory=lambda: jnp.array([[0.9, 0.9, 0.9], [0.1, 0.1, 0.1]]))
+    sharpness: Array = eqx.field(default_factory=lambda: jnp.asarray(20.0))
+    image: Array | None = None
+
+
+def _plane_axes(normal: Array) -> tuple[Array, Array]:
+    """Two unit vectors spanning the plane with the given normal."""
+    helper = jnp.where(jnp.abs(normal[1]) < 0.9, jnp.array([0.0, 1.0, 0.0]), jnp.array([1.0, 0.0, 0.0]))
+    u_axis = safe_normalize(jnp.cross(helper.astype(normal.dtype), normal))
+    v_axis = jnp.cross(normal, u_axis)
+    return u_axis, v_axis
+
+
+def _checkerboard(background: Background, rays: Rays) -> Array:
+    dtype = rays.direction.dtype
+    normal = safe_normalize(background.normal.astype(dtype))
+    point = background.point.astype(dtype)
+    facing = dot(rays.direction, normal)
+    distance = safe_divide(dot(point - rays.origin, normal), facing)
+    hits = (facing != 0) & (distance > 0)
+    where = rays.origin + distance[..., None] * rays.direction
+    u_axis, v_axis = _plane_axes(normal)
+    size = background.square_size.astype(dtype)
+    u = dot(where - point, u_axis) / size
+    v = dot(where - point, v_axis) / size
+    weight = 0.5 + 0.5 * jnp.tanh(background.sharpness * jnp.sin(jnp.pi * u) * jnp.sin(jnp.pi * v))
+    colors = background.colors.astype(dtype)
+    board = colors[1] + weight[..., None] * (colors[0] - colors[1])
+    return jnp.where(hits[..., None], board, background.color.astype(dtype))
+
+
+def _environment(background: Background, rays: Rays) -> Array:
+    dtype = rays.direction.dtype
+    image = background.image.astype(dtype)
+    height, width = image.shape[0], image.shape[1]
+    d = safe_normalize(rays.direction)
+    azimuth_ok = (d[..., 0] != 0) | (d[..., 2] != 0)
+    azimuth = jnp.arctan2(jnp.where(azimuth_ok, d[..., 0], 0.0), jnp.where(azimuth_ok, -d[..., 2], 1.0))
+    u = (azimuth / (2 * jnp.pi) + 0.5) * width - 0.5
+    v = safe_arccos(d[..., 1]) / jnp.pi * height - 0.5
+    v = jnp.clip(v, 0.0, height - 1.0)
+    u0 = jnp.floor(u)
+    v0 = jnp.clip(jnp.floor(v), 0, max(height - 2, 0))
+    fu, fv = u - u0, v - v0
+    iu0 = u0.astype(jnp.int32) % width
+    iu1 = (iu0 + 1) % width
+    iv0 = v0.astype(jnp.int32)
+    iv1 = jnp.minimum(iv0 + 1, height - 1)
+    top = image[iv0, iu0] * (1 - fu[..., None]) + image[iv0, iu1] * fu[..., None]
+    bottom = image[iv1, iu0] * (1 - fu[..., None]) + image[iv1, iu1] * fu[..., None]
+    return top * (1 - fv[..., None]) + bottom * fv[..., None]
+
+
+def background_radiance(background: Background, rays: Rays) -> Array:
+    """Radiance (..., 3) seen along ``rays`` that miss the sphere."""
+    if background.kind == "color":
+        return jnp.broadcast_to(background.color.astype(rays.direction.dtype), rays.direction.shape)
+    if background.kind == "checkerboard":
+        return _checkerboard(background, rays)
+    if background.kind == "environment":
+        return _environment(background, rays)
+    raise ValueError(f"unknown background kind {background.kind!r}")
