@@ -53,6 +53,14 @@ def _check_color(value: Any) -> None:
         )
 
 
+def _as_float(value: Any, dtype: Any) -> Array:
+    """A floating-point array (integers such as ``(1, 1, 1)`` become the default float)."""
+    arr = jnp.asarray(value, dtype=dtype)
+    if not jnp.issubdtype(arr.dtype, jnp.floating):
+        arr = arr.astype(jnp.result_type(float))
+    return arr
+
+
 class Material(eqx.Module):
     """A Strauss material, a JAX pytree usable inside ``jit``, ``grad`` and ``vmap``.
 
@@ -84,11 +92,11 @@ class Material(eqx.Module):
         _check_scalar("metalness", metalness)
         _check_scalar("transparency", transparency)
         _check_scalar("ior", ior)
-        self.color = jnp.asarray(color, dtype=dtype)
-        self.smoothness = jnp.asarray(smoothness, dtype=dtype)
-        self.metalness = jnp.asarray(metalness, dtype=dtype)
-        self.transparency = jnp.asarray(transparency, dtype=dtype)
-        self.ior = jnp.asarray(ior, dtype=dtype)
+        self.color = _as_float(color, dtype)
+        self.smoothness = _as_float(smoothness, dtype)
+        self.metalness = _as_float(metalness, dtype)
+        self.transparency = _as_float(transparency, dtype)
+        self.ior = _as_float(ior, dtype)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], *, dtype: Any = None) -> "Material":

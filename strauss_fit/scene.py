@@ -249,7 +249,7 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
         path = base_dir / path
     scale = w.number(table, "scale", 1.0, low=0.0)
     try:
-        image, _ = read_image(path, encoding="auto")
+        image = read_image(path, encoding="auto").pixels
     except StraussFitError as exc:
         raise w.error(str(exc)) from None
     return Background("environment", color, image=jnp.asarray(image * scale))
