@@ -12,10 +12,10 @@ import os
 import sys
 from pathlib import Path
 
-from . import render_cmd
+from . import fit_cmd, render_cmd, synth_cmd
 
 #: Subcommand modules; each has ``add_parser(subparsers)`` and ``run(args)``.
-COMMANDS = [render_cmd]
+COMMANDS = [render_cmd, fit_cmd, synth_cmd]
 
 
 def _enable_compilation_cache() -> None:

@@ -161,6 +161,7 @@ def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, enc
     def write(tmp: Path) -> None:
         output = oiio.ImageOutput.create(str(path))
         if output is None:
+            oiio.geterror()  # clear OpenImageIO's pending message; ours says it in one line
             raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
         spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], pixel_type)
         if not output.open(str(tmp), spec) or not output.write_image(data):

@@ -46,6 +46,7 @@ local model.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, NamedTuple
 
 import equinox as eqx
@@ -164,6 +165,24 @@ def prepare(scene: Scene, plan: RenderPlan, mode: Mode = "exact", table_size: in
         ambient=scene.lights.ambient, mirror_j=mirror_j, mirror_fresnel=mirror_fresnel,
         reflected_radiance=reflected,
     )
+
+
+_PER_PIXEL_FIELDS = ("hit", "point", "normal", "to_eye", "direction", "miss_radiance", "irradiance",
+                     "mirror_j", "mirror_fresnel", "reflected_radiance")
+
+
+def take_pixels(prepared: Prepared, index: Any) -> Prepared:
+    """The :class:`Prepared` terms of the pixels at flat ``index`` (leading axes (H, W)
+    become one axis of ``len(index)``), e.g. the usable pixels of a fit."""
+    index = jnp.asarray(index)
+
+    def take(x):
+        return None if x is None else x.reshape((-1,) + x.shape[2:])[index]
+
+    replacements = {name: take(getattr(prepared, name)) for name in _PER_PIXEL_FIELDS}
+    if prepared.direct is not None:
+        replacements["direct"] = AngularTerms(*(take(f) for f in prepared.direct))
+    return dataclasses.replace(prepared, **replacements)
 
 
 def local_radiance(material: Material, prepared: Prepared) -> Array:

@@ -1,0 +1,178 @@
+"""``strauss-fit fit``: recover the Strauss parameters from a reference image."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .common import add_evaluator_options, check_evaluator_options, positive_int
+
+PARAMETER_HELP = "color, smoothness, metalness, transparency, ior (and with --fit-lights: directional_intensity_1, ..., ambient_intensity)"
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "fit",
+        help="fit the Strauss parameters to a reference image",
+        description="Fit the material (C, s, m, t, n) of SCENE to the image TARGET by least squares "
+        "(optimistix), in float64, from several starts. Parameters the scene cannot constrain are "
+        "held at the scene's [material] values and the result says why. Writes RESULT.json.",
+    )
+    parser.add_argument("target", metavar="TARGET", help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB)")
+    parser.add_argument("--scene", required=True, metavar="SCENE.toml", help="the scene the target was taken in")
+    parser.add_argument("-o", "--output", required=True, metavar="RESULT.json", help="fit result (JSON)")
+    parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
+    parser.add_argument("--encoding", choices=("auto", "linear", "srgb"), default="auto",
+                        help="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)")
+    parser.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm",
+                        help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS")
+    parser.add_argument("--starts", type=positive_int, default=4, metavar="N",
+                        help="number of starts: the closed-form guess plus N-1 fixed points (default 4)")
+    parser.add_argument("--max-steps", type=positive_int, default=100, metavar="N", help="solver step limit per start (default 100)")
+    parser.add_argument("--free", metavar="NAMES",
+                        help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}")
+    parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                        help="hold a parameter at a value (repeatable); color takes R,G,B")
+    parser.add_argument("--fit-lights", action="store_true", help="also consider the light intensities as parameters")
+    parser.add_argument("--reference-noise", type=float, metavar="SIGMA",
+                        help="noise level used to decide what the image constrains (default: 1%% of the target's "
+                        "98th percentile)")
+    parser.add_argument("--render-fit", metavar="OUT",
+                        help="write the fitted image to OUT and a target | fit | residual PNG beside it (OUT.compare.png)")
+    parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    parser.add_argument("--quiet", action="store_true", help="print only the result table")
+    add_evaluator_options(parser)
+    parser.set_defaults(run=run)
+
+
+def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]], ...]:
+    from strauss_fit.errors import StraussFitError
+
+    fixed = []
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name:
+            raise StraussFitError(f"--fix expects NAME=VALUE, got {item!r}")
+        try:
+            numbers = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise StraussFitError(f"--fix {name}: {text!r} is not a number (or R,G,B for color)") from None
+        if name == "color":
+            if len(numbers) != 3:
+                raise StraussFitError(f"--fix color expects R,G,B, got {text!r}")
+            fixed.append((name, numbers))
+        else:
+            if len(numbers) != 1:
+                raise StraussFitError(f"--fix {name} expects one number, got {text!r}")
+            fixed.append((name, numbers[0]))
+    return tuple(fixed)
+
+
+def _check_fixed_ranges(fixed) -> None:
+    from strauss_fit import Material
+
+    material_values = {k: (list(v) if k == "color" else v) for k, v in fixed if k in
+                       ("color", "smoothness", "metalness", "transparency", "ior")}
+    Material.from_dict(material_values)  # raises a one-line MaterialError naming field and range
+    for name, value in fixed:
+        if "intensity" in name and value < 0:
+            from strauss_fit.errors import StraussFitError
+
+            raise StraussFitError(f"--fix {name}={value}: an intensity must be >= 0")
+
+
+def format_table(result: dict) -> str:
+    """The human-readable summary: one row per parameter."""
+    rows = [("parameter", "value", "± (Laplace)", "status")]
+    uncertainty = result.get("uncertainty", {})
+    for name in ("color", "smoothness", "metalness", "transparency", "ior", *result.get("lights", {})):
+        value = result["color"] if name == "color" else result.get(name, result.get("lights", {}).get(name))
+        if value is None:
+            continue
+        if name in result["free"]:
+            sd = uncertainty.get(name)
+            status = "fitted"
+        elif name in result["held"]:
+            sd = None
+            status = "held: " + result["held"][name]["reason"]
+        else:
+            continue
+        if isinstance(value, list):
+            text = ", ".join(f"{v:.4f}" for v in value)
+            sd_text = ", ".join(f"{v:.2g}" for v in sd) if sd is not None else "-"
+        else:
+            text = f"{value:.4f}"
+            sd_text = f"{sd:.2g}" if sd is not None else "-"
+        rows.append((name, text, sd_text, status))
+    widths = [max(len(r[i]) for r in rows) for i in range(3)]
+    lines = [f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:<{widths[2]}}  {r[3]}" for r in rows]
+    lines.insert(1, "-" * min(100, sum(widths) + 6 + 6))
+    res = result["residual"]
+    lines.append("")
+    lines.append(f"residual: RMS {res['rms']:.3g} (linear), CIEDE2000 mean {res['delta_e2000_mean']:.3g}, "
+                 f"95th percentile {res['delta_e2000_p95']:.3g}; {result['pixels_used']} pixels")
+    solver = result["solver"]
+    lines.append(f"solver: {solver['name']}, {solver['steps']} steps, {solver['status']}, "
+                 f"{len(result['starts'])} start(s); wall time {result['wall_time_s']:.2f} s")
+    for note in result.get("notes", []):
+        lines.append(f"note: {note}")
+    return "\n".join(lines)
+
+
+def comparison_image(target, fitted, mask):
+    """target | fit | |residual| (amplified to fill the range), side by side, linear."""
+    import numpy as np
+
+    residual = np.abs(fitted - target) * mask[..., None]
+    peak = float(residual.max())
+    scale = float(np.percentile(target[mask], 99)) if mask.any() else 1.0
+    scale = max(scale, 1e-12)
+    residual_view = residual / peak * scale if peak > 0 else residual
+    gap = np.ones((target.shape[0], 2, 3)) * scale
+    return np.concatenate([target, gap, fitted, gap, residual_view], axis=1) / scale
+
+
+def run(args: argparse.Namespace) -> int:
+    check_evaluator_options(args)
+    import numpy as np
+
+    from strauss_fit import load_scene
+    from strauss_fit.fit import FitOptions, fit
+    from strauss_fit.io import check_writable, write_image, write_json
+    from strauss_fit.target import load_target, match_scene
+
+    log = (lambda message: None) if args.quiet else (lambda message: print(f"... {message}", file=sys.stderr))
+    check_writable(args.output, args.force)
+    compare_path = None
+    if args.render_fit:
+        check_writable(args.render_fit, args.force)
+        compare_path = Path(args.render_fit).with_suffix(".compare.png")
+        check_writable(compare_path, args.force)
+    fixed = parse_fixed(args.fix)
+    _check_fixed_ranges(fixed)
+    scene = load_scene(args.scene)
+    target = load_target(args.target, args.mask, args.encoding)
+    scene, message = match_scene(scene, target)
+    if message:
+        log(message)
+    options = FitOptions(
+        solver=args.solver, starts=args.starts, max_steps=args.max_steps, mode=args.mode,
+        table_size=args.table_size,
+        free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
+        fixed=fixed, fit_lights=args.fit_lights, reference_noise=args.reference_noise,
+    )
+    if args.precision != "float64":
+        log("fits always run in float64; --precision is ignored")
+    result = fit(scene, target, options, progress=log)
+    payload = result.to_json()
+    payload["target"] = str(args.target)
+    payload["scene"] = str(args.scene)
+    write_json(args.output, payload, force=args.force)
+    if args.render_fit:
+        write_image(args.render_fit, result.fitted_image, force=args.force)
+        write_image(compare_path, comparison_image(target.pixels, result.fitted_image, result.mask), force=args.force)
+    print(format_table(payload))
+    written = [args.output] + ([args.render_fit, str(compare_path)] if args.render_fit else [])
+    print(f"wrote {', '.join(written)}")
+    return 0 if result.solver["status"] == "successful" else 1

@@ -1,0 +1,546 @@
+r"""Least-squares recovery of the Strauss parameters from a reference image (optimistix).
+
+The fit minimises :math:`\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
+over the usable sphere pixels p (linear RGB), in float64, with θ the unconstrained
+parameters of :mod:`strauss_fit.parameters`. Solvers: Levenberg–Marquardt (default),
+Gauss–Newton, or the quasi-Newton minimiser BFGS, all from optimistix.
+
+Speed: everything that does not depend on the material (pixel geometry, the angular terms
+F, G and j of every light, backgrounds seen along mirror directions) is computed once
+(:func:`strauss_fit.render.prepare`) and restricted to the usable pixels; the solver then
+evaluates only the material-dependent part. All starts run at once, vectorised with
+``vmap``.
+
+Only what the scene constrains is fitted (:mod:`strauss_fit.identifiability`); held
+parameters keep the scene file's ``[material]`` values and the result says why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax import Array
+
+from .colour_difference import delta_e_2000
+from .errors import StraussFitError
+from .guess import initial_guess
+from .identifiability import DEFAULT_REFERENCE_NOISE, DEFAULT_THRESHOLD, Decision, numerical_decision, structural_reasons
+from .lights import Lights
+from .material import PARAMETER_NAMES, Material
+from .model import DEFAULT_TABLE_SIZE
+from .parameters import MATERIAL_SIZES, Layout, light_parameter_names, lights_with, material_with
+from .render import Prepared, RenderPlan, plan_render, prepare, shade_prepared, take_pixels
+from .scene import Scene
+from .target import Target
+
+SOLVERS = ("lm", "gauss-newton", "bfgs")
+#: Fixed starting points (smoothness, metalness, transparency) tried besides the guess.
+START_GRID = ((0.3, 0.1, 0.2), (0.8, 0.1, 0.6), (0.6, 0.9, 0.4), (0.2, 0.6, 0.8), (0.9, 0.5, 0.1), (0.5, 0.3, 0.5))
+#: Unit-interval starts are kept this far inside the bounds (the transform is flat there).
+START_MARGIN = 0.02
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Settings of a fit; every field is recorded in the result."""
+
+    solver: str = "lm"
+    starts: int = 4
+    max_steps: int = 100
+    start_steps: int = 30
+    rtol: float = 1e-6
+    atol: float = 1e-8
+    mode: str = "exact"
+    table_size: int = DEFAULT_TABLE_SIZE
+    free: tuple[str, ...] | None = None
+    fixed: tuple[tuple[str, float | tuple[float, ...]], ...] = ()
+    fit_lights: bool = False
+    reference_noise: float | None = None
+    threshold: float = DEFAULT_THRESHOLD
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "solver": self.solver, "starts": self.starts, "max_steps": self.max_steps,
+            "start_steps": self.start_steps, "rtol": self.rtol,
+            "atol": self.atol, "mode": self.mode, "table_size": self.table_size,
+            "free": list(self.free) if self.free is not None else None,
+            "fixed": {k: v for k, v in self.fixed}, "fit_lights": self.fit_lights,
+            "reference_noise": self.reference_noise, "threshold": self.threshold, "precision": "float64",
+        }
+
+
+class Problem(eqx.Module):
+    """A fit's data: prepared (material-independent) terms at the usable pixels, the
+    target there, the scene, the material and lights that held parameters come from."""
+
+    prepared: Prepared
+    target: Array
+    scene: Scene
+    material: Material
+    lights: Lights
+    pinned: Array
+    pinned_values: Array
+    residual_scale: Array
+    layout: Layout = eqx.field(static=True)
+    plan: RenderPlan = eqx.field(static=True)
+
+    def physical(self, theta: Array) -> Array:
+        """Physical values of θ, with pinned entries (at a bound, see :func:`fit`) replaced."""
+        return jnp.where(self.pinned, self.pinned_values, self.layout.to_physical(theta))
+
+    def pin(self, mask: np.ndarray, values: np.ndarray) -> "Problem":
+        return dataclasses.replace(self, pinned=jnp.asarray(mask), pinned_values=jnp.asarray(values))
+
+    def render_physical(self, x: Array) -> Array:
+        """Model radiance (N, 3) at the usable pixels for physical parameters ``x``."""
+        values = self.layout.split(x)
+        material = material_with(self.material, values)
+        prepared = _scaled(self.prepared, lights_with(self.lights, values))
+        return shade_prepared(material, prepared, self.scene, self.plan)
+
+    def residual_physical(self, x: Array) -> Array:
+        return (self.render_physical(x) - self.target).ravel()
+
+    def residual(self, theta: Array, _args: Any = None) -> Array:
+        """What the solver minimises: residuals divided by ``residual_scale`` (the
+        reference noise times sqrt(N)), so that tolerances do not depend on image size
+        or brightness."""
+        return self.residual_physical(self.physical(theta)) / self.residual_scale
+
+
+def _unit_intensity_scene(scene: Scene) -> Scene:
+    """The scene with every light's intensity 1, so that prepared irradiance holds only
+    the geometric attenuation and intensities can be applied (or fitted) later."""
+    ones = {k: jnp.ones_like(v) for k, v in scene.lights.intensities().items()}
+    return eqx.tree_at(lambda s: s.lights, scene, scene.lights.with_intensities(ones))
+
+
+def _solver(name: str, rtol: float, atol: float):
+    if name == "lm":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if name == "gauss-newton":
+        return optx.GaussNewton(rtol=rtol, atol=atol)
+    if name == "bfgs":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    raise StraussFitError(f"unknown solver {name!r}; expected one of {', '.join(SOLVERS)}")
+
+
+@eqx.filter_jit
+def _solve_all(problem: Problem, thetas: Array, solver_name: str, rtol: float, atol: float, max_steps: int):
+    solver = _solver(solver_name, rtol, atol)
+
+    def one(theta0):
+        solution = optx.least_squares(problem.residual, solver, theta0, max_steps=max_steps, throw=False)
+        r = problem.residual(solution.value)
+        code = jnp.argmax(jnp.stack([solution.result == getattr(optx.RESULTS, name) for name in _RESULT_NAMES]))
+        return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code
+
+    return jax.vmap(one)(thetas)
+
+
+#: Entries this close to a bound after the first phase are tried pinned to it.
+BOUND_SNAP = 0.02
+
+
+@eqx.filter_jit
+def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int):
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
+    r = problem.residual(solution.value)
+    code = jnp.argmax(jnp.stack([solution.result == getattr(optx.RESULTS, name) for name in _RESULT_NAMES]))
+    x = problem.physical(solution.value)
+    jac = jax.jacfwd(problem.residual_physical)(x) / problem.residual_scale
+    residual = problem.residual_physical(x) / problem.residual_scale
+    gradient = jac.T @ residual
+    curvature = jnp.sum(jac * jac, axis=0)
+    return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code, gradient, curvature
+
+
+def _polish(problem: Problem, theta: np.ndarray, options: FitOptions):
+    """Continue the best start with an active set. Entries within :data:`BOUND_SNAP` of a
+    bound are pinned to it and the rest re-solved (Levenberg–Marquardt, whatever the
+    solver of the starts); a pinned entry is released if moving it inward would lower χ²
+    (at the reference noise) by more than 1 — the Newton estimate :math:`N g^2 / H`, g and
+    H the normalised cost's slope and curvature along it: a KKT check with a statistical
+    tolerance — and entries that reach a bound are pinned. At most three rounds.
+
+    Why: the smooth transforms reach a bound only with zero slope, so an optimum on a bound
+    (m = 0, say, or a noisy fit pulling past it) is approached ever more slowly; pinning
+    makes it exact and lets the solver converge on the remaining entries.
+    """
+    layout = problem.layout
+    lower, upper = layout.lower_bounds(), layout.upper_bounds()
+    count = problem.target.size
+    x = np.asarray(problem.physical(jnp.asarray(theta)))
+    at_lower, at_upper = x - lower < BOUND_SNAP, upper - x < BOUND_SNAP
+    total_steps = 0
+    for _ in range(3):
+        pinned = at_lower | at_upper
+        trial = problem.pin(pinned, np.where(at_lower, lower, np.where(at_upper, upper, x)))
+        theta, cost, steps, code, gradient, curvature = (np.asarray(v) for v in _polish_solve(
+            trial, jnp.asarray(theta), options.rtol, options.atol, options.max_steps))
+        total_steps += int(steps)
+        x = np.asarray(trial.physical(jnp.asarray(theta)))
+        gain = count * gradient**2 / np.maximum(curvature, 1e-300)
+        release_lower = at_lower & (gradient < 0) & (gain > 1.0)
+        release_upper = at_upper & (gradient > 0) & (gain > 1.0)
+        new_lower = ~pinned & (x - lower < BOUND_SNAP) & (gradient >= 0)
+        new_upper = ~pinned & (upper - x < BOUND_SNAP) & (gradient <= 0)
+        if not (release_lower | release_upper | new_lower | new_upper).any():
+            break
+        at_lower = (at_lower & ~release_lower) | new_lower
+        at_upper = (at_upper & ~release_upper) | new_upper
+    return theta, float(cost), total_steps, _status(int(code)), trial
+
+
+@eqx.filter_jit
+def _jacobian(problem: Problem, x: Array) -> Array:
+    return jax.jacfwd(problem.residual_physical)(x)
+
+
+@eqx.filter_jit
+def _render_at(problem: Problem, x: Array) -> Array:
+    return problem.render_physical(x)
+
+
+@dataclass
+class FitResult:
+    """What a fit found; :meth:`to_json` follows ``shared/formats.md``."""
+
+    material: Material
+    free: list[str]
+    held: dict[str, dict[str, Any]]
+    lights: dict[str, float]
+    uncertainty: dict[str, Any]
+    correlation: dict[str, Any]
+    residual: dict[str, float]
+    solver: dict[str, Any]
+    starts: list[dict[str, Any]]
+    start_spread: dict[str, float]
+    wall_time_s: float
+    compile_and_solve: dict[str, float]
+    pixels_used: int
+    notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    fitted_image: np.ndarray | None = None
+    mask: np.ndarray | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = self.material.to_dict()
+        out.update({
+            "free": self.free,
+            "held": self.held,
+            "uncertainty": self.uncertainty,
+            "correlation": self.correlation,
+            "residual": self.residual,
+            "solver": self.solver,
+            "starts": self.starts,
+            "start_spread": self.start_spread,
+            "lights": self.lights,
+            "pixels_used": self.pixels_used,
+            "wall_time_s": self.wall_time_s,
+            "timing": self.compile_and_solve,
+            "notes": self.notes,
+            "settings": self.settings,
+        })
+        return out
+
+
+def _candidate_names(scene: Scene, options: FitOptions) -> list[str]:
+    names = list(PARAMETER_NAMES)
+    if options.fit_lights:
+        names += light_parameter_names(scene.lights)
+    return names
+
+
+def _parse_fixed(options: FitOptions, allowed: list[str]) -> dict[str, Any]:
+    fixed = {}
+    for name, value in options.fixed:
+        if name not in allowed:
+            raise StraussFitError(f"cannot fix unknown parameter {name!r}; known: {', '.join(allowed)}")
+        fixed[name] = value
+    return fixed
+
+
+def build_problem(scene: Scene, target: Target, names: list[str], material: Material, plan: RenderPlan,
+                  options: FitOptions, reference_noise: float = 1.0) -> tuple[Problem, Prepared, np.ndarray]:
+    """The :class:`Problem` for the free ``names``, the full prepared image and the
+    flat indices of the pixels used."""
+    prepared_full = prepare(_unit_intensity_scene(scene), plan, options.mode, options.table_size, jnp.float64)
+    hit = np.asarray(prepared_full.hit)
+    used = hit & target.usable
+    if not used.any():
+        raise StraussFitError(f"target {target.path} has no usable sphere pixels (all masked, clipped or outside the sphere)")
+    index = np.flatnonzero(used.ravel())
+    pixels = target.pixels.reshape(-1, 3)[index]
+    if float(np.max(pixels)) <= 0:
+        raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
+    problem = Problem(
+        prepared=take_pixels(prepared_full, index),
+        target=jnp.asarray(pixels),
+        scene=scene,
+        material=material.astype(jnp.float64),
+        lights=scene.lights,
+        pinned=jnp.zeros(Layout(tuple(names)).size, dtype=bool),
+        pinned_values=jnp.zeros(Layout(tuple(names)).size),
+        residual_scale=jnp.asarray(reference_noise * np.sqrt(pixels.size)),
+        layout=Layout(tuple(names)),
+        plan=plan,
+    )
+    return problem, prepared_full, index
+
+
+def _starts(layout: Layout, guess: dict[str, Any], count: int) -> np.ndarray:
+    """The guess first, then points of :data:`START_GRID` (colour always from the guess)."""
+    rows = [layout.join(guess)]
+    for s, m, t in START_GRID[: max(count - 1, 0)]:
+        point = dict(guess, smoothness=s, metalness=m, transparency=t)
+        rows.append(layout.join(point))
+    return layout.to_unconstrained(np.stack(rows), margin=START_MARGIN)
+
+
+def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -> tuple[dict, dict, np.ndarray | None]:
+    """Standard deviations and correlations from the Gauss–Newton approximation
+    :math:`\\Sigma = \\sigma^2 (J^\\top J)^{-1}` at the optimum (σ² = RSS/(N − P) unless given).
+    Entries pinned at a bound get deviation 0 (they are reported in ``solver.at_bound``)."""
+    layout = problem.layout
+    if layout.size == 0:
+        return {}, {}, None
+    j = np.asarray(_jacobian(problem, jnp.asarray(x))) * ~np.asarray(problem.pinned)
+    n, p = j.shape
+    variance = sigma**2 if sigma else rss / max(n - p, 1)
+    covariance = variance * np.linalg.pinv(j.T @ j, rcond=1e-14, hermitian=True)
+    sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    norm = np.outer(sd, sd)
+    corr = np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
+    uncertainty: dict[str, Any] = {}
+    for name, size, offset in zip(layout.names, layout.sizes, layout.offsets):
+        values = sd[offset:offset + size]
+        uncertainty[name] = values.tolist() if size > 1 else float(values[0])
+    correlation = {"labels": layout.labels(), "matrix": np.round(corr, 6).tolist()}
+    return uncertainty, correlation, covariance
+
+
+def decide_free(scene: Scene, target: Target, options: FitOptions, material: Material, guess: dict[str, Any],
+                candidates: list[str], fixed: dict[str, Any], sigma: float) -> Decision:
+    """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`)."""
+    if options.free is not None:
+        unknown = [n for n in options.free if n not in candidates]
+        if unknown:
+            raise StraussFitError(f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}")
+        return Decision(free=[n for n in candidates if n in options.free and n not in fixed],
+                        held={n: "held by the user (--free)" for n in candidates if n not in options.free and n not in fixed})
+    names = [n for n in candidates if n not in fixed]
+    background = scene.background
+    black = background.kind == "color" and not np.any(np.asarray(background.color))
+    transparency_may_vary = "transparency" in names or float(np.asarray(material.transparency)) > 0
+    held = structural_reasons(names, depth=scene.depth, background_kind=background.kind, background_black=black,
+                              transparency_may_vary=transparency_may_vary)
+    names = [n for n in names if n not in held]
+    if not names:
+        return Decision(free=[], held=held)
+    plan = plan_render(scene, material, transparent="transparency" in names or transparency_may_vary)
+    probe_values = dict(guess)
+    for key in ("smoothness", "metalness", "transparency"):
+        probe_values[key] = float(np.clip(probe_values[key], 0.15, 0.85))
+    probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), 0.1, 0.9)
+    problem, _, _ = build_problem(scene, target, names, material, plan, options)
+    probe = problem.layout.join(probe_values)
+    jacobian = np.asarray(_jacobian(problem, jnp.asarray(probe)))
+    decision = numerical_decision(problem.layout, jacobian, probe, sigma, options.threshold)
+    decision.held = {**held, **decision.held}
+    return decision
+
+
+def _reference_noise(target: Target, options: FitOptions) -> float:
+    if options.reference_noise is not None:
+        return options.reference_noise
+    values = target.pixels[target.usable]
+    level = float(np.percentile(values, 98)) if values.size else 1.0
+    return DEFAULT_REFERENCE_NOISE * max(level, 1e-6)
+
+
+def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, progress=None) -> FitResult:
+    """Fit the material (and optionally light intensities) of ``scene`` to ``target``.
+
+    ``scene`` must already match the target's size (:func:`strauss_fit.target.match_scene`).
+    ``progress``, if given, is called with short status strings.
+    """
+    say = progress or (lambda message: None)
+    started = time.perf_counter()
+    if options.solver not in SOLVERS:
+        raise StraussFitError(f"unknown solver {options.solver!r}; expected one of {', '.join(SOLVERS)}")
+    if options.starts < 1:
+        raise StraussFitError(f"the number of starts must be at least 1, got {options.starts}")
+    candidates = _candidate_names(scene, options)
+    fixed = _parse_fixed(options, candidates)
+    base_values = {**scene.material.to_dict(), **{k: v for k, v in fixed.items() if k in MATERIAL_SIZES}}
+    material = Material.from_dict(base_values)
+    lights = lights_with(scene.lights, {k: jnp.asarray(float(v)) for k, v in fixed.items() if k not in MATERIAL_SIZES})
+    scene = eqx.tree_at(lambda s: s.lights, scene, lights)
+    scene = eqx.tree_at(lambda s: s.material, scene, material)
+
+    say("computing the first guess")
+    probe_plan = plan_render(scene, material, transparent=False)
+    guess_problem, prepared_full, index = build_problem(scene, target, ["color"], material, probe_plan, options)
+    direct = guess_problem.prepared.direct
+    guess = initial_guess(
+        np.asarray(guess_problem.target), np.ones(index.size, dtype=bool),
+        None if direct is None else np.asarray(direct.cos_alpha),
+        None if direct is None else np.asarray(direct.cos_beta),
+        None if direct is None else np.asarray(guess_problem.prepared.irradiance) * _intensity_vector(scene.lights),
+        float(np.asarray(scene.lights.ambient)) if scene.lights.ambient is not None else 0.0,
+        {**material.to_dict(), **{n: float(v) for n, v in zip(light_parameter_names(scene.lights),
+                                                                _all_intensities(scene.lights))}},
+    )
+
+    sigma_ref = _reference_noise(target, options)
+    say("deciding which parameters the image constrains")
+    decision = decide_free(scene, target, options, material, guess, candidates, fixed, sigma_ref)
+    held = {name: {"value": _value_of(name, material, scene.lights), "reason": reason}
+            for name, reason in decision.held.items()}
+    for name, value in fixed.items():
+        held[name] = {"value": value, "reason": "fixed by the user (--fix)"}
+
+    transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
+    plan = plan_render(scene, material, transparent=transparent)
+    problem, prepared_full, index = build_problem(scene, target, decision.free, material, plan, options, sigma_ref)
+    layout = problem.layout
+
+    notes = []
+    if layout.size == 0:
+        raise StraussFitError("no parameter is left to fit: the scene constrains none of the candidates "
+                              f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})")
+    thetas = _starts(layout, guess, options.starts)
+    say(f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}")
+    solve_started = time.perf_counter()
+    values, costs, steps, results = (np.asarray(v) for v in _solve_all(
+        problem, jnp.asarray(thetas), options.solver, options.rtol, options.atol, options.start_steps))
+    physical = np.asarray(layout.to_physical(jnp.asarray(values)))
+    finite = np.isfinite(costs)
+    if not finite.any():
+        raise StraussFitError("every start of the fit diverged to non-finite values")
+    best = int(np.argmin(np.where(finite, costs, np.inf)))
+    statuses = [_status(int(r)) for r in results]
+    start_points = np.asarray(layout.to_physical(jnp.asarray(thetas)))
+    starts = [{"start": _jsonable(layout.split(start_points[i])), "end": _jsonable(layout.split(physical[i])),
+               "cost": float(costs[i]), "steps": int(steps[i]), "status": statuses[i]} for i in range(len(costs))]
+    agree = finite & (costs <= costs[best] * 1.01 + 1e-12)
+    spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
+
+    say("polishing the best start (parameters at a bound held there)")
+    theta_best, cost_best, polish_steps, status, problem = _polish(problem, values[best], options)
+    solve_time = time.perf_counter() - solve_started
+    pinned = np.asarray(problem.pinned)
+    x_best = np.asarray(problem.physical(jnp.asarray(theta_best)))
+    rss = float(cost_best) * float(problem.residual_scale) ** 2
+    total_steps = int(steps[best]) + polish_steps
+
+    uncertainty, correlation, _ = _laplace(problem, x_best, rss, None)
+    fitted_values = layout.split(jnp.asarray(x_best))
+    fitted_material = material_with(material, fitted_values)
+    fitted_lights = lights_with(scene.lights, fitted_values)
+    model = np.asarray(_render_at(problem, jnp.asarray(x_best)))
+    residual = model - np.asarray(problem.target)
+    delta_e = delta_e_2000(model, np.asarray(problem.target))
+    full = np.asarray(prepared_full.miss_radiance).reshape(-1, 3).copy()
+    full_fit = np.asarray(shade_prepared(fitted_material, _scaled(prepared_full, fitted_lights), scene, plan))
+    full = np.where(np.asarray(prepared_full.hit).reshape(-1, 1), full_fit.reshape(-1, 3), full)
+
+    if status != "successful":
+        notes.append(f"the solver ended with status '{status}'")
+    for name in layout.names:
+        lo, hi = layout.lower_bounds()[layout.offsets[layout.names.index(name)]], \
+            layout.upper_bounds()[layout.offsets[layout.names.index(name)]]
+        value = np.atleast_1d(np.asarray(fitted_values[name]))
+        if np.any(np.isclose(value, lo, atol=1e-6)) or np.any(np.isclose(value, hi, atol=1e-6)):
+            notes.append(f"{name} sits on its bound; its Laplace deviation is not a symmetric interval there")
+    result = FitResult(
+        material=fitted_material,
+        free=list(layout.names),
+        held=held,
+        lights={n: float(v) for n, v in zip(light_parameter_names(fitted_lights), _all_intensities(fitted_lights))},
+        uncertainty=uncertainty,
+        correlation=correlation,
+        residual={
+            "rms": float(np.sqrt(np.mean(residual**2))),
+            "max_abs": float(np.max(np.abs(residual))),
+            "delta_e2000_mean": float(np.mean(delta_e)),
+            "delta_e2000_p95": float(np.percentile(delta_e, 95)),
+            "sum_of_squares": rss,
+        },
+        solver={"name": options.solver, "steps": total_steps, "status": status, "best_start": best,
+                "polish_steps": polish_steps,
+                "at_bound": [label for label, p in zip(layout.labels(), pinned) if p]},
+        starts=starts,
+        start_spread=spread,
+        wall_time_s=time.perf_counter() - started,
+        compile_and_solve={"solve_s": solve_time},
+        pixels_used=int(index.size),
+        notes=notes,
+        settings={**options.as_dict(), "reference_noise_used": sigma_ref, "target_encoding": target.encoding,
+                  "clipped_pixels_excluded": target.clipped_count, "mask_excluded": target.masked_out_count,
+                  "depth": scene.depth, "traced": {"reflection": plan.reflect, "transmission": plan.transmit}},
+        fitted_image=full.reshape(target.pixels.shape),
+        mask=np.asarray(prepared_full.hit),
+    )
+    return result
+
+
+def _scaled(prepared: Prepared, lights: Lights) -> Prepared:
+    """A unit-intensity :class:`Prepared` with the lights' intensities applied."""
+    changes = {}
+    if prepared.irradiance is not None:
+        changes["irradiance"] = prepared.irradiance * _intensity_vector(lights)
+    if lights.ambient is not None:
+        changes["ambient"] = lights.ambient
+    return dataclasses.replace(prepared, **changes)
+
+
+def _intensity_vector(lights: Lights) -> Any:
+    parts = []
+    if lights.directional is not None:
+        parts.append(lights.directional.intensity)
+    if lights.point is not None:
+        parts.append(lights.point.intensity)
+    return jnp.concatenate(parts) if parts else None
+
+
+def _all_intensities(lights: Lights) -> list[float]:
+    values = []
+    vector = _intensity_vector(lights)
+    if vector is not None:
+        values += [float(v) for v in np.asarray(vector)]
+    if lights.ambient is not None:
+        values.append(float(np.asarray(lights.ambient)))
+    return values
+
+
+def _value_of(name: str, material: Material, lights: Lights) -> Any:
+    if name in MATERIAL_SIZES:
+        return material.to_dict()[name]
+    return dict(zip(light_parameter_names(lights), _all_intensities(lights)))[name]
+
+
+def _jsonable(values: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in values.items():
+        arr = np.asarray(v)
+        out[k] = arr.tolist() if arr.ndim else float(arr)
+    return out
+
+
+_RESULT_NAMES = ("successful", "max_steps_reached", "nonlinear_max_steps_reached", "nonlinear_divergence",
+                 "nonfinite", "singular", "breakdown", "stagnation")
+
+
+def _status(code: int) -> str:
+    return _RESULT_NAMES[code]

@@ -1,0 +1,123 @@
+r"""Deciding which parameters a scene and image can constrain, and saying why not.
+
+Two kinds of reasons, checked in this order:
+
+1. *Structural*: the scene cannot show the parameter at all. The index of refraction needs
+   a transparent material, a global model (depth > 1) and a background that varies with
+   direction (a constant colour looks the same through any lens). Transparency needs
+   depth > 1 and a background that is not black: over black, t only dims the surface,
+   which the colour's brightness (and smoothness) can mimic.
+2. *Numerical*: at a probe point (the first guess, kept away from the bounds), the Fisher
+   information of the image, :math:`\mathcal{I} = J^\top J/\sigma^2` with J the Jacobian
+   of the rendered pixels with respect to the physical parameters and σ a reference
+   noise level, predicts each parameter's standard deviation
+   :math:`\sqrt{(\mathcal{I}^{-1})_{ii}}`. While the worst parameter's predicted
+   deviation exceeds ``threshold`` times its scale (1 for values in [0, 1], 0.5 for n,
+   the current value for light intensities), it is held fixed and the analysis repeats.
+   The reason names the parameter it trades off with (the largest correlation) or says
+   that the image barely changes with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .parameters import Layout
+
+#: A parameter is fitted when its predicted standard deviation at the reference noise is
+#: at most this fraction of its scale.
+DEFAULT_THRESHOLD = 0.05
+#: Reference noise: this fraction of the target's 98th-percentile value.
+DEFAULT_REFERENCE_NOISE = 0.01
+
+
+@dataclass
+class Decision:
+    """Free parameter names (in order) and, for each held parameter, why."""
+
+    free: list[str]
+    held: dict[str, str] = field(default_factory=dict)
+    predicted_sd: dict[str, float] = field(default_factory=dict)
+
+
+def structural_reasons(candidates: list[str], *, depth: int, background_kind: str, background_black: bool,
+                       transparency_may_vary: bool) -> dict[str, str]:
+    """Parameters the scene cannot show at all, with the reason."""
+    reasons: dict[str, str] = {}
+    if "transparency" in candidates:
+        if depth <= 1:
+            reasons["transparency"] = ("the scene renders the local model only (depth 1), where t merely dims "
+                                       "the surface and trades off with the brightness of the colour")
+        elif background_black:
+            reasons["transparency"] = ("nothing is seen through the sphere (black background): t only dims the "
+                                       "surface and trades off with the brightness of the colour")
+    if "ior" in candidates:
+        if depth <= 1:
+            reasons["ior"] = "the scene renders the local model only (depth 1): no refraction is traced"
+        elif not transparency_may_vary and "transparency" not in candidates:
+            reasons["ior"] = "the material is opaque (transparency 0): no light passes through the sphere"
+        elif "transparency" in reasons:
+            reasons["ior"] = "nothing is seen through the sphere, so refraction has no effect on the image"
+        elif background_kind == "color":
+            reasons["ior"] = ("the background is a constant colour, which looks the same through any lens: "
+                              "refraction has no effect on the image")
+    return reasons
+
+
+def _scale(name: str, value: np.ndarray) -> np.ndarray:
+    if name == "ior":
+        return np.full(value.shape, 0.5)
+    if "intensity" in name:
+        return np.maximum(np.abs(value), 1e-3)
+    return np.ones(value.shape)
+
+
+def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, sigma: float,
+                       threshold: float = DEFAULT_THRESHOLD) -> Decision:
+    """Hold parameters whose predicted deviation at noise ``sigma`` is too large.
+
+    ``jacobian`` (N, P) is taken at the physical point ``probe`` (P,) for ``layout``.
+    """
+    names = list(layout.names)
+    held: dict[str, str] = {}
+    predicted: dict[str, float] = {}
+    while names:
+        columns = np.concatenate([np.arange(layout.offsets[layout.names.index(n)],
+                                            layout.offsets[layout.names.index(n)] + layout.sizes[layout.names.index(n)])
+                                  for n in names])
+        labels = [label for n in names for label in (
+            [f"{n}_{c}" for c in "rgb"] if layout.sizes[layout.names.index(n)] == 3 else [n])]
+        owner = [n for n in names for _ in range(layout.sizes[layout.names.index(n)])]
+        j = jacobian[:, columns]
+        fisher = j.T @ j / sigma**2
+        covariance = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
+        sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+        insensitive = np.linalg.norm(j, axis=0) == 0
+        scale = np.concatenate([_scale(n, probe[layout.offsets[layout.names.index(n)]:
+                                             layout.offsets[layout.names.index(n)] + layout.sizes[layout.names.index(n)]])
+                                for n in names])
+        relative = np.where(insensitive, np.inf, sd / scale)
+        for n in names:
+            predicted[n] = float(np.max(np.where([o == n for o in owner], sd, 0.0)))
+        worst = int(np.argmax(relative))
+        if relative[worst] <= threshold:
+            break
+        name = owner[worst]
+        if insensitive[worst]:
+            reason = "the image does not change with it at all"
+        else:
+            norm = np.sqrt(np.outer(np.diag(covariance), np.diag(covariance)))
+            corr = np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
+            others = [(abs(corr[worst, k]), k) for k in range(len(labels)) if owner[k] != name]
+            strength, partner = max(others, default=(0.0, -1))
+            predicted_sd = float(sd[worst])
+            if strength >= 0.9:
+                reason = (f"it trades off with {owner[partner]} (correlation {corr[worst, partner]:+.2f}); "
+                          f"the image would pin it only to ±{predicted_sd:.2g}")
+            else:
+                reason = f"the image barely changes with it (it would be pinned only to ±{predicted_sd:.2g})"
+        held[name] = reason
+        names.remove(name)
+    return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names})
