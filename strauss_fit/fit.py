@@ -298,13 +298,39 @@ def build_problem(scene: Scene, target: Target, names: list[str], material: Mate
     return problem, prepared_full, index
 
 
-def _starts(layout: Layout, guess: dict[str, Any], count: int) -> np.ndarray:
-    """The guess first, then points of :data:`START_GRID` (colour always from the guess)."""
-    rows = [layout.join(guess)]
-    for s, m, t in START_GRID[: max(count - 1, 0)]:
-        point = dict(guess, smoothness=s, metalness=m, transparency=t)
-        rows.append(layout.join(point))
+def _starts(layout: Layout, guess: dict[str, Any], count: int, ior_candidates: list[float] | None = None) -> np.ndarray:
+    """The guess first, then points of :data:`START_GRID` (colour always from the guess).
+    With ``ior_candidates`` (from :func:`_scan_ior`), each candidate index gets its own
+    copy of those starts."""
+    rows = []
+    for ior in ior_candidates or [guess.get("ior")]:
+        base = dict(guess, ior=ior)
+        rows.append(layout.join(base))
+        for s, m, t in START_GRID[: max(count - 1, 0)]:
+            rows.append(layout.join(dict(base, smoothness=s, metalness=m, transparency=t)))
     return layout.to_unconstrained(np.stack(rows), margin=START_MARGIN)
+
+
+#: Indices of refraction scanned for starting points when n is fitted.
+IOR_SCAN = np.linspace(1.0, 3.0, 81)
+
+
+@eqx.filter_jit
+def _costs(problem: Problem, xs: Array) -> Array:
+    return jax.vmap(lambda x: jnp.sum((problem.residual_physical(x) / problem.residual_scale) ** 2))(xs)
+
+
+def _scan_ior(problem: Problem, guess: dict[str, Any], keep: int = 3) -> list[float]:
+    """The ``keep`` best local minima of the cost over :data:`IOR_SCAN`, the other
+    parameters at the guess. Why: a patterned background seen through the sphere makes the
+    cost oscillate in n, so a local solver must start near the right basin."""
+    layout = problem.layout
+    xs = np.stack([layout.join(dict(guess, ior=float(n))) for n in IOR_SCAN])
+    costs = np.asarray(_costs(problem, jnp.asarray(xs)))
+    costs = np.where(np.isfinite(costs), costs, np.inf)
+    interior = np.r_[True, costs[1:] <= costs[:-1]] & np.r_[costs[:-1] <= costs[1:], True]
+    minima = sorted(np.flatnonzero(interior), key=lambda i: costs[i])[:keep]
+    return [float(IOR_SCAN[i]) for i in minima]
 
 
 def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -> tuple[dict, dict, np.ndarray | None]:
@@ -333,9 +359,6 @@ def decide_free(scene: Scene, target: Target, options: FitOptions, material: Mat
                 candidates: list[str], fixed: dict[str, Any], sigma: float) -> Decision:
     """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`)."""
     if options.free is not None:
-        unknown = [n for n in options.free if n not in candidates]
-        if unknown:
-            raise StraussFitError(f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}")
         return Decision(free=[n for n in candidates if n in options.free and n not in fixed],
                         held={n: "held by the user (--free)" for n in candidates if n not in options.free and n not in fixed})
     names = [n for n in candidates if n not in fixed]
@@ -388,9 +411,13 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     scene = eqx.tree_at(lambda s: s.lights, scene, lights)
     scene = eqx.tree_at(lambda s: s.material, scene, material)
 
-    say("computing the first guess")
+    if options.free is not None:
+        unknown = [n for n in options.free if n not in candidates]
+        if unknown:
+            raise StraussFitError(f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}")
     probe_plan = plan_render(scene, material, transparent=False)
     guess_problem, prepared_full, index = build_problem(scene, target, ["color"], material, probe_plan, options)
+    say("computing the first guess")
     direct = guess_problem.prepared.direct
     guess = initial_guess(
         np.asarray(guess_problem.target), np.ones(index.size, dtype=bool),
@@ -419,7 +446,11 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     if layout.size == 0:
         raise StraussFitError("no parameter is left to fit: the scene constrains none of the candidates "
                               f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})")
-    thetas = _starts(layout, guess, options.starts)
+    ior_candidates = None
+    if "ior" in layout.names:
+        say("scanning the index of refraction for starting points")
+        ior_candidates = _scan_ior(problem, guess)
+    thetas = _starts(layout, guess, options.starts, ior_candidates)
     say(f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}")
     solve_started = time.perf_counter()
     values, costs, steps, results = (np.asarray(v) for v in _solve_all(

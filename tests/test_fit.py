@@ -1,0 +1,194 @@
+"""Recovering known materials from synthetic images, and what a fit holds back."""
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import strauss_fit as sf
+from strauss_fit.fit import FitOptions, fit
+from strauss_fit.scene import parse_scene
+from strauss_fit.target import Target
+
+SCENES = Path(__file__).resolve().parents[1] / "data_synth" / "scenes"
+
+OPAQUE = """
+[camera]
+width = 40
+height = 40
+[material]
+color = [0.5, 0.5, 0.5]
+smoothness = 0.5
+metalness = 0.0
+transparency = 0.0
+ior = 1.5
+[[light]]
+kind = "directional"
+direction = [0.3, 0.5, 1.0]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [-0.6, -0.2, 0.8]
+intensity = 0.5
+[[light]]
+kind = "ambient"
+intensity = 0.1
+"""
+
+GLASS = """
+[camera]
+width = 48
+height = 48
+[material]
+color = [0.9, 0.9, 0.9]
+smoothness = 0.5
+metalness = 0.0
+transparency = 0.5
+ior = 1.4
+[[light]]
+kind = "directional"
+direction = [0.3, 0.5, 1.0]
+intensity = 1.0
+[background]
+kind = "checkerboard"
+point = [0.0, 0.0, -3.0]
+square_size = 0.5
+colors = [[0.9, 0.8, 0.3], [0.1, 0.2, 0.6]]
+sharpness = 4.0
+[render]
+depth = 2
+"""
+
+
+def make_target(scene, material, noise=0.0, seed=0):
+    image, mask = sf.render(scene, material)
+    pixels = np.asarray(image)
+    if noise:
+        pixels = pixels + noise * np.random.default_rng(seed).normal(size=pixels.shape)
+    return Target(pixels, np.ones(mask.shape, bool), "synthetic", "linear", 0, 0)
+
+
+OPAQUE_TRUTHS = [
+    dict(color=(0.8, 0.3, 0.2), smoothness=0.5, metalness=0.3),
+    dict(color=(0.2, 0.6, 0.9), smoothness=0.85, metalness=1.0),
+    dict(color=(0.9, 0.9, 0.1), smoothness=0.2, metalness=0.0),
+    dict(color=(1.0, 0.0, 0.5), smoothness=0.7, metalness=0.6),
+]
+
+
+@pytest.mark.parametrize("truth", OPAQUE_TRUTHS)
+def test_exact_recovery_from_noise_free_opaque_renders(truth):
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    target = make_target(scene, sf.Material(**truth))
+    result = fit(scene, target)
+    assert result.free[:2] == ["color", "smoothness"]
+    assert {"transparency", "ior"} <= set(result.held)
+    np.testing.assert_allclose(np.asarray(result.material.color), truth["color"], atol=1e-4)
+    assert float(result.material.smoothness) == pytest.approx(truth["smoothness"], abs=1e-4)
+    if truth["smoothness"] >= 0.5:
+        assert "metalness" in result.free
+    if "metalness" in result.free:
+        assert float(result.material.metalness) == pytest.approx(truth["metalness"], abs=1e-3)
+    else:  # a weak highlight (s = 0.2): m trades off with the colour and is held at the scene's 0
+        assert "trades off with color" in result.held["metalness"]["reason"]
+    assert result.residual["rms"] < 1e-5
+    assert result.solver["status"] == "successful"
+
+
+def test_transparency_and_ior_are_recovered_through_a_glass_sphere():
+    scene = parse_scene(tomllib.loads(GLASS), source="glass")
+    truth = sf.Material(color=(0.95, 0.8, 0.6), smoothness=0.6, metalness=0.0, transparency=0.7, ior=1.6)
+    result = fit(scene, make_target(scene, truth))
+    assert "transparency" in result.free and "ior" in result.free
+    # the scan over n finds the right basin although the scene file starts at n = 1.4
+    for name in ("smoothness", "metalness", "transparency", "ior"):
+        assert float(getattr(result.material, name)) == pytest.approx(float(getattr(truth, name)), abs=2e-3), name
+    np.testing.assert_allclose(np.asarray(result.material.color), np.asarray(truth.color), atol=2e-3)
+
+
+def test_opaque_scene_holds_t_and_n_and_says_why():
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    result = fit(scene, make_target(scene, sf.Material(color=(0.5, 0.4, 0.3), smoothness=0.6)))
+    assert "black background" in result.held["transparency"]["reason"]
+    assert "refraction" in result.held["ior"]["reason"]
+    assert result.held["transparency"]["value"] == 0.0 and result.held["ior"]["value"] == 1.5
+    payload = result.to_json()
+    # the formats.md contract
+    for key in ("color", "smoothness", "metalness", "transparency", "ior", "free", "uncertainty", "residual"):
+        assert key in payload
+    for key in ("rms", "delta_e2000_mean", "delta_e2000_p95"):
+        assert np.isfinite(payload["residual"][key])
+    json.dumps(payload, allow_nan=False)
+
+
+def test_constant_background_cannot_show_the_index_of_refraction():
+    text = GLASS.replace('kind = "checkerboard"', 'kind = "color"').replace(
+        'point = [0.0, 0.0, -3.0]\nsquare_size = 0.5\ncolors = [[0.9, 0.8, 0.3], [0.1, 0.2, 0.6]]\nsharpness = 4.0',
+        "color = [0.3, 0.3, 0.3]")
+    scene = parse_scene(tomllib.loads(text), source="flat")
+    result = fit(scene, make_target(scene, scene.material))
+    assert "ior" in result.held and "constant colour" in result.held["ior"]["reason"]
+
+
+def test_metalness_without_highlight_is_held():
+    # A rough sphere (s = 0, no highlight) lit from the front: m only scales the diffuse
+    # term through (1 - m s) = 1, so nothing in the image depends on it.
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    result = fit(scene, make_target(scene, sf.Material(color=(0.6, 0.4, 0.3), smoothness=0.0)))
+    assert "metalness" in result.held or result.uncertainty["metalness"] > 0.05
+
+
+def test_noisy_fit_lands_within_its_error_bars():
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    truth = dict(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.4)
+    result = fit(scene, make_target(scene, sf.Material(**truth), noise=0.01, seed=3))
+    for name in ("smoothness", "metalness"):
+        error = abs(float(getattr(result.material, name)) - truth[name])
+        assert error < 5 * result.uncertainty[name], (name, error, result.uncertainty[name])
+        assert result.uncertainty[name] < 0.05
+    # the residual RMS estimates the noise
+    assert result.residual["rms"] == pytest.approx(0.01, rel=0.1)
+
+
+@pytest.mark.parametrize("s,m", [(0.0, 0.0), (1.0, 1.0), (1 - 1e-6, 0.0), (0.0, 1.0)])
+def test_fits_at_the_extremes_converge_without_nan(s, m):
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    result = fit(scene, make_target(scene, sf.Material(color=(0.5, 0.7, 0.2), smoothness=s, metalness=m), noise=0.005))
+    payload = result.to_json()
+    json.dumps(payload, allow_nan=False)  # raises on NaN/inf anywhere
+    assert np.all(np.isfinite(np.asarray(result.material.color)))
+
+
+def test_light_intensity_is_recovered_when_colour_is_fixed():
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    target = make_target(scene, sf.Material(color=(0.5, 0.5, 0.5), smoothness=0.5))
+    # Render the truth with the key light at 1.6 by scaling that light's contribution.
+    import equinox as eqx
+    brighter = eqx.tree_at(lambda s: s.lights, scene, scene.lights.with_intensities(
+        {"directional": np.array([1.6, 0.5])}))
+    target = make_target(brighter, sf.Material(color=(0.5, 0.5, 0.5), smoothness=0.5))
+    options = FitOptions(fit_lights=True, fixed=(("color", (0.5, 0.5, 0.5)),), free=None)
+    result = fit(scene, target, options)
+    assert result.lights["directional_intensity_1"] == pytest.approx(1.6, rel=1e-3)
+    assert result.held["color"]["reason"] == "fixed by the user (--fix)"
+
+
+def test_user_free_list_overrides_the_analysis():
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    target = make_target(scene, sf.Material(color=(0.5, 0.4, 0.3), smoothness=0.6))
+    result = fit(scene, target, FitOptions(free=("color",)))
+    assert result.free == ["color"]
+    assert result.held["smoothness"]["reason"] == "held by the user (--free)"
+    with pytest.raises(sf.StraussFitError, match="cannot free unknown parameter"):
+        fit(scene, target, FitOptions(free=("roughness",)))
+
+
+@pytest.mark.parametrize("solver", ["gauss-newton", "bfgs"])
+def test_other_solvers_recover_the_truth(solver):
+    scene = parse_scene(tomllib.loads(OPAQUE), source="opaque")
+    truth = OPAQUE_TRUTHS[0]
+    result = fit(scene, make_target(scene, sf.Material(**truth)), FitOptions(solver=solver))
+    assert float(result.material.smoothness) == pytest.approx(truth["smoothness"], abs=1e-3)
+    np.testing.assert_allclose(np.asarray(result.material.color), truth["color"], atol=1e-3)
