@@ -15,6 +15,7 @@ from .errors import ImageError, MaterialError, OutputExistsError, SceneError, St
 from .lights import DirectionalLights, Lights, PointLights  # noqa: E402
 from .material import Material  # noqa: E402
 from .model import K_F, K_G, K_J, MODES, fresnel, shade, shadow  # noqa: E402
+from .phong import PhongMaterial, phong_shade, render_phong  # noqa: E402
 from .render import RenderPlan, plan_render, render  # noqa: E402
 from .scene import Scene, load_scene, parse_scene  # noqa: E402
 
@@ -22,7 +23,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Background", "Camera", "DirectionalLights", "ImageError", "K_F", "K_G", "K_J", "Lights",
-    "MODES", "Material", "MaterialError", "OutputExistsError", "PointLights", "RenderPlan",
+    "MODES", "Material", "MaterialError", "OutputExistsError", "PhongMaterial", "PointLights", "RenderPlan",
     "Scene", "SceneError", "StraussFitError", "fresnel", "load_scene", "parse_scene",
-    "plan_render", "render", "shade", "shadow",
+    "phong_shade", "plan_render", "render", "render_phong", "shade", "shadow",
 ]

@@ -8,7 +8,8 @@
   radiance is unknown, so fits ignore them.
 
 Every write is atomic (a temporary file in the same folder, then a rename), and an existing
-file is never overwritten unless ``force`` is true.
+file is never overwritten unless ``force`` is true. Written images carry no timestamp, so the
+same pixels always give the same bytes (reproducible datasets).
 """
 
 from __future__ import annotations
@@ -129,6 +130,10 @@ def _atomic(path: Path, write) -> None:
     os.close(fd)
     try:
         write(Path(tmp))
+        # mkstemp creates the file owner-only; give the result the usual umask permissions
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -155,7 +160,7 @@ def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, enc
         data = np.round(encoded * 255.0).astype(np.uint8)
         pixel_type = oiio.UINT8
     else:
-        data = image.astype(np.float32)
+        data = np.ascontiguousarray(image.astype(np.float32))
         pixel_type = oiio.FLOAT
 
     def write(tmp: Path) -> None:
@@ -164,6 +169,9 @@ def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, enc
             oiio.geterror()  # clear OpenImageIO's pending message; ours says it in one line
             raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
         spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], pixel_type)
+        if pixel_type == oiio.FLOAT:
+            spec.attribute("compression", "zip")
+        spec.attribute("DateTime", "")  # an empty value drops OpenImageIO's timestamp
         if not output.open(str(tmp), spec) or not output.write_image(data):
             message = output.geterror().strip().splitlines()
             output.close()

@@ -1,0 +1,43 @@
+"""Writing a sample's files reproducibly (same pixels → same bytes), atomically.
+
+- HDR: float32 linear OpenEXR (zip compression, no timestamp: :func:`strauss_fit.io.write_image`),
+  so that the same seed gives byte-identical files.
+- LDR: 8-bit PNG holding exactly the given sRGB codes.
+- Clip mask: 8-bit single-channel PNG, 255 where the LDR image is clipped, 0 elsewhere.
+
+Every write goes through a temporary file and a rename (:mod:`strauss_fit.io`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from strauss_fit.errors import ImageError
+from strauss_fit.io import write_image
+
+
+def write_exr(path: str | Path, image: np.ndarray, *, force: bool = False) -> Path:
+    """Write a linear RGB image (H, W, 3) as float32 OpenEXR (no timestamp, zip)."""
+    data = np.asarray(image, dtype=np.float32)
+    if data.ndim != 3 or data.shape[-1] != 3:
+        raise ImageError(f"cannot write an image of shape {data.shape} to {path}")
+    return write_image(path, data, force=force)
+
+
+def write_codes(path: str | Path, codes: np.ndarray, *, force: bool = False) -> Path:
+    """Write 8-bit codes (H, W, C) uint8 to an LDR file unchanged."""
+    values = np.asarray(codes, dtype=np.float64) / 255.0
+    return write_image(path, values, force=force, encoding="linear")  # round(code/255·255) = code
+
+
+def write_mask(path: str | Path, mask: np.ndarray, *, force: bool = False) -> Path:
+    """Write a boolean mask (H, W) as a grey 8-bit PNG: 255 where true."""
+    return write_codes(path, np.asarray(mask, dtype=np.uint8)[..., None] * 255, force=force)
+
+
+def sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
