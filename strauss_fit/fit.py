@@ -201,6 +201,25 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions):
     return theta, float(cost), total_steps, _status(int(code)), trial
 
 
+# Jitted once per shape: run eagerly, these would compile dozens of small XLA programs.
+@eqx.filter_jit
+def _prepare(scene: Scene, plan: RenderPlan, mode: str, table_size: int) -> Prepared:
+    return prepare(scene, plan, mode, table_size, jnp.float64)
+
+
+_take_pixels = eqx.filter_jit(take_pixels)
+
+
+@eqx.filter_jit
+def _shade_full(material: Material, prepared: Prepared, lights: Lights, scene: Scene, plan: RenderPlan) -> Array:
+    return shade_prepared(material, _scaled(prepared, lights), scene, plan)
+
+
+@eqx.filter_jit
+def _to_physical(layout: Layout, theta: Array) -> Array:
+    return layout.to_physical(theta)
+
+
 @eqx.filter_jit
 def _jacobian(problem: Problem, x: Array) -> Array:
     return jax.jacfwd(problem.residual_physical)(x)
@@ -232,6 +251,10 @@ class FitResult:
     settings: dict[str, Any] = field(default_factory=dict)
     fitted_image: np.ndarray | None = None
     mask: np.ndarray | None = None
+    #: The solved problem (entries pinned at bounds included) and the optimum ``x``
+    #: (physical values in ``problem.layout`` order), for sampling and reports.
+    problem: Problem | None = None
+    x: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = self.material.to_dict()
@@ -274,7 +297,7 @@ def build_problem(scene: Scene, target: Target, names: list[str], material: Mate
                   options: FitOptions, reference_noise: float = 1.0) -> tuple[Problem, Prepared, np.ndarray]:
     """The :class:`Problem` for the free ``names``, the full prepared image and the
     flat indices of the pixels used."""
-    prepared_full = prepare(_unit_intensity_scene(scene), plan, options.mode, options.table_size, jnp.float64)
+    prepared_full = _prepare(_unit_intensity_scene(scene), plan, options.mode, options.table_size)
     hit = np.asarray(prepared_full.hit)
     used = hit & target.usable
     if not used.any():
@@ -284,7 +307,7 @@ def build_problem(scene: Scene, target: Target, names: list[str], material: Mate
     if float(np.max(pixels)) <= 0:
         raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
     problem = Problem(
-        prepared=take_pixels(prepared_full, index),
+        prepared=_take_pixels(prepared_full, jnp.asarray(index)),
         target=jnp.asarray(pixels),
         scene=scene,
         material=material.astype(jnp.float64),
@@ -455,13 +478,13 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     solve_started = time.perf_counter()
     values, costs, steps, results = (np.asarray(v) for v in _solve_all(
         problem, jnp.asarray(thetas), options.solver, options.rtol, options.atol, options.start_steps))
-    physical = np.asarray(layout.to_physical(jnp.asarray(values)))
+    physical = np.asarray(_to_physical(layout, jnp.asarray(values)))
     finite = np.isfinite(costs)
     if not finite.any():
         raise StraussFitError("every start of the fit diverged to non-finite values")
     best = int(np.argmin(np.where(finite, costs, np.inf)))
     statuses = [_status(int(r)) for r in results]
-    start_points = np.asarray(layout.to_physical(jnp.asarray(thetas)))
+    start_points = np.asarray(_to_physical(layout, jnp.asarray(thetas)))
     starts = [{"start": _jsonable(layout.split(start_points[i])), "end": _jsonable(layout.split(physical[i])),
                "cost": float(costs[i]), "steps": int(steps[i]), "status": statuses[i]} for i in range(len(costs))]
     agree = finite & (costs <= costs[best] * 1.01 + 1e-12)
@@ -476,14 +499,14 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     total_steps = int(steps[best]) + polish_steps
 
     uncertainty, correlation, _ = _laplace(problem, x_best, rss, None)
-    fitted_values = layout.split(jnp.asarray(x_best))
+    fitted_values = layout.split(x_best)
     fitted_material = material_with(material, fitted_values)
     fitted_lights = lights_with(scene.lights, fitted_values)
     model = np.asarray(_render_at(problem, jnp.asarray(x_best)))
     residual = model - np.asarray(problem.target)
     delta_e = delta_e_2000(model, np.asarray(problem.target))
     full = np.asarray(prepared_full.miss_radiance).reshape(-1, 3).copy()
-    full_fit = np.asarray(shade_prepared(fitted_material, _scaled(prepared_full, fitted_lights), scene, plan))
+    full_fit = np.asarray(_shade_full(fitted_material, prepared_full, fitted_lights, scene, plan))
     full = np.where(np.asarray(prepared_full.hit).reshape(-1, 1), full_fit.reshape(-1, 3), full)
 
     if status != "successful":
@@ -522,6 +545,8 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
                   "depth": scene.depth, "traced": {"reflection": plan.reflect, "transmission": plan.transmit}},
         fitted_image=full.reshape(target.pixels.shape),
         mask=np.asarray(prepared_full.hit),
+        problem=problem,
+        x=x_best,
     )
     return result
 

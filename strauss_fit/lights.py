@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jax import Array
 from jax.typing import ArrayLike
 
-from .numerics import safe_divide, safe_normalize
+from .numerics import dot, safe_divide, safe_normalize
 
 
 class DirectionalLights(eqx.Module):
@@ -82,7 +82,9 @@ class LightSamples(NamedTuple):
     """The directional and point lights as seen from surface points.
 
     ``to_light`` (..., K, 3) unit vectors; ``irradiance`` (..., K) the intensity after
-    attenuation; ``color`` (K, 3). K is the number of directional plus point lights.
+    attenuation; ``color`` (K, 3). K is the number of directional plus point lights. With
+    directional lights only, ``to_light`` is (K, 3) and ``irradiance`` (K,), broadcastable
+    against the points' shape.
     """
 
     to_light: Array
@@ -105,7 +107,7 @@ def sample_lights(lights: Lights, position: ArrayLike) -> LightSamples | None:
     if lights.point is not None:
         p = lights.point
         offset = p.position - position[..., None, :]
-        distance = jnp.sqrt(jnp.sum(offset * offset, axis=-1))
+        distance = jnp.sqrt(dot(offset, offset))
         c0, c1, c2 = p.attenuation[:, 0], p.attenuation[:, 1], p.attenuation[:, 2]
         falloff = c0 + c1 * distance + c2 * distance**2
         to_light.append(safe_normalize(offset))
@@ -113,6 +115,11 @@ def sample_lights(lights: Lights, position: ArrayLike) -> LightSamples | None:
         color.append(p.color)
     if not to_light:
         return None
+    if len(to_light) == 1 and lights.point is None:
+        # directional lights only: keep (K, 3) and let the shading broadcast it, rather
+        # than materialising a copy per pixel
+        return LightSamples(to_light=lights.directional.direction,
+                            irradiance=lights.directional.intensity, color=color[0])
     return LightSamples(
         to_light=jnp.concatenate(to_light, axis=-2),
         irradiance=jnp.concatenate(irradiance, axis=-1),

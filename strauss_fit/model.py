@@ -227,15 +227,36 @@ def specular_color(material: Material, fresnel_alpha: ArrayLike, light_color: Ar
     return light_color + weight[..., None] * (material.color - light_color)
 
 
-def shade_terms(material: Material, terms: AngularTerms, light_color: ArrayLike = (1.0, 1.0, 1.0)) -> Array:
-    """:math:`Q_d C_L + Q_s` (RGB, per unit light intensity) from precomputed terms."""
+class ShadeWeights(NamedTuple):
+    r"""The scalar weights of one light, shape ``(...)``, such that
+    :math:`Q_d C_L + Q_s = d\,(C \circ C_L) + r_s C_L + w\,(C - C_L)`:
+    ``diffuse`` d = (1 − m s) r_d cos α, ``specular`` r_s, ``tint`` w = r_s m (1 − F)."""
+
+    diffuse: Array
+    specular: Array
+    tint: Array
+
+
+def shade_weights(material: Material, terms: AngularTerms) -> ShadeWeights:
+    """:class:`ShadeWeights` from precomputed terms. Why scalars: forming RGB once, by
+    broadcasting at the end, is several times faster on XLA:CPU than per-light RGB arrays."""
     s, m = material.smoothness, material.metalness
-    light_color = jnp.asarray(light_color, dtype=terms.cos_alpha.dtype)
     diffuse = (1 - m * s) * diffuse_reflectivity(material) * terms.cos_alpha
     r_s = specular_peak(material, terms.j) * highlight_falloff(terms.cos_beta, s)
     r_s = jnp.where(terms.lit, r_s, 0.0)
-    c_s = specular_color(material, terms.fresnel_alpha, light_color)
-    return diffuse[..., None] * material.color * light_color + r_s[..., None] * c_s
+    return ShadeWeights(diffuse, r_s, r_s * m * (1 - terms.fresnel_alpha))
+
+
+def combine_rgb(weights: ShadeWeights, color: Array, light_color: Array) -> Array:
+    r""":math:`d\,(C \circ C_L) + r_s C_L + w\,(C - C_L)`, shape ``(..., 3)``."""
+    return (weights.diffuse[..., None] * (color * light_color) + weights.specular[..., None] * light_color
+            + weights.tint[..., None] * (color - light_color))
+
+
+def shade_terms(material: Material, terms: AngularTerms, light_color: ArrayLike = (1.0, 1.0, 1.0)) -> Array:
+    """:math:`Q_d C_L + Q_s` (RGB, per unit light intensity) from precomputed terms."""
+    light_color = jnp.asarray(light_color, dtype=terms.cos_alpha.dtype)
+    return combine_rgb(shade_weights(material, terms), material.color, light_color)
 
 
 def shade(

@@ -68,7 +68,9 @@ from .model import (
     diffuse_reflectivity,
     fresnel,
     normalised_angle,
-    shade_terms,
+    ShadeWeights,
+    combine_rgb,
+    shade_weights,
     shadow,
     specular_base,
     specular_peak,
@@ -150,7 +152,7 @@ def prepare(scene: Scene, plan: RenderPlan, mode: Mode = "exact", table_size: in
     direct = irradiance = light_color = None
     if samples is not None:
         direct = angular_terms(normal[..., None, :], samples.to_light, to_eye[..., None, :], mode, table_size)
-        irradiance = samples.irradiance
+        irradiance = jnp.broadcast_to(samples.irradiance, direct.lit.shape)  # per pixel, for take_pixels
         light_color = samples.color
     mirror_j = mirror_fresnel = reflected = None
     if plan.reflect or plan.transmit:
@@ -189,8 +191,13 @@ def local_radiance(material: Material, prepared: Prepared) -> Array:
     """The local model at every pixel: ambient plus every light, (H, W, 3)."""
     radiance = jnp.zeros(prepared.normal.shape, dtype=prepared.normal.dtype)
     if prepared.direct is not None:
-        per_light = shade_terms(material, prepared.direct, prepared.light_color)  # (H, W, K, 3)
-        radiance = radiance + jnp.sum(per_light * prepared.irradiance[..., None], axis=-2)
+        weights = shade_weights(material, prepared.direct)  # scalars (..., K)
+        weights = ShadeWeights(*(w * prepared.irradiance for w in weights))
+        # K is static and small: adding the lights one by one avoids materialising
+        # (..., K, 3) arrays and a reduction over K
+        for k in range(prepared.light_color.shape[0]):
+            radiance = radiance + combine_rgb(ShadeWeights(*(w[..., k] for w in weights)), material.color,
+                                              prepared.light_color[k])
     if prepared.ambient is not None:
         radiance = radiance + prepared.ambient * diffuse_reflectivity(material) * material.color
     return radiance
@@ -266,6 +273,8 @@ def shade_prepared(material: Material, prepared: Prepared, scene: Scene, plan: R
 
 @eqx.filter_jit
 def _render(scene: Scene, material: Material, plan: RenderPlan, mode: str, table_size: int, dtype: Any):
+    scene = scene.astype(dtype)  # inside the jit: eager casts cost more than a small render
+    material = material.astype(dtype)
     prepared = prepare(scene, plan, mode, table_size, dtype)
     return shade_prepared(material, prepared, scene, plan), prepared.hit
 
@@ -284,6 +293,4 @@ def render(scene: Scene, material: Material | None = None, *, mode: Mode = "exac
     material = scene.material if material is None else material
     dtype = jnp.dtype(dtype or jnp.float64)
     plan = plan or plan_render(scene, material)
-    scene = scene.astype(dtype)
-    material = material.astype(dtype)
     return _render(scene, material, plan, mode, int(table_size), dtype)

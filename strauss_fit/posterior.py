@@ -1,0 +1,236 @@
+r"""The posterior of a fit: likelihood, priors, noise level and the Gauss–Newton (Laplace)
+covariance, shared by the sampler (:mod:`strauss_fit.sample`) and the report.
+
+Model. The target's usable pixels (the same pixels as :func:`strauss_fit.fit.fit`: on
+the sphere, finite, not clipped, inside the mask) are the rendered image plus independent
+Gaussian noise of one standard deviation σ on every RGB value:
+
+.. math::
+
+    \log p(\theta \mid D) = -\frac{1}{2\sigma^2}\sum_{k=1}^{N} r_k(\theta)^2 + \log\pi(\theta) + \text{const},
+    \qquad r(\theta) = I_\text{model}(\theta) - I_\text{target},
+
+with N = 3 × (usable pixels) and θ the physical values of the free parameters (in
+``problem.layout`` order). σ is either given (a known sensor noise) or estimated at the
+least-squares optimum :math:`\hat\theta` as :math:`\hat\sigma^2 = \mathrm{RSS}(\hat\theta)/(N - P)`
+(P free entries), the same estimate the fit's Laplace deviations use. Plugging in
+:math:`\hat\sigma` instead of marginalising over σ changes the intervals by a factor of
+order :math:`1 + 1/N`, negligible for images.
+
+Prior :math:`\pi`: uniform (a box) over each parameter's range — [0, 1] for the colour
+channels, smoothness, metalness and transparency; n ∈ [1, max(3, 1.5 n̂)] for the index of
+refraction; a light intensity I ∈ [0, 10 max(Î, 0.1)]. The last two have no natural upper
+bound, so a generous one is chosen (and recorded with the chain); the user may narrow any
+range (``--prior``). Outside the box :math:`\log p = -\infty`.
+
+Laplace (Gauss–Newton) estimate: at :math:`\hat\theta`,
+:math:`\Sigma \approx \sigma^2 (J^\top J)^{-1}`, J the Jacobian of r. It is exact for a
+linear model with a flat prior and an optimum away from the bounds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .errors import StraussFitError
+from .fit import FitOptions, Problem, build_problem
+from .material import Material
+from .parameters import Layout, lights_with
+from .render import plan_render
+from .scene import Scene
+from .target import Target
+
+#: Upper end of the prior on the index of refraction (unless the fit lies beyond 2/3 of it).
+IOR_PRIOR_MAX = 3.0
+#: Upper end of the prior on a light intensity, as a multiple of max(fitted value, 0.1).
+INTENSITY_PRIOR_FACTOR = 10.0
+
+
+class PosteriorError(StraussFitError):
+    """A posterior cannot be set up as asked (bad σ, bad prior, a fit that does not match)."""
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A uniform prior: a box ``lower`` ≤ θ ≤ ``upper`` (one entry per label)."""
+
+    labels: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def contains(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x)
+        return np.all((x >= self.lower) & (x <= self.upper), axis=-1)
+
+    def as_dict(self) -> dict[str, list[float]]:
+        return {label: [float(lo), float(hi)] for label, lo, hi in zip(self.labels, self.lower, self.upper)}
+
+
+def default_prior(layout: Layout, x_hat: np.ndarray, overrides: dict[str, tuple[float, float]] | None = None) -> Prior:
+    """The uniform prior of the module docstring, with user ``overrides`` (``{name or
+    label: (low, high)}``; a group name such as ``color`` sets all its entries), each of
+    which must lie inside the parameter's natural range."""
+    x_hat = np.asarray(x_hat, dtype=np.float64)
+    lower = layout.lower_bounds().astype(np.float64)
+    upper = layout.upper_bounds().astype(np.float64)
+    labels = layout.labels()
+    owners = [name for name, size in zip(layout.names, layout.sizes) for _ in range(size)]
+    for k, owner in enumerate(owners):
+        if np.isinf(upper[k]):
+            if owner == "ior":
+                upper[k] = max(IOR_PRIOR_MAX, 1.5 * x_hat[k])
+            else:  # a light intensity
+                upper[k] = INTENSITY_PRIOR_FACTOR * max(x_hat[k], 0.1)
+    natural_lower, natural_upper = layout.lower_bounds(), layout.upper_bounds()
+    for key, (low, high) in (overrides or {}).items():
+        entries = [k for k in range(len(labels)) if labels[k] == key or owners[k] == key]
+        if not entries:
+            raise PosteriorError(f"--prior {key}: not a free parameter of this fit (free: {', '.join(labels)})")
+        if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            raise PosteriorError(f"--prior {key}={low},{high}: need finite LOW < HIGH")
+        for k in entries:
+            if low < natural_lower[k] or high > natural_upper[k]:
+                raise PosteriorError(f"--prior {key}={low},{high} leaves the range of {labels[k]} "
+                                     f"[{natural_lower[k]:g}, {natural_upper[k]:g}]")
+            lower[k], upper[k] = low, high
+    return Prior(tuple(labels), lower, upper)
+
+
+def check_sigma(sigma: float) -> float:
+    """σ must be a finite positive number."""
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise PosteriorError(f"the noise level sigma must be a finite number > 0, got {sigma:g}")
+    return float(sigma)
+
+
+@eqx.filter_jit
+def _sum_of_squares(problem: Problem, x: Array) -> Array:
+    r = problem.residual_physical(x)
+    return jnp.sum(r * r)
+
+
+@eqx.filter_jit
+def _jacobian(problem: Problem, x: Array) -> Array:
+    return jax.jacfwd(problem.residual_physical)(x)
+
+
+def sum_of_squares(problem: Problem, x: np.ndarray) -> float:
+    """RSS(θ) = Σ r_k(θ)², unnormalised."""
+    return float(_sum_of_squares(problem, jnp.asarray(x, dtype=jnp.float64)))
+
+
+def estimate_sigma(problem: Problem, x_hat: np.ndarray) -> float:
+    """σ̂ = sqrt(RSS(θ̂) / (N − P)); an error if it is zero (a noise-free target needs ``--sigma``)."""
+    n, p = int(problem.target.size), problem.layout.size
+    sigma = float(np.sqrt(sum_of_squares(problem, x_hat) / max(n - p, 1)))
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise PosteriorError("the target fits exactly (zero residual), so the noise cannot be estimated "
+                             "from it; give the noise level with --sigma")
+    return sigma
+
+
+def laplace_covariance(problem: Problem, x_hat: np.ndarray, sigma: float) -> np.ndarray:
+    """Σ = σ² (JᵀJ)⁺ at ``x_hat``, every entry included (entries the fit pinned at a bound
+    too: the sampler needs a scale for them)."""
+    j = np.asarray(_jacobian(problem, jnp.asarray(x_hat, dtype=jnp.float64)))
+    return sigma**2 * np.linalg.pinv(j.T @ j, rcond=1e-14, hermitian=True)
+
+
+class LogPosterior:
+    """log p(θ | D) up to a constant, for a batch of walkers: ``(W, P) -> (W,)``.
+
+    One jitted, ``vmap``-ed JAX function (compiled once per batch size); the problem's
+    arrays are passed as arguments rather than baked into the program as constants, so
+    compiling stays cheap for large images. Outside the prior box the value is −∞; the
+    model is evaluated at the point clipped into the box so that no out-of-range value
+    (s > 1, say) reaches it.
+    """
+
+    def __init__(self, problem: Problem, prior: Prior, sigma: float):
+        self.problem = problem
+        self.prior = prior
+        self.sigma = check_sigma(sigma)
+        self._dynamic, self._static = eqx.partition(problem, eqx.is_array)
+        lower, upper = jnp.asarray(prior.lower), jnp.asarray(prior.upper)
+        scale = -0.5 / self.sigma**2
+        static = self._static
+
+        def one(dynamic, x):
+            problem_ = eqx.combine(dynamic, static)
+            inside = jnp.all((x >= lower) & (x <= upper))
+            r = problem_.residual_physical(jnp.clip(x, lower, upper))
+            return jnp.where(inside, scale * jnp.sum(r * r), -jnp.inf)
+
+        self._batch = jax.jit(jax.vmap(one, in_axes=(None, 0)))
+
+    def jax_batch(self, xs: Array) -> Array:
+        """The jitted function itself, on a JAX array."""
+        return self._batch(self._dynamic, xs)
+
+    def __call__(self, xs: np.ndarray) -> np.ndarray:
+        xs = np.asarray(xs, dtype=np.float64)
+        if xs.ndim == 1:
+            return self(xs[None])[0]
+        return np.asarray(self._batch(self._dynamic, jnp.asarray(xs)), dtype=np.float64)
+
+
+# --- rebuilding a fit's problem from its JSON result ------------------------------------
+
+def target_digest(problem: Problem) -> str:
+    """SHA-256 of the usable target values (what the likelihood sees): a chain is tied to it."""
+    return hashlib.sha256(np.ascontiguousarray(np.asarray(problem.target, dtype=np.float64)).tobytes()).hexdigest()
+
+
+def problem_from_fit(scene: Scene, target: Target, fit: dict[str, Any]) -> tuple[Problem, np.ndarray]:
+    """The fit's :class:`~strauss_fit.fit.Problem` and optimum θ̂, rebuilt from a fit result
+    (``strauss-fit fit``'s JSON) for ``scene`` (already matched to ``target``'s size).
+
+    Held parameters take the result's values; free ones are the layout. The pixels used
+    must be as many as the fit used, else the result belongs to another target or mask.
+    """
+    try:
+        free = [str(n) for n in fit["free"]]
+        material_values = {k: fit[k] for k in ("color", "smoothness", "metalness", "transparency", "ior")}
+        lights = {k: float(v) for k, v in fit.get("lights", {}).items()}
+        settings = fit.get("settings", {})
+        at_bound = list(fit.get("solver", {}).get("at_bound", []))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PosteriorError(f"the fit result is not a strauss-fit fit result (missing or bad {exc})") from None
+    if not free:
+        raise PosteriorError("the fit result has no free parameter: nothing to sample")
+    material = Material.from_dict(material_values)
+    scene = eqx.tree_at(lambda s: s.lights, scene, lights_with(scene.lights, {k: jnp.asarray(v) for k, v in lights.items()}))
+    scene = eqx.tree_at(lambda s: s.material, scene, material)
+    transparent = "transparency" in free or float(material_values["transparency"]) > 0
+    plan = plan_render(scene, material, transparent=transparent)
+    options = FitOptions(mode=settings.get("mode", "exact"), table_size=int(settings.get("table_size", FitOptions.table_size)))
+    for name in free:
+        if name not in material_values and name not in lights:
+            raise PosteriorError(f"the fit result frees {name!r}, which this scene does not have")
+    problem, _, index = build_problem(scene, target, free, material, plan, options)
+    used = fit.get("pixels_used")
+    if used is not None and int(used) != index.size:
+        raise PosteriorError(f"the fit result used {used} pixels but {target.path} has {index.size} usable sphere "
+                             "pixels: it was made for another target, mask or scene")
+    values = {**material_values, **lights}
+    x_hat = problem.layout.join(values)
+    labels = problem.layout.labels()
+    pinned = np.array([label in at_bound for label in labels])
+    problem = problem.pin(pinned, np.where(pinned, x_hat, 0.0))
+    return problem, x_hat
+
+
+def laplace_summary(covariance: np.ndarray, labels: Sequence[str]) -> dict[str, Any]:
+    """Standard deviations and the correlation matrix of a covariance."""
+    sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    norm = np.outer(sd, sd)
+    corr = np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
+    return {"labels": list(labels), "sd": sd.tolist(), "correlation": corr.tolist()}

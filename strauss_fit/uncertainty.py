@@ -1,0 +1,282 @@
+r"""Summaries of uncertainty, the Laplace-versus-emcee comparison, and degeneracy warnings
+in plain language. Pure NumPy, no plotting (:mod:`strauss_fit.report` draws).
+
+Percentiles: the posterior median and the central 68 % (16th–84th percentile) and 95 %
+(2.5th–97.5th) intervals of the samples after burn-in.
+
+Comparison (per parameter, when a chain and a Laplace estimate both exist). With
+:math:`\hat\theta` and :math:`s_L` the optimum and Laplace deviation, and
+:math:`m, q_{16}, q_{84}` the posterior median and percentiles, :math:`s_P = (q_{84}-q_{16})/2`:
+
+- *width*: disagree if :math:`s_P / s_L \notin [0.8, 1.25]`;
+- *shift*: disagree if :math:`|m - \hat\theta| > 0.5\, s_P`;
+- *skew*: disagree if the tails differ, :math:`|u - d|/(u + d) > 0.2` with
+  :math:`u = q_{84} - m`, :math:`d = m - q_{16}`;
+- *bound*: the prior bound lies within :math:`2 s_P` of the median (the posterior is cut
+  there and a symmetric ± is misleading) — the note then gives a one-sided 95 % limit;
+- *banana*: for a pair of parameters, regressing one standardised sample on the other
+  with a quadratic term explains at least 0.05 more of its variance than the straight
+  line (a curved ridge, which no covariance matrix describes).
+
+Degeneracies: a pair of quantities with :math:`|\rho| > 0.9` trades off. Besides the
+parameters, the *brightness of C* (the mean of the three colour channels) is considered,
+because that is what transparency, metalness and light intensities trade with. Parameters
+the fit held fixed (with its reason) are listed too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+#: |correlation| above which two quantities are reported as trading off.
+DEGENERACY_THRESHOLD = 0.9
+WIDTH_RATIO_RANGE = (0.8, 1.25)
+SHIFT_LIMIT = 0.5
+SKEW_LIMIT = 0.2
+BOUND_SDS = 2.0
+BANANA_GAIN = 0.05
+PERCENTILES = (2.5, 16.0, 50.0, 84.0, 97.5)
+BRIGHTNESS = "brightness of C"
+
+_CHANNEL = {"r": "red", "g": "green", "b": "blue"}
+_NAMES = {"smoothness": "s (smoothness)", "metalness": "m (metalness)", "transparency": "t (transparency)",
+          "ior": "n (index of refraction)", BRIGHTNESS: "the brightness of C"}
+
+
+def describe(label: str) -> str:
+    """A label in words: ``color_r`` → "the red channel of C", ``smoothness`` → "s (smoothness)"."""
+    if label.startswith("color_") and label[-1] in _CHANNEL:
+        return f"the {_CHANNEL[label[-1]]} channel of C"
+    if label in _NAMES:
+        return _NAMES[label]
+    return label.replace("_", " ")
+
+
+def posterior_summary(samples: np.ndarray, labels: Sequence[str]) -> dict[str, Any]:
+    """Mean, standard deviation, median and the 2.5/16/84/97.5 percentiles per label, and
+    the correlation matrix, of samples (n, P)."""
+    samples = np.asarray(samples, dtype=np.float64)
+    q = np.percentile(samples, PERCENTILES, axis=0)
+    sd = samples.std(axis=0, ddof=1)
+    corr = np.corrcoef(samples, rowvar=False) if samples.shape[1] > 1 else np.ones((1, 1))
+    corr = np.nan_to_num(np.atleast_2d(corr))
+    out: dict[str, Any] = {"labels": list(labels), "count": int(samples.shape[0]), "parameters": {}}
+    for k, label in enumerate(labels):
+        out["parameters"][label] = {
+            "mean": float(samples[:, k].mean()), "sd": float(sd[k]), "median": float(q[2, k]),
+            "p2.5": float(q[0, k]), "p16": float(q[1, k]), "p84": float(q[3, k]), "p97.5": float(q[4, k]),
+        }
+    out["correlation"] = np.round(corr, 6).tolist()
+    return out
+
+
+@dataclass
+class Laplace:
+    """The fit's Laplace estimate per vector entry: optimum, deviation (0 where the fit
+    pinned the entry at a bound) and correlation matrix."""
+
+    labels: list[str]
+    x_hat: np.ndarray
+    sd: np.ndarray
+    correlation: np.ndarray
+    at_bound: list[str] = field(default_factory=list)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.correlation * np.outer(self.sd, self.sd)
+
+    @classmethod
+    def from_fit(cls, fit: dict[str, Any]) -> "Laplace":
+        """From a fit result's ``free``, values, ``uncertainty`` and ``correlation``."""
+        labels, values, sds = [], [], []
+        lights = fit.get("lights", {})
+        for name in fit["free"]:
+            value = fit[name] if name in fit else lights[name]
+            sd = fit.get("uncertainty", {}).get(name, 0.0)
+            if isinstance(value, list):
+                labels += [f"{name}_{c}" for c in "rgb"]
+                values += list(value)
+                sds += list(sd) if isinstance(sd, list) else [sd] * 3
+            else:
+                labels.append(name)
+                values.append(value)
+                sds.append(sd)
+        corr = fit.get("correlation", {})
+        matrix = np.asarray(corr.get("matrix", np.eye(len(labels))), dtype=np.float64)
+        if corr.get("labels", labels) != labels or matrix.shape != (len(labels), len(labels)):
+            matrix = np.eye(len(labels))
+        return cls(labels, np.asarray(values, dtype=np.float64), np.asarray(sds, dtype=np.float64), matrix,
+                   list(fit.get("solver", {}).get("at_bound", [])))
+
+
+def with_brightness(labels: Sequence[str], covariance: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """Add the brightness of C, (r + g + b)/3, as a derived quantity: Σ' = A Σ Aᵀ."""
+    labels = list(labels)
+    channels = [labels.index(f"color_{c}") for c in "rgb" if f"color_{c}" in labels]
+    if len(channels) != 3:
+        return labels, covariance
+    a = np.vstack([np.eye(len(labels)), np.zeros((1, len(labels)))])
+    a[-1, channels] = 1 / 3
+    return labels + [BRIGHTNESS], a @ covariance @ a.T
+
+
+def correlation_of(covariance: np.ndarray) -> np.ndarray:
+    sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    norm = np.outer(sd, sd)
+    return np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
+
+
+def _is_channel(label: str) -> bool:
+    return label.startswith("color_")
+
+
+def degeneracy_warnings(labels: Sequence[str], covariance: np.ndarray, held: dict[str, Any] | None = None,
+                        threshold: float = DEGENERACY_THRESHOLD, source: str = "posterior") -> list[str]:
+    """Plain-language warnings: pairs with |ρ| > ``threshold`` (the brightness of C
+    included), strongest first, then parameters the fit held and why."""
+    names, cov = with_brightness(labels, np.asarray(covariance, dtype=np.float64))
+    corr = correlation_of(cov)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    pairs = [(abs(corr[i, j]), i, j) for i in range(len(names)) for j in range(i + 1, len(names))
+             if abs(corr[i, j]) > threshold]
+    # Trade-offs with the brightness of C first: they explain the channel pairs that follow.
+    pairs.sort(key=lambda t: (BRIGHTNESS not in (names[t[1]], names[t[2]]), -t[0]))
+    warnings, covered = [], set()
+    for _, i, j in pairs:
+        a, b = names[i], names[j]
+        if BRIGHTNESS in (a, b):
+            other = b if a == BRIGHTNESS else a
+            if _is_channel(other):
+                continue  # a channel and the mean it is part of: not a trade-off
+            covered.add(other)
+        elif covered and ((_is_channel(a) and (b in covered or _is_channel(b))) or (_is_channel(b) and a in covered)):
+            continue  # already said through the brightness of C
+        rho = corr[i, j]
+        how = ("raising one while lowering the other" if rho < 0 else "raising both together")
+        warnings.append(
+            f"{describe(a)} and {describe(b)} trade off (correlation {rho:+.2f} in the {source}): "
+            f"{how} leaves the image almost unchanged, so this scene cannot separate them; "
+            f"each is known only to ±{sd[i]:.2g} and ±{sd[j]:.2g}.")
+    for name, info in (held or {}).items():
+        reason = info.get("reason", "") if isinstance(info, dict) else str(info)
+        if reason.startswith("fixed by the user") or reason.startswith("held by the user"):
+            continue
+        warnings.append(f"{describe(name)} was not fitted (held at {_fmt(info.get('value') if isinstance(info, dict) else None)}): "
+                        f"{reason}.")
+    return warnings
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(f"{float(v):.3g}" for v in value) + ")"
+    if value is None:
+        return "its scene value"
+    return f"{float(value):.3g}"
+
+
+@dataclass
+class ComparisonRow:
+    """One parameter's Laplace and posterior widths, and what disagrees."""
+
+    label: str
+    x_hat: float
+    laplace_sd: float
+    median: float
+    posterior_sd: float
+    width_ratio: float | None
+    shift: float
+    skew: float
+    issues: list[str]
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def compare(laplace: Laplace, summary: dict[str, Any], samples: np.ndarray, lower: np.ndarray,
+            upper: np.ndarray) -> tuple[list[ComparisonRow], list[str]]:
+    """Rows per parameter and plain-language notes where the Laplace estimate and the
+    posterior disagree (the rules of the module docstring)."""
+    rows, notes = [], []
+    for k, label in enumerate(laplace.labels):
+        p = summary["parameters"][label]
+        s_post = (p["p84"] - p["p16"]) / 2
+        s_lap = float(laplace.sd[k])
+        up, down = p["p84"] - p["median"], p["median"] - p["p16"]
+        skew = (up - down) / (up + down) if up + down > 0 else 0.0
+        shift = (p["median"] - laplace.x_hat[k]) / s_post if s_post > 0 else 0.0
+        ratio = s_post / s_lap if s_lap > 0 else None
+        issues = []
+        word = describe(label)
+        near_low = p["median"] - lower[k] < BOUND_SDS * s_post
+        near_high = upper[k] - p["median"] < BOUND_SDS * s_post
+        if label in laplace.at_bound or s_lap == 0:
+            issues.append("bound")
+            side, limit = ("upper", p["p97.5"]) if near_low or laplace.x_hat[k] - lower[k] < upper[k] - laplace.x_hat[k] \
+                else ("lower", p["p2.5"])
+            notes.append(f"{word}: the fit put it on its bound ({laplace.x_hat[k]:.4g}), where the Laplace estimate "
+                         f"gives no interval; the posterior is one-sided with a 95 % {side} limit of {limit:.4g}.")
+        elif near_low or near_high:
+            issues.append("bound")
+            bound = lower[k] if near_low else upper[k]
+            side, limit = ("upper", p["p97.5"]) if near_low else ("lower", p["p2.5"])
+            notes.append(f"{word}: the posterior runs into the bound {bound:g}, so it is cut off there and the "
+                         f"symmetric Laplace ±{s_lap:.2g} misleads; quote the 95 % {side} limit {limit:.4g} instead.")
+        if ratio is not None and not WIDTH_RATIO_RANGE[0] <= ratio <= WIDTH_RATIO_RANGE[1]:
+            issues.append("width")
+            notes.append(f"{word}: the posterior is {ratio:.2f} times {'wider' if ratio > 1 else 'as wide as'} "
+                         f"the Laplace estimate (±{s_post:.2g} against ±{s_lap:.2g}): the model is not linear "
+                         "over the uncertainty, so trust the posterior.")
+        if abs(shift) > SHIFT_LIMIT and "bound" not in issues:
+            issues.append("shift")
+            notes.append(f"{word}: the posterior median {p['median']:.4g} lies {abs(shift):.1f} posterior "
+                         f"standard deviations from the least-squares optimum {laplace.x_hat[k]:.4g}.")
+        if abs(skew) > SKEW_LIMIT and "bound" not in issues:
+            issues.append("skew")
+            notes.append(f"{word}: the posterior is skewed (its {'upper' if skew > 0 else 'lower'} tail is "
+                         f"{max(up, down) / max(min(up, down), 1e-300):.1f} times longer): quote the percentiles, "
+                         "not a ± value.")
+        rows.append(ComparisonRow(label, float(laplace.x_hat[k]), s_lap, p["median"], s_post, ratio, float(shift),
+                                  float(skew), issues))
+    for a, b, gain in curved_pairs(samples, laplace.labels):
+        notes.append(f"{describe(a)} and {describe(b)}: the posterior is curved (banana-shaped; a quadratic "
+                     f"explains {gain:.0%} more of their relation than a straight line), which the Laplace "
+                     "estimate's ellipse cannot describe.")
+    return rows, notes
+
+
+def curved_pairs(samples: np.ndarray, labels: Sequence[str], limit: int = 20000,
+                 gain_threshold: float = BANANA_GAIN) -> list[tuple[str, str, float]]:
+    """Pairs whose joint posterior is curved (see the module docstring), strongest first."""
+    samples = np.asarray(samples, dtype=np.float64)
+    if samples.shape[0] > limit:
+        samples = samples[np.random.default_rng(0).choice(samples.shape[0], limit, replace=False)]
+    sd = samples.std(axis=0)
+    z = np.divide(samples - samples.mean(axis=0), sd, out=np.zeros_like(samples), where=sd > 0)
+    found = []
+    for i in range(z.shape[1]):
+        for j in range(z.shape[1]):
+            if i == j or sd[i] == 0 or sd[j] == 0:
+                continue
+            x, y = z[:, i], z[:, j]
+            r_lin = _r2(np.column_stack([np.ones_like(x), x]), y)
+            r_quad = _r2(np.column_stack([np.ones_like(x), x, x * x]), y)
+            gain = r_quad - r_lin
+            if gain >= gain_threshold:
+                found.append((labels[i], labels[j], float(gain)))
+    # keep one direction per pair (the stronger)
+    best: dict[frozenset, tuple[str, str, float]] = {}
+    for a, b, gain in found:
+        key = frozenset((a, b))
+        if key not in best or gain > best[key][2]:
+            best[key] = (a, b, gain)
+    return sorted(best.values(), key=lambda t: -t[2])
+
+
+def _r2(design: np.ndarray, y: np.ndarray) -> float:
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    residual = y - design @ coef
+    total = float(np.sum((y - y.mean()) ** 2))
+    return 1.0 - float(np.sum(residual**2)) / total if total > 0 else 0.0
