@@ -55,7 +55,7 @@ class FitOptions:
     solver: str = "lm"
     starts: int = 4
     max_steps: int = 100
-    start_steps: int = 30
+    start_steps: int = 12
     rtol: float = 1e-6
     atol: float = 1e-8
     mode: str = "exact"

@@ -80,44 +80,35 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
 
     ``jacobian`` (N, P) is taken at the physical point ``probe`` (P,) for ``layout``.
     """
+    columns = {n: np.arange(o, o + k) for n, k, o in zip(layout.names, layout.sizes, layout.offsets)}
+    scales = {n: _scale(n, probe[columns[n]]) for n in layout.names}
     names = list(layout.names)
     held: dict[str, str] = {}
     predicted: dict[str, float] = {}
     while names:
-        columns = np.concatenate([np.arange(layout.offsets[layout.names.index(n)],
-                                            layout.offsets[layout.names.index(n)] + layout.sizes[layout.names.index(n)])
-                                  for n in names])
-        labels = [label for n in names for label in (
-            [f"{n}_{c}" for c in "rgb"] if layout.sizes[layout.names.index(n)] == 3 else [n])]
-        owner = [n for n in names for _ in range(layout.sizes[layout.names.index(n)])]
-        j = jacobian[:, columns]
-        fisher = j.T @ j / sigma**2
-        covariance = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
+        index = np.concatenate([columns[n] for n in names])
+        owner = np.concatenate([[n] * columns[n].size for n in names])
+        j = jacobian[:, index]
+        covariance = np.linalg.pinv(j.T @ j / sigma**2, rcond=1e-12, hermitian=True)
         sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
         insensitive = np.linalg.norm(j, axis=0) == 0
-        scale = np.concatenate([_scale(n, probe[layout.offsets[layout.names.index(n)]:
-                                             layout.offsets[layout.names.index(n)] + layout.sizes[layout.names.index(n)]])
-                                for n in names])
-        relative = np.where(insensitive, np.inf, sd / scale)
-        for n in names:
-            predicted[n] = float(np.max(np.where([o == n for o in owner], sd, 0.0)))
+        relative = np.where(insensitive, np.inf, sd / np.concatenate([scales[n] for n in names]))
+        predicted = {n: float(sd[owner == n].max()) for n in names}
         worst = int(np.argmax(relative))
         if relative[worst] <= threshold:
             break
-        name = owner[worst]
+        name = str(owner[worst])
         if insensitive[worst]:
             reason = "the image does not change with it at all"
         else:
-            norm = np.sqrt(np.outer(np.diag(covariance), np.diag(covariance)))
-            corr = np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
-            others = [(abs(corr[worst, k]), k) for k in range(len(labels)) if owner[k] != name]
-            strength, partner = max(others, default=(0.0, -1))
-            predicted_sd = float(sd[worst])
-            if strength >= 0.9:
-                reason = (f"it trades off with {owner[partner]} (correlation {corr[worst, partner]:+.2f}); "
-                          f"the image would pin it only to ±{predicted_sd:.2g}")
+            corr = covariance[worst] / np.maximum(sd[worst] * sd, 1e-300)
+            others = np.flatnonzero(owner != name)
+            partner = others[np.argmax(np.abs(corr[others]))] if others.size else None
+            if partner is not None and abs(corr[partner]) >= 0.9:
+                reason = (f"it trades off with {owner[partner]} (correlation {corr[partner]:+.2f}); "
+                          f"the image would pin it only to ±{sd[worst]:.2g}")
             else:
-                reason = f"the image barely changes with it (it would be pinned only to ±{predicted_sd:.2g})"
+                reason = f"the image barely changes with it (it would be pinned only to ±{sd[worst]:.2g})"
         held[name] = reason
         names.remove(name)
     return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names})
