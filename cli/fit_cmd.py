@@ -168,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
     payload = result.to_json()
     payload["target"] = str(args.target)
     payload["scene"] = str(args.scene)
+    payload["mask"] = str(args.mask) if args.mask else None
+    payload["encoding"] = args.encoding
     write_json(args.output, payload, force=args.force)
     if args.render_fit:
         write_image(args.render_fit, result.fitted_image, force=args.force)

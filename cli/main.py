@@ -13,9 +13,12 @@ import sys
 from pathlib import Path
 
 from . import fit_cmd, render_cmd, synth_cmd
+from . import phong2strauss_cmd, study_cmd
+from . import sample_cmd
+from . import report_cmd
 
 #: Subcommand modules; each has ``add_parser(subparsers)`` and ``run(args)``.
-COMMANDS = [render_cmd, fit_cmd, synth_cmd]
+COMMANDS = [render_cmd, fit_cmd, synth_cmd, sample_cmd, report_cmd, phong2strauss_cmd, study_cmd]
 
 
 def _enable_compilation_cache() -> None:

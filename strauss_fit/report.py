@@ -34,7 +34,6 @@ from .uncertainty import (
     compare,
     correlation_of,
     degeneracy_warnings,
-    describe,
     posterior_summary,
 )
 
@@ -93,11 +92,10 @@ def images_figure(target: np.ndarray, fitted: np.ndarray, used: np.ndarray, sigm
     axes[1].set_title("fit")
     import matplotlib
 
-    cmap = matplotlib.colormaps["RdBu_r"].copy()
-    cmap.set_bad("0.85")
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.85")
     shown = axes[2].imshow(residual, cmap=cmap, vmin=-limit, vmax=limit, interpolation="nearest")
     rms = float(np.sqrt(np.nanmean((fitted - target)[used] ** 2))) if used.any() else 0.0
-    axes[2].set_title(f"residual (fit − target), RMS {rms:.2g}" + (f", σ {sigma:.2g}" if sigma else ""))
+    axes[2].set_title(f"fit − target (RMS {rms:.2g}" + (f", σ {sigma:.2g})" if sigma else ")"))
     fig.colorbar(shown, ax=axes[2], fraction=0.046, pad=0.04)
     for ax in axes:
         ax.set_xticks([])
@@ -280,7 +278,8 @@ def build_report(fit: dict[str, Any], target_pixels: np.ndarray, fitted: np.ndar
     covariance = np.cov(samples, rowvar=False) if samples is not None and len(labels) > 1 else laplace.covariance
     covariance = np.atleast_2d(covariance)
     warnings = degeneracy_warnings(labels, covariance, fit.get("held"),
-                                   source="posterior" if samples is not None else "Laplace estimate")
+                                   source="posterior" if samples is not None else "Laplace estimate",
+                                   values=laplace.x_hat)
     if diagnostics is not None and not diagnostics.trustworthy:
         warnings.insert(0, "The chain is not trustworthy yet: " + "; ".join(diagnostics.reasons) + ".")
     warnings += [f"fit: {note}" for note in fit.get("notes", [])]

@@ -118,6 +118,8 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
         if not self._coords and not trim:
             return
         with self.open("a") as f:
+            if self.name not in f:  # nothing was ever started in this file
+                return
             g = f[self.name]
             start = int(g.attrs["iteration"])
             k = len(self._coords)
@@ -279,8 +281,11 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
                 raise ChainError(f"chain file {path} has no '{CHAIN_GROUP}' group: it holds no samples")
     except ChainError:
         raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise ChainError(f"cannot read chain file {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    except OSError as exc:  # h5py: "Unable to synchronously open file (bad superblock version number)"
+        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ChainError(f"cannot read chain file {path}: corrupt or truncated HDF5 file ({detail})") from None
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ChainError(f"cannot read chain file {path}: its strauss-fit metadata is damaged ({type(exc).__name__})") from None
     return meta
 
 
@@ -347,9 +352,8 @@ def load_chain(path: str | Path) -> Chain:
 
 @dataclass(frozen=True)
 class SampleSettings:
-    """How long and how wide to sample."""
+    """How long to sample (the number of walkers is that of the starting points)."""
 
-    walkers: int | None = None
     max_steps: int = 10000
     min_tau_multiple: float = DEFAULT_MIN_TAU_MULTIPLE
     check_every: int = CHECK_EVERY
@@ -425,9 +429,13 @@ def run_sampler(log_posterior: LogPosterior, path: str | Path | None, *, start: 
     else:
         backend = BufferedHDFBackend(path)
     if resume:
-        if path is None or not backend.initialized or backend.iteration <= 0:
+        try:
+            steps_stored = 0 if path is None or not backend.initialized else int(backend.iteration)
+            walkers, file_ndim = backend.shape if steps_stored else (0, 0)
+        except (OSError, KeyError, ValueError) as exc:
+            raise ChainError(f"cannot resume from {path}: its samples are damaged ({type(exc).__name__})") from None
+        if steps_stored <= 0:
             raise ChainError(f"cannot resume: {path} holds no steps")
-        walkers, file_ndim = backend.shape
         if file_ndim != ndim:
             raise ChainError(f"cannot resume: {path} has {file_ndim} parameters but this fit has {ndim}")
     else:

@@ -10,6 +10,9 @@ Comparison (per parameter, when a chain and a Laplace estimate both exist). With
 
 - *width*: disagree if :math:`s_P / s_L \notin [0.8, 1.25]`;
 - *shift*: disagree if :math:`|m - \hat\theta| > 0.5\, s_P`;
+- a width or shift is blamed on a parameter the fit pinned on a bound when the two
+  correlate (|ρ| > 0.5) in the posterior: the Laplace estimate holds it fixed, the
+  posterior does not; otherwise on the model's non-linearity;
 - *skew*: disagree if the tails differ, :math:`|u - d|/(u + d) > 0.2` with
   :math:`u = q_{84} - m`, :math:`d = m - q_{16}`;
 - *bound*: the prior bound lies within :math:`2 s_P` of the median (the posterior is cut
@@ -18,7 +21,9 @@ Comparison (per parameter, when a chain and a Laplace estimate both exist). With
   with a quadratic term explains at least 0.05 more of its variance than the straight
   line (a curved ridge, which no covariance matrix describes).
 
-Degeneracies: a pair of quantities with :math:`|\rho| > 0.9` trades off. Besides the
+Degeneracies: a pair of quantities with :math:`|\rho| > 0.9` trades off; it is called
+inseparable when :math:`|\rho| > 0.99` or either deviation exceeds 5 % of its scale, and a
+strong correlation otherwise. Besides the
 parameters, the *brightness of C* (the mean of the three colour channels) is considered,
 because that is what transparency, metalness and light intensities trade with. Parameters
 the fit held fixed (with its reason) are listed too.
@@ -33,11 +38,17 @@ import numpy as np
 
 #: |correlation| above which two quantities are reported as trading off.
 DEGENERACY_THRESHOLD = 0.9
+#: Above this |correlation|, or when a deviation exceeds LOOSE_SD of the parameter's scale,
+#: the scene is said not to separate the two at all.
+SEVERE_CORRELATION = 0.99
+LOOSE_SD = 0.05
 WIDTH_RATIO_RANGE = (0.8, 1.25)
 SHIFT_LIMIT = 0.5
 SKEW_LIMIT = 0.2
 BOUND_SDS = 2.0
 BANANA_GAIN = 0.05
+#: A parameter pinned on a bound by the fit explains another's disagreement above this |correlation|.
+PINNED_PARTNER = 0.5
 PERCENTILES = (2.5, 16.0, 50.0, 84.0, 97.5)
 BRIGHTNESS = "brightness of C"
 
@@ -129,15 +140,33 @@ def correlation_of(covariance: np.ndarray) -> np.ndarray:
     return np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
 
 
+def _scale(label: str, value: float) -> float:
+    """The scale a deviation is judged against (as in :mod:`strauss_fit.identifiability`)."""
+    if label == "ior":
+        return 0.5
+    if "intensity" in label:
+        return max(abs(float(value)), 1e-3)
+    return 1.0
+
+
 def _is_channel(label: str) -> bool:
     return label.startswith("color_")
 
 
 def degeneracy_warnings(labels: Sequence[str], covariance: np.ndarray, held: dict[str, Any] | None = None,
-                        threshold: float = DEGENERACY_THRESHOLD, source: str = "posterior") -> list[str]:
+                        threshold: float = DEGENERACY_THRESHOLD, source: str = "posterior",
+                        values: Sequence[float] | None = None) -> list[str]:
     """Plain-language warnings: pairs with |ρ| > ``threshold`` (the brightness of C
-    included), strongest first, then parameters the fit held and why."""
+    included), strongest first, then parameters the fit held and why.
+
+    A pair is said to be inseparable when |ρ| > :data:`SEVERE_CORRELATION` or either
+    deviation exceeds :data:`LOOSE_SD` of its scale (1 for values in [0, 1], 0.5 for n,
+    the value itself for a light intensity, taken from ``values``); otherwise it is
+    reported as a strong correlation, with the factor 1/sqrt(1 - ρ²) by which
+    knowing the other would shrink each deviation."""
     names, cov = with_brightness(labels, np.asarray(covariance, dtype=np.float64))
+    means = list(values) if values is not None else [1.0] * len(labels)
+    means = means + [1.0] * (len(names) - len(means))
     corr = correlation_of(cov)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     pairs = [(abs(corr[i, j]), i, j) for i in range(len(names)) for j in range(i + 1, len(names))
@@ -155,17 +184,25 @@ def degeneracy_warnings(labels: Sequence[str], covariance: np.ndarray, held: dic
         elif covered and ((_is_channel(a) and (b in covered or _is_channel(b))) or (_is_channel(b) and a in covered)):
             continue  # already said through the brightness of C
         rho = corr[i, j]
-        how = ("raising one while lowering the other" if rho < 0 else "raising both together")
-        warnings.append(
-            f"{describe(a)} and {describe(b)} trade off (correlation {rho:+.2f} in the {source}): "
-            f"{how} leaves the image almost unchanged, so this scene cannot separate them; "
-            f"each is known only to ±{sd[i]:.2g} and ±{sd[j]:.2g}.")
+        loose = max(sd[i] / _scale(a, means[i]), sd[j] / _scale(b, means[j])) > LOOSE_SD
+        if abs(rho) > SEVERE_CORRELATION or loose:
+            how = "raising one while lowering the other" if rho < 0 else "raising both together"
+            warnings.append(
+                f"{describe(a)} and {describe(b)} trade off (correlation {rho:+.2f} in the {source}): "
+                f"{how} leaves the image almost unchanged, so this scene cannot separate them; "
+                f"each is known only to ±{sd[i]:.2g} and ±{sd[j]:.2g}.")
+        else:
+            warnings.append(
+                f"{describe(a)} and {describe(b)} are strongly correlated ({rho:+.2f} in the {source}): the image "
+                f"pins down mainly a combination of them, and each alone is known {1 / np.sqrt(1 - rho**2):.0f} times "
+                f"less well (±{sd[i]:.2g} and ±{sd[j]:.2g}) than it would be if the other were known.")
     for name, info in (held or {}).items():
         reason = info.get("reason", "") if isinstance(info, dict) else str(info)
         if reason.startswith("fixed by the user") or reason.startswith("held by the user"):
             continue
-        warnings.append(f"{describe(name)} was not fitted (held at {_fmt(info.get('value') if isinstance(info, dict) else None)}): "
-                        f"{reason}.")
+        value = _fmt(info.get("value") if isinstance(info, dict) else None)
+        warnings.append(f"{describe(name)} was not fitted: {reason}. It is held at {value}, and every interval "
+                        "in this report assumes exactly that value.")
     return warnings
 
 
@@ -200,6 +237,19 @@ def compare(laplace: Laplace, summary: dict[str, Any], samples: np.ndarray, lowe
     """Rows per parameter and plain-language notes where the Laplace estimate and the
     posterior disagree (the rules of the module docstring)."""
     rows, notes = [], []
+    corr = np.asarray(summary["correlation"], dtype=np.float64)
+    pinned = [j for j, label in enumerate(laplace.labels) if label in laplace.at_bound or laplace.sd[j] == 0]
+
+    def cause(k: int) -> str:
+        """Why the widths or centres differ: a pinned partner if there is one."""
+        partners = [(abs(corr[k, j]), j) for j in pinned if j != k and abs(corr[k, j]) > PINNED_PARTNER]
+        if not partners:
+            return "the model is not linear over the uncertainty, so trust the posterior"
+        _, j = max(partners)
+        return (f"the Laplace estimate holds {describe(laplace.labels[j])} fixed on its bound, while the posterior "
+                f"lets it move inward and this parameter moves with it (correlation {corr[k, j]:+.2f}); "
+                "trust the posterior")
+
     for k, label in enumerate(laplace.labels):
         p = summary["parameters"][label]
         s_post = (p["p84"] - p["p16"]) / 2
@@ -226,13 +276,13 @@ def compare(laplace: Laplace, summary: dict[str, Any], samples: np.ndarray, lowe
                          f"symmetric Laplace ±{s_lap:.2g} misleads; quote the 95 % {side} limit {limit:.4g} instead.")
         if ratio is not None and not WIDTH_RATIO_RANGE[0] <= ratio <= WIDTH_RATIO_RANGE[1]:
             issues.append("width")
-            notes.append(f"{word}: the posterior is {ratio:.2f} times {'wider' if ratio > 1 else 'as wide as'} "
-                         f"the Laplace estimate (±{s_post:.2g} against ±{s_lap:.2g}): the model is not linear "
-                         "over the uncertainty, so trust the posterior.")
+            notes.append(f"{word}: the posterior is {'' if ratio > 1 else 'only '}{ratio:.2f} times as wide as "
+                         f"the Laplace estimate (±{s_post:.2g} against ±{s_lap:.2g}): {cause(k)}.")
         if abs(shift) > SHIFT_LIMIT and "bound" not in issues:
             issues.append("shift")
             notes.append(f"{word}: the posterior median {p['median']:.4g} lies {abs(shift):.1f} posterior "
-                         f"standard deviations from the least-squares optimum {laplace.x_hat[k]:.4g}.")
+                         f"standard deviations from the least-squares optimum {laplace.x_hat[k]:.4g}"
+                         + (f": {cause(k)}." if pinned and cause(k).startswith("the Laplace estimate holds") else "."))
         if abs(skew) > SKEW_LIMIT and "bound" not in issues:
             issues.append("skew")
             notes.append(f"{word}: the posterior is skewed (its {'upper' if skew > 0 else 'lower'} tail is "
