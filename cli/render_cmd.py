@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from .common import add_evaluator_options, check_evaluator_options, positive_int
 
@@ -28,7 +29,6 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
-    import equinox as eqx
     import jax.numpy as jnp
     import numpy as np
 
@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     if args.width or args.height:
         scene = scene.resized(args.width or scene.camera.width, args.height or scene.camera.height)
     if args.depth:
-        scene = eqx.tree_at(lambda s: s.depth, scene, args.depth)
+        scene = dataclasses.replace(scene, depth=args.depth)
     image, mask = render(scene, mode=args.mode, table_size=args.table_size, dtype=jnp.dtype(args.precision))
     write_image(args.output, np.asarray(image), force=args.force)
     if args.mask:

@@ -348,9 +348,12 @@ def _scan_ior(problem: Problem, guess: dict[str, Any], keep: int = 3) -> list[fl
     parameters at the guess. Why: a patterned background seen through the sphere makes the
     cost oscillate in n, so a local solver must start near the right basin."""
     layout = problem.layout
-    xs = np.stack([layout.join(dict(guess, ior=float(n))) for n in IOR_SCAN])
-    costs = np.asarray(_costs(problem, jnp.asarray(xs)))
-    costs = np.where(np.isfinite(costs), costs, np.inf)
+    # n only shows through transmitted light: scan it at several transparencies (when t is
+    # fitted) and keep, per n, the best of them.
+    t_values = (0.25, 0.5, 0.75, 1.0) if "transparency" in layout.names else (guess["transparency"],)
+    xs = np.stack([layout.join(dict(guess, ior=float(n), transparency=t)) for n in IOR_SCAN for t in t_values])
+    costs = np.asarray(_costs(problem, jnp.asarray(xs))).reshape(IOR_SCAN.size, len(t_values))
+    costs = np.min(np.where(np.isfinite(costs), costs, np.inf), axis=1)
     interior = np.r_[True, costs[1:] <= costs[:-1]] & np.r_[costs[:-1] <= costs[1:], True]
     minima = sorted(np.flatnonzero(interior), key=lambda i: costs[i])[:keep]
     return [float(IOR_SCAN[i]) for i in minima]
@@ -379,8 +382,10 @@ def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -
 
 
 def decide_free(scene: Scene, target: Target, options: FitOptions, material: Material, guess: dict[str, Any],
-                candidates: list[str], fixed: dict[str, Any], sigma: float) -> Decision:
-    """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`)."""
+                candidates: list[str], fixed: dict[str, Any], sigma: float, margin: float = 0.15) -> Decision:
+    """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`), probing at
+    ``guess`` with unit-interval values kept ``margin`` inside their bounds (at a bound some
+    sensitivities vanish: m has no effect at s = 0)."""
     if options.free is not None:
         return Decision(free=[n for n in candidates if n in options.free and n not in fixed],
                         held={n: "held by the user (--free)" for n in candidates if n not in options.free and n not in fixed})
@@ -396,8 +401,8 @@ def decide_free(scene: Scene, target: Target, options: FitOptions, material: Mat
     plan = plan_render(scene, material, transparent="transparency" in names or transparency_may_vary)
     probe_values = dict(guess)
     for key in ("smoothness", "metalness", "transparency"):
-        probe_values[key] = float(np.clip(probe_values[key], 0.15, 0.85))
-    probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), 0.1, 0.9)
+        probe_values[key] = float(np.clip(probe_values[key], margin, 1 - margin))
+    probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), margin, 1 - margin)
     problem, _, _ = build_problem(scene, target, names, material, plan, options)
     probe = problem.layout.join(probe_values)
     jacobian = np.asarray(_jacobian(problem, jnp.asarray(probe)))
@@ -455,49 +460,38 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     sigma_ref = _reference_noise(target, options)
     say("deciding which parameters the image constrains")
     decision = decide_free(scene, target, options, material, guess, candidates, fixed, sigma_ref)
+    solve_started = time.perf_counter()
+    for attempt in range(2):
+        if not decision.free:
+            raise StraussFitError("no parameter is left to fit: the scene constrains none of the candidates "
+                                  f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})")
+        transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
+        plan = plan_render(scene, material, transparent=transparent)
+        problem, prepared_full, index = build_problem(scene, target, decision.free, material, plan, options, sigma_ref)
+        solved = _solve(problem, guess, options, say)
+        if attempt or options.free is not None:
+            break
+        # The decision was taken at the first guess, which may be far from the truth (a
+        # metal mistaken for plastic, say): take it again at the optimum, and refit once
+        # from there if the answer changes.
+        fitted = {**guess, **_jsonable(problem.layout.split(solved.x))}
+        # at the optimum, probe (almost) where the fit landed: a mirror (s = 1) or clear
+        # glass (t = 1) must be seen as such, not as the generic material a first guess is
+        again = decide_free(scene, target, options, material, fitted, candidates, fixed, sigma_ref, margin=1e-3)
+        if again.free == decision.free:
+            break
+        say(f"at the optimum the image constrains {', '.join(again.free)}: fitting again from there")
+        decision, guess = again, fitted
+    solve_time = time.perf_counter() - solve_started
     held = {name: {"value": _value_of(name, material, scene.lights), "reason": reason}
             for name, reason in decision.held.items()}
     for name, value in fixed.items():
         held[name] = {"value": value, "reason": "fixed by the user (--fix)"}
-
-    transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
-    plan = plan_render(scene, material, transparent=transparent)
-    problem, prepared_full, index = build_problem(scene, target, decision.free, material, plan, options, sigma_ref)
-    layout = problem.layout
-
-    notes = []
-    if layout.size == 0:
-        raise StraussFitError("no parameter is left to fit: the scene constrains none of the candidates "
-                              f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})")
-    ior_candidates = None
-    if "ior" in layout.names:
-        say("scanning the index of refraction for starting points")
-        ior_candidates = _scan_ior(problem, guess)
-    thetas = _starts(layout, guess, options.starts, ior_candidates)
-    say(f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}")
-    solve_started = time.perf_counter()
-    values, costs, steps, results = (np.asarray(v) for v in _solve_all(
-        problem, jnp.asarray(thetas), options.solver, options.rtol, options.atol, options.start_steps))
-    physical = np.asarray(_to_physical(layout, jnp.asarray(values)))
-    finite = np.isfinite(costs)
-    if not finite.any():
-        raise StraussFitError("every start of the fit diverged to non-finite values")
-    best = int(np.argmin(np.where(finite, costs, np.inf)))
-    statuses = [_status(int(r)) for r in results]
-    start_points = np.asarray(_to_physical(layout, jnp.asarray(thetas)))
-    starts = [{"start": _jsonable(layout.split(start_points[i])), "end": _jsonable(layout.split(physical[i])),
-               "cost": float(costs[i]), "steps": int(steps[i]), "status": statuses[i]} for i in range(len(costs))]
-    agree = finite & (costs <= costs[best] * 1.01 + 1e-12)
-    spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
-
-    say("polishing the best start (parameters at a bound held there)")
-    theta_best, cost_best, polish_steps, status, problem = _polish(problem, values[best], options)
-    solve_time = time.perf_counter() - solve_started
-    pinned = np.asarray(problem.pinned)
-    x_best = np.asarray(problem.physical(jnp.asarray(theta_best)))
-    rss = float(cost_best) * float(problem.residual_scale) ** 2
-    total_steps = int(steps[best]) + polish_steps
-
+    problem, x_best, rss = solved.problem, solved.x, solved.rss
+    layout, pinned, status = problem.layout, np.asarray(solved.problem.pinned), solved.status
+    starts, spread = solved.starts, solved.spread
+    notes = [f"equally good fits (within 1 % of the best cost) disagree on {label} by {value:.2g}: "
+             "the image may not pin it down" for label, value in spread.items() if value > 0.05]
     uncertainty, correlation, _ = _laplace(problem, x_best, rss, None)
     fitted_values = layout.split(x_best)
     fitted_material = material_with(material, fitted_values)
@@ -531,8 +525,8 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
             "delta_e2000_p95": float(np.percentile(delta_e, 95)),
             "sum_of_squares": rss,
         },
-        solver={"name": options.solver, "steps": total_steps, "status": status, "best_start": best,
-                "polish_steps": polish_steps,
+        solver={"name": options.solver, "steps": solved.steps, "status": status, "best_start": solved.best,
+                "polish_steps": solved.polish_steps, "attempts": attempt + 1,
                 "at_bound": [label for label, p in zip(layout.labels(), pinned) if p]},
         starts=starts,
         start_spread=spread,
@@ -549,6 +543,49 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
         x=x_best,
     )
     return result
+
+
+@dataclass
+class _Solved:
+    problem: Problem
+    x: np.ndarray
+    rss: float
+    status: str
+    steps: int
+    polish_steps: int
+    best: int
+    starts: list[dict[str, Any]]
+    spread: dict[str, float]
+
+
+def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say) -> _Solved:
+    """All starts at once (vectorised, :attr:`FitOptions.start_steps` each), then the
+    best one polished (:func:`_polish`)."""
+    layout = problem.layout
+    ior_candidates = None
+    if "ior" in layout.names:
+        say("scanning the index of refraction for starting points")
+        ior_candidates = _scan_ior(problem, guess)
+    thetas = _starts(layout, guess, options.starts, ior_candidates)
+    say(f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}")
+    values, costs, steps, results = (np.asarray(v) for v in _solve_all(
+        problem, jnp.asarray(thetas), options.solver, options.rtol, options.atol, options.start_steps))
+    physical = np.asarray(_to_physical(layout, jnp.asarray(values)))
+    finite = np.isfinite(costs)
+    if not finite.any():
+        raise StraussFitError("every start of the fit diverged to non-finite values")
+    best = int(np.argmin(np.where(finite, costs, np.inf)))
+    statuses = [_status(int(r)) for r in results]
+    start_points = np.asarray(_to_physical(layout, jnp.asarray(thetas)))
+    starts = [{"start": _jsonable(layout.split(start_points[i])), "end": _jsonable(layout.split(physical[i])),
+               "cost": float(costs[i]), "steps": int(steps[i]), "status": statuses[i]} for i in range(len(costs))]
+    agree = finite & (costs <= costs[best] * 1.01 + 1e-12)
+    spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
+    say("polishing the best start (parameters at a bound held there)")
+    theta_best, cost_best, polish_steps, status, problem = _polish(problem, values[best], options)
+    x_best = np.asarray(problem.physical(jnp.asarray(theta_best)))
+    rss = float(cost_best) * float(problem.residual_scale) ** 2
+    return _Solved(problem, x_best, rss, status, int(steps[best]) + polish_steps, polish_steps, best, starts, spread)
 
 
 def _scaled(prepared: Prepared, lights: Lights) -> Prepared:

@@ -4,16 +4,19 @@ Two kinds of reasons, checked in this order:
 
 1. *Structural*: the scene cannot show the parameter at all. The index of refraction needs
    a transparent material, a global model (depth > 1) and a background that varies with
-   direction (a constant colour looks the same through any lens). Transparency needs
-   depth > 1 and a background that is not black: over black, t only dims the surface,
-   which the colour's brightness (and smoothness) can mimic.
+   direction (a constant colour looks the same through any lens). Transparency needs the
+   same: over black, t only dims the surface, which the colour's brightness (and
+   smoothness) can mimic; over a constant colour, light through the sphere is
+   indistinguishable from that colour reflected (a clear glass ball and a mirror look
+   alike over a uniform backdrop).
 2. *Numerical*: at a probe point (the first guess, kept away from the bounds), the Fisher
    information of the image, :math:`\mathcal{I} = J^\top J/\sigma^2` with J the Jacobian
    of the rendered pixels with respect to the physical parameters and σ a reference
    noise level, predicts each parameter's standard deviation
    :math:`\sqrt{(\mathcal{I}^{-1})_{ii}}`. While the worst parameter's predicted
    deviation exceeds ``threshold`` times its scale (1 for values in [0, 1], 0.5 for n,
-   the current value for light intensities), it is held fixed and the analysis repeats.
+   the current value for light intensities), one of those over the threshold is held
+   fixed — n first, then t, m, light intensities, s, C — and the analysis repeats.
    The reason names the parameter it trades off with (the largest correlation) or says
    that the image barely changes with it.
 """
@@ -53,16 +56,19 @@ def structural_reasons(candidates: list[str], *, depth: int, background_kind: st
         elif background_black:
             reasons["transparency"] = ("nothing is seen through the sphere (black background): t only dims the "
                                        "surface and trades off with the brightness of the colour")
+        elif background_kind == "color":
+            reasons["transparency"] = ("the background is a constant colour: light through the sphere looks like "
+                                       "light reflected from it, so t trades off with smoothness and colour")
     if "ior" in candidates:
         if depth <= 1:
             reasons["ior"] = "the scene renders the local model only (depth 1): no refraction is traced"
         elif not transparency_may_vary and "transparency" not in candidates:
             reasons["ior"] = "the material is opaque (transparency 0): no light passes through the sphere"
-        elif "transparency" in reasons:
-            reasons["ior"] = "nothing is seen through the sphere, so refraction has no effect on the image"
         elif background_kind == "color":
             reasons["ior"] = ("the background is a constant colour, which looks the same through any lens: "
                               "refraction has no effect on the image")
+        elif "transparency" in reasons:
+            reasons["ior"] = "nothing is seen through the sphere, so refraction has no effect on the image"
     return reasons
 
 
@@ -72,6 +78,11 @@ def _scale(name: str, value: np.ndarray) -> np.ndarray:
     if "intensity" in name:
         return np.maximum(np.abs(value), 1e-3)
     return np.ones(value.shape)
+
+
+def _HOLD_ORDER(name: str) -> int:
+    order = ("ior", "transparency", "metalness", "intensity", "smoothness", "color")
+    return next((i for i, key in enumerate(order) if key in name), len(order))
 
 
 def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, sigma: float,
@@ -94,9 +105,13 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
         insensitive = np.linalg.norm(j, axis=0) == 0
         relative = np.where(insensitive, np.inf, sd / np.concatenate([scales[n] for n in names]))
         predicted = {n: float(sd[owner == n].max()) for n in names}
-        worst = int(np.argmax(relative))
-        if relative[worst] <= threshold:
+        if relative.max() <= threshold:
             break
+        # Of the parameters the image cannot pin down, hold the one a scene least often
+        # needs (n, then t, m, light intensities, s, C): when t and m trade off in an
+        # opaque-looking image, holding t at its usual 0 is the better bet than holding m.
+        weak = np.flatnonzero(relative > threshold)
+        worst = int(min(weak, key=lambda k: (_HOLD_ORDER(str(owner[k])), -relative[k])))
         name = str(owner[worst])
         if insensitive[worst]:
             reason = "the image does not change with it at all"

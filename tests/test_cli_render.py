@@ -32,7 +32,7 @@ def test_render_writes_exr_and_png_that_agree(tmp_path, capsys):
 def test_render_mask_and_precision(tmp_path, capsys):
     out, mask = tmp_path / "f32.exr", tmp_path / "mask.png"
     code, stdout, _ = run(capsys, "render", BASIC, "-o", str(out), "--mask", str(mask), "--precision", "float32",
-                          "--width", "16", "--height", "16", "--mode", "table", "--table-size", "64")
+                          "--width", "16", "--height", "16", "--mode", "table", "--table-size", "64", "--depth", "2")
     assert code == 0 and "sphere pixels" in stdout
     m = read_image(mask, encoding="linear").pixels[..., 0]
     assert set(np.unique(m)) == {0.0, 1.0}
