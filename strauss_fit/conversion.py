@@ -41,7 +41,6 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -67,7 +66,7 @@ from .target import Target
 STRAUSS_FREE = ("color", "smoothness", "metalness")
 #: Materials solved per vectorised call (the last chunk is padded, so one compilation serves all).
 CHUNK = 8
-#: Below this smoothness a lobe 3/(1 − s) is as wide as Phong's n = 3 (s = 1 − 3/n clipped at 0).
+#: The default conversion scene, in ``data_synth/scenes``.
 DEFAULT_SCENE_NAME = "conversion_default.toml"
 #: Angle (α = γ) at which the closed-form Strauss → Phong guess evaluates j and F.
 GUESS_ANGLE_DEG = 30.0
@@ -88,8 +87,6 @@ def default_scene_path() -> Path:
 def conversion_scene(path: str | Path | None = None, size: int | None = None) -> Scene:
     """The conversion scene (default or ``path``), at depth 1 and optionally ``size`` × ``size``
     pixels (a non-square camera keeps its aspect ratio, ``size`` setting the width)."""
-    import equinox as eqx
-
     scene = load_scene(path or default_scene_path())
     if size is not None:
         if size < 4:
@@ -97,7 +94,7 @@ def conversion_scene(path: str | Path | None = None, size: int | None = None) ->
         height = max(1, round(size * scene.camera.height / scene.camera.width))
         scene = scene.resized(size, height)
     if scene.depth != 1:
-        scene = eqx.tree_at(lambda s: s.depth, scene, 1)
+        scene = dataclasses.replace(scene, depth=1)
     return scene
 
 
@@ -117,14 +114,16 @@ def strauss_guess(phong: PhongMaterial) -> tuple[dict[str, Any], list[str]]:
       :math:`h = 3/(1 - s)`, Phong's :math:`\cos^n\beta`, so :math:`s = 1 - 3/n`, clipped to
       [0, 1) (n ≤ 3 gives s = 0: Strauss has no lobe wider than h = 3). For Blinn–Phong,
       whose :math:`\cos^n(N\cdot H)` is close to :math:`\cos^{n/4}(R\cdot V)`, n/4 is used.
-      For a pure Phong lobe the guessed s reproduces the lobe's shape exactly.
+      For a pure Phong lobe the guessed s reproduces the lobe's shape exactly. Without a
+      highlight (S = 0) s = 0, whatever n says.
     - metalness from the tint of the highlight: Strauss's highlight colour at small
       angles of incidence is :math:`C_s \approx (1 - m)\,\mathrm{white} + m\,C`, so with
       :math:`\hat C = D/\max D` (the diffuse hue) and the tint :math:`T = S/\max S`,
       :math:`m = (1 - \min T)/(1 - \min\hat C)`, clipped to [0, 1]; a white highlight gives
       m = 0, and so does a grey diffuse colour (no hue to compare with). Without a diffuse
-      term (D = 0) a tinted highlight means a metal of that colour (m = 1, C = T) and a
-      white one a black dielectric (m = 0, C = 0).
+      term (D = 0) a tinted highlight means a metal of that colour (m = 1, C = T), a
+      white one a black dielectric (m = 0, C = 0), and no highlight either Strauss's
+      darkest material (C = 0, m = 1, s = 0: its off-specular term never vanishes).
     - colour from the diffuse term: Strauss's diffuse reflectance is
       :math:`(1 - ms)(1 - s^3)\,C`, so :math:`C = D / ((1 - ms)(1 - s^3))`; where that
       exceeds 1 it is scaled down to a largest channel of 1 (keeping the hue), with a note.
@@ -137,16 +136,21 @@ def strauss_guess(phong: PhongMaterial) -> tuple[dict[str, Any], list[str]]:
     s_rgb = _triple(phong.ks) * np.asarray(phong.specular_color, dtype=np.float64)
     n = float(phong.exponent)
     n_lobe = n / 4.0 if phong.blinn else n
-    smoothness = float(np.clip(1.0 - 3.0 / n_lobe, 0.0, 1.0)) if n_lobe > 0 else 0.0
-    smoothness = min(smoothness, float(np.nextafter(1.0, 0.0)))
     d_max, s_max = float(d.max()), float(s_rgb.max())
+    if s_max > 0:
+        smoothness = float(np.clip(1.0 - 3.0 / n_lobe, 0.0, 1.0)) if n_lobe > 0 else 0.0
+        smoothness = min(smoothness, float(np.nextafter(1.0, 0.0)))
+    else:
+        smoothness = 0.0  # no highlight: the matte end (any s > 0 would add one)
     tint = s_rgb / s_max if s_max > 0 else np.ones(3)
     tinted = 1.0 - float(tint.min()) > 0.05
     if d_max <= 1e-12:
         if s_max > 0 and tinted:
             metalness, color = 1.0, tint
-        else:
+        elif s_max > 0:
             metalness, color = 0.0, np.zeros(3)
+        else:  # black: Strauss's darkest material (its off-specular term k_j j F never vanishes)
+            metalness, color = 1.0, np.zeros(3)
     else:
         hue = d / d_max
         chroma = 1.0 - float(hue.min())
@@ -259,9 +263,7 @@ class Converter:
     def __init__(self, scene: Scene | None = None, settings: Settings = Settings(), scene_label: str | None = None):
         self.scene = scene if scene is not None else conversion_scene()
         if self.scene.depth != 1:
-            import equinox as eqx
-
-            self.scene = eqx.tree_at(lambda s: s.depth, self.scene, 1)
+            self.scene = dataclasses.replace(self.scene, depth=1)
         self.scene_label = scene_label or "built-in conversion scene"
         self.settings = settings
         self.options = FitOptions(solver="lm", starts=settings.starts, max_steps=settings.max_steps,
@@ -284,9 +286,11 @@ class Converter:
         if directional is not None:
             for d, i, c in zip(np.asarray(directional.direction), np.asarray(directional.intensity),
                                np.asarray(directional.color)):
-                angle = math.degrees(math.acos(float(np.clip(d[2], -1, 1))))
-                lights.append({"kind": "directional", "direction": np.round(d, 6).tolist(), "intensity": float(i),
-                               "color": c.tolist(), "angle_to_view_deg": round(angle, 2)})
+                light = {"kind": "directional", "direction": np.round(d, 6).tolist(), "intensity": float(i),
+                         "color": c.tolist()}
+                if self.scene.camera.projection == "orthographic":  # V = +z everywhere
+                    light["angle_to_view_deg"] = round(math.degrees(math.acos(float(np.clip(d[2], -1, 1)))), 2)
+                lights.append(light)
         if self.scene.lights.point is not None:
             lights.append({"kind": "point", "count": int(self.scene.lights.point.intensity.shape[0])})
         if self.scene.lights.ambient is not None:
@@ -323,29 +327,25 @@ class Converter:
     def phong_to_strauss(self, entries: list[Entry], progress: Progress | None = None) -> list[dict[str, Any]]:
         """Convert every entry (Phong sources); results in input order."""
         results: list[dict[str, Any] | None] = [None] * len(entries)
-        say = progress or (lambda done, total, message: None)
+        report = _Reporter(progress, len(entries))
         prepared = []
         for i, entry in enumerate(entries):
             if entry.error:
-                results[i] = _error(entry, entry.error)
-                say(i + 1, len(entries), f"{entry.name}: error: {entry.error}")
+                results[i] = report(entry, _error(entry, entry.error))
                 continue
             try:
                 guess, notes = strauss_guess(entry.material)
+                notes = [f"closed-form guess: {note}" for note in notes]
                 target = self.phong_target(entry.material)
                 if not np.all(np.isfinite(target)):
                     raise StraussFitError("the Phong rendering is not finite")
             except Exception as exc:  # noqa: BLE001 - one bad material never stops the batch
-                results[i] = _error(entry, _message(exc))
-                say(i + 1, len(entries), f"{entry.name}: error: {results[i]['message']}")
+                results[i] = report(entry, _error(entry, _message(exc)))
                 continue
             prepared.append((i, entry, guess, notes, target))
-        done = len(entries) - len(prepared)
         for chunk in _chunks(prepared, self.settings.chunk):
-            for (i, entry, guess, notes, target), outcome in zip(chunk, self._solve_strauss_chunk(chunk)):
-                results[i] = outcome
-                done += 1
-                say(done, len(entries), f"{entry.name}: {_summary(outcome)}")
+            for (i, entry, *_), outcome in zip(chunk, self._solve_strauss_chunk(chunk)):
+                results[i] = report(entry, outcome)
         return results  # type: ignore[return-value]
 
     def _solve_strauss_chunk(self, chunk: list) -> list[dict[str, Any]]:
@@ -366,7 +366,9 @@ class Converter:
                 for row, k in enumerate(fittable):
                     solved[k] = (targets[row], scales[row], values[row], costs[row], steps[row])
             except Exception as exc:  # noqa: BLE001
-                return [_error(item[1], f"the vectorised solve failed: {_message(exc)}") for item in chunk]
+                if len(chunk) > 1:  # isolate the material that breaks the vectorised solve
+                    return [result for item in chunk for result in self._solve_strauss_chunk([item])]
+                return [_error(item[1], f"the solve failed: {_message(exc)}") for item in chunk]
         out = []
         for k, (i, entry, guess, notes, target) in enumerate(chunk):
             try:
@@ -391,12 +393,11 @@ class Converter:
         if entry.opacity < 1:
             notes.append(f"transparency t = 1 - d = {1 - entry.opacity:.4g} carried over, not fitted "
                          "(the fit matches the opaque appearance)")
-        if self.scene.lights.ambient is None:
-            ka = _triple(phong.ka) * np.asarray(phong.diffuse_color, dtype=np.float64)
-            r_d = (1 - values["smoothness"] ** 3) * np.asarray(values["color"])
-            if float(np.max(np.abs(ka - r_d))) > 0.02:
-                notes.append(f"ka is not a Strauss parameter: Strauss's ambient reflectance is r_d·C = "
-                             f"{np.round(r_d, 3).tolist()}, Phong's ka·Cd was {np.round(ka, 3).tolist()}")
+        ka = _triple(phong.ka) * np.asarray(phong.diffuse_color, dtype=np.float64)
+        r_d = (1 - values["smoothness"] ** 3) * np.asarray(values["color"])
+        if float(np.max(ka)) > 0 and float(np.max(np.abs(ka - r_d))) > 0.02:
+            notes.append(f"ka is not a Strauss parameter: Phong's ambient term ka·Cd = {np.round(ka, 3).tolist()} "
+                         f"becomes Strauss's ambient reflectance r_d·C = {np.round(r_d, 3).tolist()}")
         lobe = self._lobe_note(float(phong.exponent) / (4.0 if phong.blinn else 1.0))
         if lobe:
             notes.append(lobe)
@@ -453,13 +454,12 @@ class Converter:
                          blinn: bool = False) -> list[dict[str, Any]]:
         """Convert every entry (Strauss sources) to Phong (Blinn–Phong with ``blinn``)."""
         results: list[dict[str, Any] | None] = [None] * len(entries)
-        say = progress or (lambda done, total, message: None)
+        report = _Reporter(progress, len(entries))
         template = dataclasses.replace(self.phong_template, blinn=blinn) if blinn else self.phong_template
         prepared = []
         for i, entry in enumerate(entries):
             if entry.error:
-                results[i] = _error(entry, entry.error)
-                say(i + 1, len(entries), f"{entry.name}: error: {entry.error}")
+                results[i] = report(entry, _error(entry, entry.error))
                 continue
             try:
                 opaque = Material(**{**entry.material.to_dict(), "transparency": 0.0})
@@ -470,16 +470,12 @@ class Converter:
                 if not np.all(np.isfinite(target)):
                     raise StraussFitError("the Strauss rendering is not finite")
             except Exception as exc:  # noqa: BLE001
-                results[i] = _error(entry, _message(exc))
-                say(i + 1, len(entries), f"{entry.name}: error: {results[i]['message']}")
+                results[i] = report(entry, _error(entry, _message(exc)))
                 continue
             prepared.append((i, entry, guess, ka, target))
-        done = len(entries) - len(prepared)
         for chunk in _chunks(prepared, self.settings.chunk):
             for (i, entry, *_), outcome in zip(chunk, self._solve_phong_chunk(chunk, template)):
-                results[i] = outcome
-                done += 1
-                say(done, len(entries), f"{entry.name}: {_summary(outcome)}")
+                results[i] = report(entry, outcome)
         return results  # type: ignore[return-value]
 
     def _phong_starts(self, guess: np.ndarray) -> np.ndarray:
@@ -512,7 +508,9 @@ class Converter:
                 for row, k in enumerate(fittable):
                     solved[k] = (targets[row], scales[row], kas[row], values[row], costs[row], steps[row], ok[row])
             except Exception as exc:  # noqa: BLE001
-                return [_error(item[1], f"the vectorised solve failed: {_message(exc)}") for item in chunk]
+                if len(chunk) > 1:  # isolate the material that breaks the vectorised solve
+                    return [result for item in chunk for result in self._solve_phong_chunk([item], template)]
+                return [_error(item[1], f"the solve failed: {_message(exc)}") for item in chunk]
         out = []
         for k, (i, entry, guess, ka, target) in enumerate(chunk):
             try:
@@ -601,6 +599,19 @@ def _message(exc: BaseException) -> str:
     return f"unexpected {type(exc).__name__}: {text[0] if text else 'no message'}"
 
 
+class _Reporter:
+    """Counts finished materials and passes a one-line summary of each to ``progress``."""
+
+    def __init__(self, progress: Progress | None, total: int):
+        self.progress, self.total, self.done = progress, total, 0
+
+    def __call__(self, entry: Entry, result: dict[str, Any]) -> dict[str, Any]:
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, self.total, f"{entry.name}: {_summary(result)}")
+        return result
+
+
 def _summary(result: dict[str, Any]) -> str:
     if result["status"] != "ok":
         return f"error: {result['message']}"
@@ -608,8 +619,3 @@ def _summary(result: dict[str, Any]) -> str:
     return f"ok, RMS {residual['rms']:.3g}, ΔE2000 mean {residual['delta_e2000_mean']:.3g}"
 
 
-def timed(function: Callable, *args, **kwargs) -> tuple[Any, float]:
-    """``function(*args, **kwargs)`` and its wall time in seconds."""
-    started = time.perf_counter()
-    out = function(*args, **kwargs)
-    return out, time.perf_counter() - started

@@ -78,13 +78,15 @@ def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
         return x.reshape((-1,) + x.shape[2:])[index]
 
     samples = sample_lights(scene.lights, hits.point)
-    return PhongGeometry(
-        normal=take(hits.point), to_eye=take(-rays.direction),
-        to_light=None if samples is None else take(samples.to_light),
-        irradiance=None if samples is None else take(samples.irradiance),
-        light_color=None if samples is None else take(samples.color),
-        ambient=scene.lights.ambient,
-    )
+    to_light = irradiance = color = None
+    if samples is not None:
+        batch = hits.point.shape[:-1]
+        # directional-only scenes give (K, 3) and (K,): broadcast to every pixel first
+        to_light = take(jnp.broadcast_to(samples.to_light, batch + samples.to_light.shape[-2:]))
+        irradiance = take(jnp.broadcast_to(samples.irradiance, batch + samples.irradiance.shape[-1:]))
+        color = samples.color  # (K, 3)
+    return PhongGeometry(normal=take(hits.point), to_eye=take(-rays.direction), to_light=to_light,
+                         irradiance=irradiance, light_color=color, ambient=scene.lights.ambient)
 
 
 def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
