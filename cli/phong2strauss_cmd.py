@@ -30,7 +30,7 @@ def add_parser(subparsers) -> None:
             direction,
             help=f"convert {source} materials to {destination} parameters (by fitting sphere renders)",
             description=f"Render each {source} material on the conversion scene (a sphere under three lights, "
-            f"see docs/conversion.md) and fit {destination}'s parameters to that image, starting from a "
+            f"see README.md (Phong ↔ Strauss conversion and the study)) and fit {destination}'s parameters to that image, starting from a "
             f"closed-form guess. Writes, per material, the {destination} parameters, the residual of the match "
             "(RMS and CIEDE2000) and Laplace uncertainties; a material that fails is reported and skipped.",
         )

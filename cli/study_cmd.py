@@ -13,7 +13,7 @@ def add_parser(subparsers) -> None:
         description="Run the intuitive-parameter study — consistency (energy created by novice settings), "
         "independence (Fisher information on the same images), uniformity (image change per equal step) and "
         "expressiveness (conversions both ways) — and write OUTDIR/study.html (self-contained), study.md with "
-        "PNG plots, and study.json with every figure. See docs/conversion.md.",
+        "PNG plots, and study.json with every figure. See README.md (Phong ↔ Strauss conversion and the study).",
     )
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR",
                         help="folder for the report (created if missing; its parent must exist)")

@@ -1,4 +1,4 @@
-"""The dataset spec: a TOML file saying what to render (see ``docs/data_synth.md``).
+"""The dataset spec: a TOML file saying what to render (see README.md, "Synthetic datasets").
 
 .. code-block:: toml
 

@@ -466,7 +466,7 @@ def format_results_mtl(results: list[dict[str, Any]]) -> str:
                    f"residual: RMS {residual['rms']:.3g}, CIEDE2000 mean {residual['delta_e2000_mean']:.3g}")
         blocks.append(format_mtl_material(_mtl_name(result["name"], used), result["phong"], result["opacity"],
                                           result["ior"], comment))
-    return format_mtl(blocks, "written by strauss-fit strauss2phong (see docs/conversion.md)")
+    return format_mtl(blocks, "written by strauss-fit strauss2phong (see README.md (Phong ↔ Strauss conversion and the study))")
 
 
 def write_results(path: str | Path, document: dict[str, Any], direction: str, *, force: bool = False) -> Path:

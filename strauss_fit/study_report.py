@@ -358,7 +358,7 @@ def _blocks(study: dict[str, Any], verdicts: list[dict[str, Any]]) -> list[tuple
     blocks: list[tuple] = [
         ("h1", "Strauss vs Phong: the intuitive-parameter study"),
         ("p", f"Run '{config['name']}' (seed {config['seed']}), {study['timing']['total_s']:.0f} s. "
-              "Method, definitions and how to read this report: docs/conversion.md. Every number below is in "
+              "Method, definitions and how to read this report: README.md (Phong ↔ Strauss conversion and the study). Every number below is in "
               "study.json."),
         ("h2", "Conclusions"),
         ("table", ["aspect", "claim", "deciding numbers", "in short"],
