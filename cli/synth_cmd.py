@@ -18,7 +18,7 @@ def add_parser(subparsers) -> None:
         "with the exact parameters; OUTDIR/index.json lists the complete samples. The same seed gives "
         "byte-identical files; an interrupted run continues with --resume.",
     )
-    parser.add_argument("spec", metavar="SPEC.toml", help="dataset spec (see README.md, "Synthetic datasets")")
+    parser.add_argument("spec", metavar="SPEC.toml", help="dataset spec (see README.md, 'Synthetic datasets')")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="dataset folder (created if missing)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--force", action="store_true",
