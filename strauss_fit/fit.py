@@ -490,7 +490,7 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     problem, x_best, rss = solved.problem, solved.x, solved.rss
     layout, pinned, status = problem.layout, np.asarray(solved.problem.pinned), solved.status
     starts, spread = solved.starts, solved.spread
-    notes = [f"equally good fits (within 1 % of the best cost) disagree on {label} by {value:.2g}: "
+    notes = [f"equally good fits (within Δχ² = 1 of the best) disagree on {label} by {value:.2g}: "
              "the image may not pin it down" for label, value in spread.items() if value > 0.05]
     uncertainty, correlation, _ = _laplace(problem, x_best, rss, None)
     fitted_values = layout.split(x_best)
@@ -579,7 +579,8 @@ def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say) ->
     start_points = np.asarray(_to_physical(layout, jnp.asarray(thetas)))
     starts = [{"start": _jsonable(layout.split(start_points[i])), "end": _jsonable(layout.split(physical[i])),
                "cost": float(costs[i]), "steps": int(steps[i]), "status": statuses[i]} for i in range(len(costs))]
-    agree = finite & (costs <= costs[best] * 1.01 + 1e-12)
+    # "equally good": within Δχ² = 1 of the best at the reference noise (costs are χ²/N)
+    agree = finite & (costs <= costs[best] + 1.0 / problem.target.size)
     spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
     say("polishing the best start (parameters at a bound held there)")
     theta_best, cost_best, polish_steps, status, problem = _polish(problem, values[best], options)
