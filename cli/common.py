@@ -33,3 +33,28 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
     return value
+
+
+#: ``--quality`` presets: settings for fits (``starts``, ``max_steps``, ``rtol``, ``atol``)
+#: and sampling (``walkers``, ``min_tau_multiple``, ``sample_max_steps``). How they were
+#: chosen, with the measurements, is in README.md ("Quality presets"). ``None``: automatic.
+QUALITY_PRESETS: dict[str, dict[str, float | int | None]] = {
+    "fast": dict(starts=1, max_steps=40, rtol=1e-5, atol=1e-7, walkers=None, min_tau_multiple=20.0,
+                 sample_max_steps=2000),
+    "balanced": dict(starts=4, max_steps=100, rtol=1e-6, atol=1e-8, walkers=None, min_tau_multiple=50.0,
+                     sample_max_steps=10000),
+    "accurate": dict(starts=8, max_steps=300, rtol=1e-9, atol=1e-11, walkers=128, min_tau_multiple=100.0,
+                     sample_max_steps=50000),
+}
+
+
+def add_quality_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quality", choices=tuple(QUALITY_PRESETS), default="balanced",
+                        help="speed/accuracy preset (default balanced); options given explicitly override it")
+
+
+def quality_setting(args: argparse.Namespace, name: str, attribute: str | None = None):
+    """The explicit command-line value of ``attribute`` (default: ``name``) if given, else
+    the ``--quality`` preset's ``name``."""
+    value = getattr(args, attribute or name, None)
+    return value if value is not None else QUALITY_PRESETS[args.quality][name]

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import add_evaluator_options, check_evaluator_options, positive_int
+from .common import add_evaluator_options, add_quality_option, check_evaluator_options, positive_int, quality_setting
 
 PARAMETER_HELP = "color, smoothness, metalness, transparency, ior (and with --fit-lights: directional_intensity_1, ..., ambient_intensity)"
 
@@ -27,9 +27,10 @@ def add_parser(subparsers) -> None:
                         help="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)")
     parser.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm",
                         help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS")
-    parser.add_argument("--starts", type=positive_int, default=4, metavar="N",
-                        help="number of starts: the closed-form guess plus N-1 fixed points (default 4)")
-    parser.add_argument("--max-steps", type=positive_int, default=100, metavar="N", help="solver step limit per start (default 100)")
+    parser.add_argument("--starts", type=positive_int, metavar="N",
+                        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality, 4)")
+    parser.add_argument("--max-steps", type=positive_int, metavar="N",
+                        help="solver step limit of the polish (default: from --quality, 100)")
     parser.add_argument("--free", metavar="NAMES",
                         help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
@@ -43,6 +44,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
     parser.add_argument("--quiet", action="store_true", help="print only the result table")
     add_evaluator_options(parser)
+    add_quality_option(parser)
     parser.set_defaults(run=run)
 
 
@@ -157,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
     if message:
         log(message)
     options = FitOptions(
-        solver=args.solver, starts=args.starts, max_steps=args.max_steps, mode=args.mode,
+        solver=args.solver, starts=quality_setting(args, "starts"), max_steps=quality_setting(args, "max_steps"),
+        rtol=quality_setting(args, "rtol"), atol=quality_setting(args, "atol"), mode=args.mode,
         table_size=args.table_size,
         free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
         fixed=fixed, fit_lights=args.fit_lights, reference_noise=args.reference_noise,
@@ -170,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
     payload["scene"] = str(args.scene)
     payload["mask"] = str(args.mask) if args.mask else None
     payload["encoding"] = args.encoding
+    payload["settings"]["quality"] = args.quality
     write_json(args.output, payload, force=args.force)
     if args.render_fit:
         write_image(args.render_fit, result.fitted_image, force=args.force)

@@ -10,7 +10,7 @@ import argparse
 import sys
 import time
 
-from .common import positive_int
+from .common import QUALITY_PRESETS, add_quality_option, positive_int, quality_setting
 
 FORMATS_HELP = {
     "phong2strauss": "one Phong material as KEY=VALUE pairs (ka kd ks exponent|n|Ns diffuse_color|Cd "
@@ -42,8 +42,10 @@ def add_parser(subparsers) -> None:
                             "data_synth/scenes/conversion_default.toml)")
         parser.add_argument("--size", type=positive_int, metavar="N",
                             help="render the conversion image N pixels wide (default: the scene's, 64)")
-        parser.add_argument("--starts", type=positive_int, default=4, metavar="N",
-                            help="starts per material: the closed-form guess plus N-1 fixed points (default 4)")
+        parser.add_argument("--starts", type=positive_int, metavar="N",
+                            help="starts per material: the closed-form guess plus N-1 fixed points (default: from "
+                            "--quality, 4)")
+        add_quality_option(parser)
         if direction == "strauss2phong":
             parser.add_argument("--blinn", action="store_true", help="fit Blinn-Phong (half-vector highlight)")
         parser.add_argument("--force", action="store_true", help="overwrite an existing OUTPUT")
@@ -88,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
     for note in input_notes:
         log(f"{direction}: note: {note}")
     scene = conversion_scene(args.scene, args.size)
-    settings = Settings(starts=args.starts)
+    preset = QUALITY_PRESETS[args.quality]
+    settings = Settings(starts=quality_setting(args, "starts"), max_steps=preset["max_steps"], rtol=preset["rtol"],
+                        atol=preset["atol"])
     log(f"{direction}: {len(entries)} material(s) from {description}; preparing the conversion scene "
         f"({scene.camera.width}x{scene.camera.height})")
     converter = Converter(scene, settings, scene_label=args.scene or "data_synth/scenes/conversion_default.toml")

@@ -10,10 +10,10 @@ from typing import Any
 
 from strauss_fit.model import DEFAULT_TABLE_SIZE, MODES
 
-from .common import check_evaluator_options, positive_int
+from .common import QUALITY_PRESETS, add_quality_option, check_evaluator_options, positive_int, quality_setting
 
 #: Options that only apply when ``sample`` fits first, with their defaults.
-_FIT_ONLY = {"free": None, "fix": [], "fit_lights": False, "solver": "lm", "starts": 4, "mode": "exact",
+_FIT_ONLY = {"free": None, "fix": [], "fit_lights": False, "solver": "lm", "starts": None, "mode": "exact",
              "table_size": DEFAULT_TABLE_SIZE}
 #: Options fixed by an existing chain, which --resume refuses to change.
 _CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed")
@@ -45,10 +45,11 @@ def add_parser(subparsers) -> None:
                         "the parameter's range)")
     parser.add_argument("--walkers", type=positive_int, metavar="N", help="number of walkers, even, >= 2 x parameters "
                         "(default: max(32, 4 x parameters))")
-    parser.add_argument("--max-steps", type=positive_int, default=10000, metavar="N",
-                        help="cap on the chain's total length in steps, earlier runs included (default 10000)")
-    parser.add_argument("--min-tau-multiple", type=float, default=50.0, metavar="K",
-                        help="stop when the chain is K autocorrelation times long (default 50)")
+    parser.add_argument("--max-steps", type=positive_int, metavar="N",
+                        help="cap on the chain's total length in steps, earlier runs included (default: from "
+                        "--quality, 10000)")
+    parser.add_argument("--min-tau-multiple", type=float, metavar="K",
+                        help="stop when the chain is K autocorrelation times long (default: from --quality, 50)")
     parser.add_argument("--check-every", type=positive_int, default=100, metavar="N",
                         help="steps between convergence checks and progress lines (default 100)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the walkers (default 0)")
@@ -60,11 +61,12 @@ def add_parser(subparsers) -> None:
     fitting.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE", help="hold a parameter (as for 'fit')")
     fitting.add_argument("--fit-lights", action="store_true", help="also consider the light intensities (as for 'fit')")
     fitting.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm", help="as for 'fit'")
-    fitting.add_argument("--starts", type=positive_int, default=4, metavar="N", help="as for 'fit'")
+    fitting.add_argument("--starts", type=positive_int, metavar="N", help="as for 'fit'")
     fitting.add_argument("--mode", choices=MODES, default="exact",
                          help="evaluator, as for 'fit' (default exact); a fit result (--fit) brings its own")
     fitting.add_argument("--table-size", type=int, default=DEFAULT_TABLE_SIZE, metavar="N",
                          help=f"table entries for the table modes (default {DEFAULT_TABLE_SIZE})")
+    add_quality_option(parser)
     parser.set_defaults(run=run)
 
 
@@ -125,6 +127,8 @@ def _check_options(args: argparse.Namespace) -> None:
     check_evaluator_options(args)
     if args.sigma is not None:
         check_sigma(args.sigma)
+    args.min_tau_multiple = quality_setting(args, "min_tau_multiple")
+    args.max_steps = quality_setting(args, "sample_max_steps", "max_steps")
     if args.min_tau_multiple <= 0:
         raise StraussFitError(f"--min-tau-multiple must be > 0, got {args.min_tau_multiple:g}")
     if args.resume and args.force:
@@ -213,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         sigma = args.sigma if args.sigma is not None else estimate_sigma(problem, x_hat)
         prior = default_prior(problem.layout, x_hat, priors)
         ndim = problem.layout.size
-        walkers = args.walkers or default_walkers(ndim)
+        walkers = quality_setting(args, "walkers") or default_walkers(ndim)
         if walkers < 2 * ndim:
             raise ChainError(f"--walkers must be at least twice the number of parameters ({2 * ndim}), got {walkers}")
         log_posterior = LogPosterior(problem, prior, sigma)
@@ -226,6 +230,7 @@ def run(args: argparse.Namespace) -> int:
             "target_sha256": target_digest(problem), "sigma": sigma, "sigma_source": sigma_source,
             "prior": prior.as_dict(), "x_hat": [float(v) for v in x_hat], "seed": args.seed,
             "laplace_covariance": covariance.tolist(), "pixels_used": int(problem.target.shape[0]),
+            "quality": args.quality,
         }
         if out.exists():
             out.unlink()  # --force, checked above; only now that every input is valid
@@ -263,7 +268,8 @@ def _fit_first(args, scene, target, log):
     fixed = parse_fixed(args.fix)
     _check_fixed_ranges(fixed)
     options = FitOptions(
-        solver=args.solver, starts=args.starts, mode=args.mode, table_size=args.table_size,
+        solver=args.solver, starts=quality_setting(args, "starts"), max_steps=QUALITY_PRESETS[args.quality]["max_steps"],
+        rtol=quality_setting(args, "rtol"), atol=quality_setting(args, "atol"), mode=args.mode, table_size=args.table_size,
         free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
         fixed=fixed, fit_lights=args.fit_lights,
     )

@@ -469,11 +469,19 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
         plan = plan_render(scene, material, transparent=transparent)
         problem, prepared_full, index = build_problem(scene, target, decision.free, material, plan, options, sigma_ref)
         solved = _solve(problem, guess, options, say)
-        if attempt or options.free is not None:
+        if attempt:
+            # Holding a parameter never lowers the cost; keep the new decision only if it
+            # costs less than Δχ² = 1 at the reference noise (else the first fit stands).
+            if solved.rss > first[4].rss + sigma_ref**2:
+                say("the refit was worse: keeping the first fit")
+                decision, (problem, prepared_full, index, solved), plan = first[0], first[1:], first_plan
             break
+        if options.free is not None:
+            break
+        first, first_plan = (decision, problem, prepared_full, index, solved), plan
         # The decision was taken at the first guess, which may be far from the truth (a
         # metal mistaken for plastic, say): take it again at the optimum, and refit once
-        # from there if the answer changes.
+        # from there if the answer changes (and the refit is as good).
         fitted = {**guess, **_jsonable(problem.layout.split(solved.x))}
         # at the optimum, probe (almost) where the fit landed: a mirror (s = 1) or clear
         # glass (t = 1) must be seen as such, not as the generic material a first guess is

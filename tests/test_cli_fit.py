@@ -155,3 +155,16 @@ def test_target_of_another_size_is_rendered_at_its_size(tmp_path, scene, capsys)
     assert "rendering at the target's size" in err
     data = json.loads((tmp_path / "r.json").read_text())
     np.testing.assert_allclose(data["color"], [0.2, 0.4, 0.6], atol=1e-3)
+
+
+def test_quality_presets_set_and_record_the_solver_settings(tmp_path, scene, capsys):
+    target = render_target(tmp_path, scene, capsys)
+    for quality, starts, rtol in (("fast", 1, 1e-5), ("accurate", 8, 1e-9)):
+        result = tmp_path / f"{quality}.json"
+        assert run(capsys, "fit", target, "--scene", scene, "-o", result, "--quality", quality)[0] == 0
+        settings = json.loads(result.read_text())["settings"]
+        assert (settings["quality"], settings["starts"], settings["rtol"]) == (quality, starts, rtol)
+    # an explicit option wins over the preset
+    result = tmp_path / "explicit.json"
+    assert run(capsys, "fit", target, "--scene", scene, "-o", result, "--quality", "fast", "--starts", "3")[0] == 0
+    assert json.loads(result.read_text())["settings"]["starts"] == 3
