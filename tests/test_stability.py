@@ -1,0 +1,578 @@
+r"""Numerical stability at the extremes (issue 8, part 3): values and gradients stay finite,
+float32 agrees with float64 away from the singular points, fits started at the extremes
+do not produce NaN, and the model's invariants hold for random materials and directions.
+
+What "the extremes" are (``shared/strauss-model.md``, last section):
+
+- s, m, t in {0, 1e-6, 0.5, 1 - 1e-6, 1} (all 125 combinations);
+- incidence and view angles 0, 45°, 90° - 1e-6 rad, 90° - 1e-6°, 90°, 90° + 1e-6° and
+  120° (behind the surface), at azimuths that put the viewer in the mirror plane (cos β up
+  to 1) and off it (cos β ≤ 0 included);
+- n = 1 (no bending), n = 1.5 and n = 3, and total internal reflection (chords inside the
+  sphere steeper than the critical angle; in a rendered sphere every internal angle is
+  below the critical angle, reached only at the rim);
+- light intensities 0 and 1e6 (and 1);
+- float32 and float64.
+
+Gradients are taken with respect to the colour, s, m, t, n and the light intensities.
+Each jitted function is compiled once per dtype and reused (shapes are fixed), because
+compilation dominates the run time.
+
+Tolerances for float32 against float64 (absolute, radiance per unit light intensity):
+
+- ``shade``: :data:`SHADE_F32_ATOL` = 5e-5 where N·L ≥ 1e-3, N·V ≥ 1e-3 and s ≤ 0.99
+  ("away from the singular points"). Measured worst: 8.6e-6 over 2·10⁵ random
+  configurations, at s ≈ 0.96. Why that scale: cos^h β with h = 3/(1 - s) ≤ 300 turns a
+  rounding error ε₃₂ ≈ 6e-8 of cos β into up to h·ε₃₂ ≈ 2e-5.
+- ``render`` (24×24 transparent sphere over a checkerboard of sharpness 20, depth 2, five
+  lights of intensity 1 and ambient 1; s ≤ 0.99): :data:`RENDER_F32_ATOL` = 5e-4 for
+  n ∈ {1, 1.5} and :data:`RENDER_F32_ATOL_N3` = 1e-2 for n = 3, on the sphere's pixels
+  *except the outermost ring* (pixels with a non-sphere pixel among their 8 neighbours).
+  Measured worst: 9.4e-5 (n ≤ 1.5; the mirrored checkerboard edges) and 2.2e-3 (n = 3).
+  The rim is excluded because refraction there is grazing and the soft checkerboard
+  edges amplify rounding: ``benchmarks/README.md`` found float32 errors up to 0.48 within
+  0.2 % of the rim of a 512² transparent scene (0.02 in the outer ring at 24² here).
+
+Known float32 defect kept out of the assertions (reported, not fixed here): in float32,
+``shadow(1.0)`` is -1.95e-6 instead of 0, so within about 1e-6° of grazing (N·L or N·V
+below ~3e-8 but positive) a material with r_n = 0 gets a slightly negative highlight
+(-1.2e-7 per unit intensity). The float32 non-negativity property below is therefore
+asserted where N·L and N·V are ≤ 0 or ≥ 1e-6; float64 is asserted everywhere.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import tomllib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import strauss_fit as sf
+from strauss_fit.fit import START_MARGIN, FitOptions, _solve_all, _to_physical, fit
+from strauss_fit.model import K_J, diffuse_reflectivity, shade, specular_base, specular_peak
+from strauss_fit.render import RenderPlan, _interior, refract, render, transmission_weight
+from strauss_fit.scene import parse_scene
+from strauss_fit.target import Target
+
+DTYPES = (jnp.float32, jnp.float64)
+EXTREMES = (0.0, 1e-6, 0.5, 1 - 1e-6, 1.0)
+GRAZING = 90.0 - 1e-6
+SHADE_F32_ATOL = 5e-5
+RENDER_F32_ATOL = 5e-4
+RENDER_F32_ATOL_N3 = 1e-2
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def direction_at(angle_deg: float, azimuth_deg: float = 0.0) -> np.ndarray:
+    """Unit vector at ``angle_deg`` from +z; exactly 90° gives z = 0 exactly (math.cos(π/2)
+    is 6e-17, which would count as lit)."""
+    a, b = math.radians(angle_deg), math.radians(azimuth_deg)
+    z = 0.0 if angle_deg == 90.0 else math.cos(a)
+    return np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), z])
+
+
+def material_grid() -> np.ndarray:
+    """All (s, m, t) combinations of :data:`EXTREMES`, shape (125, 3)."""
+    s, m, t = np.meshgrid(EXTREMES, EXTREMES, EXTREMES, indexing="ij")
+    return np.stack([s.ravel(), m.ravel(), t.ravel()], axis=-1)
+
+
+GRID = material_grid()
+
+
+def assert_all_finite(tree, what: str) -> None:
+    for leaf in jax.tree_util.tree_leaves(tree):
+        array = np.asarray(leaf)
+        assert np.all(np.isfinite(array)), f"{what}: {np.size(array) - np.count_nonzero(np.isfinite(array))} non-finite"
+
+
+# --- 1. the local model on a dense grid of extremes -------------------------------------
+
+GRAZING_RAD = 90.0 - math.degrees(1e-6)  # 1e-6 rad short of 90° (GRAZING is 1e-6°)
+LIGHT_ANGLES = (0.0, 45.0, GRAZING_RAD, GRAZING, 90.0, 90.0 + 1e-6, 120.0)
+VIEW_ANGLES = (0.0, 45.0, GRAZING_RAD, GRAZING, 90.0, 90.0 + 1e-6, 120.0)
+VIEW_AZIMUTHS = (180.0, 90.0, 0.0)  # mirror plane (cos β up to 1), across, same side (cos β ≤ 0)
+
+
+@functools.lru_cache(maxsize=None)
+def _shade_grid_function(dtype):
+    lights = jnp.asarray(np.stack([direction_at(a) for a in LIGHT_ANGLES]), dtype=dtype)
+    eyes = jnp.asarray(np.stack([direction_at(a, b) for b in VIEW_AZIMUTHS for a in VIEW_ANGLES]), dtype=dtype)
+    normal = jnp.asarray(UP, dtype=dtype)
+    # positive, unequal weights: a non-finite partial derivative of any entry cannot cancel
+    weights = jnp.asarray(np.linspace(1.0, 2.0, len(LIGHT_ANGLES) * eyes.shape[0] * 3).reshape(
+        len(LIGHT_ANGLES), eyes.shape[0], 3), dtype=dtype)
+
+    def total(color, s, m, t, n, intensity):
+        material = sf.Material(color=color, smoothness=s, metalness=m, transparency=t, ior=n)
+        out = intensity[:, None, None] * shade(material, normal, lights[:, None, :], eyes[None, :, :])
+        return jnp.sum(weights * out), out
+
+    value_and_grad = jax.value_and_grad(total, argnums=(0, 1, 2, 3, 4, 5), has_aux=True)
+    return jax.jit(jax.vmap(value_and_grad, in_axes=(None, 0, 0, 0, None, None)))
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: jnp.dtype(d).name)
+def test_shade_values_and_gradients_finite_on_the_extreme_grid(dtype):
+    f = _shade_grid_function(dtype)
+    s, m, t = (jnp.asarray(GRID[:, k], dtype=dtype) for k in range(3))
+    k = len(LIGHT_ANGLES)
+    for intensity in (np.zeros(k), np.full(k, 1e6), np.resize([1e6, 0.0, 1.0], k)):
+        for color in ((0.0, 0.0, 0.0), (0.0, 0.5, 1.0), (1.0, 1.0, 1.0)):
+            for n in (1.0, 3.0):
+                (total, out), grads = f(jnp.asarray(color, dtype=dtype), s, m, t, jnp.asarray(n, dtype=dtype),
+                                        jnp.asarray(intensity, dtype=dtype))
+                assert out.dtype == dtype
+                assert_all_finite((total, out), f"shade values ({jnp.dtype(dtype).name}, I={intensity})")
+                assert_all_finite(grads, f"shade gradients ({jnp.dtype(dtype).name}, I={intensity})")
+                # the local model does not depend on n
+                assert np.all(np.asarray(grads[4]) == 0)
+                if not intensity.any():
+                    assert np.all(np.asarray(out) == 0)
+    # nothing behind the surface: light or viewer at 90° or beyond gives exactly 0
+    (_, out), _ = f(jnp.asarray((1.0, 1.0, 1.0), dtype=dtype), s, m, t, jnp.asarray(1.5, dtype=dtype),
+                    jnp.ones(k, dtype=dtype))
+    out = np.asarray(out).reshape(len(GRID), k, len(VIEW_AZIMUTHS), len(VIEW_ANGLES), 3)
+    behind_light = [i for i, a in enumerate(LIGHT_ANGLES) if a >= 90.0]
+    behind_view = [i for i, a in enumerate(VIEW_ANGLES) if a >= 90.0]
+    assert np.all(out[:, behind_light] == 0)
+    assert np.all(out[:, :, :, behind_view] == 0)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: jnp.dtype(d).name)
+def test_smoothness_one_limit_has_finite_gradient_at_the_mirror_direction(dtype):
+    # cos β = 1 exactly (light and view mirrored about N): the delta highlight's value is
+    # r_j and its s-gradient must be finite from both sides of s = 1.
+    to_light, to_eye = direction_at(30.0), direction_at(30.0, 180.0)
+
+    def f(s):
+        material = sf.Material(color=(0.3, 0.6, 0.9), smoothness=s, metalness=0.5, transparency=0.25)
+        return jnp.sum(shade(material, jnp.asarray(UP, dtype), jnp.asarray(to_light, dtype), jnp.asarray(to_eye, dtype)))
+
+    values, grads = jax.jit(jax.vmap(jax.value_and_grad(f)))(jnp.asarray([1 - 1e-6, 1 - 1e-7, 1.0], dtype=dtype))
+    assert_all_finite((values, grads), "s -> 1 at the mirror direction")
+
+
+# --- 2. float32 against float64 for shade, away from the singular points ----------------
+
+@functools.lru_cache(maxsize=None)
+def _shade_batch(dtype):
+    def one(c, s, m, t, normal, to_light, to_eye):
+        return shade(sf.Material(color=c, smoothness=s, metalness=m, transparency=t), normal, to_light, to_eye)
+    return jax.jit(jax.vmap(one))
+
+
+def test_shade_float32_agrees_with_float64_away_from_singular_points():
+    rng = np.random.default_rng(8)
+    count = 20000
+
+    def unit(n):
+        v = rng.normal(size=(n, 3))
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    normal, to_light, to_eye = unit(count), unit(count), unit(count)
+    to_light *= np.sign(np.sum(normal * to_light, -1))[:, None]  # into the normal's hemisphere
+    to_eye *= np.sign(np.sum(normal * to_eye, -1))[:, None]
+    # plus configurations exactly at the edge of "away": N·L = 1e-3 and N·V = 1e-3
+    edge = rng.choice(count, 2000, replace=False)
+    for vectors in (to_light, to_eye):
+        tangent = unit(edge.size)
+        tangent -= np.sum(tangent * normal[edge], -1, keepdims=True) * normal[edge]
+        tangent /= np.linalg.norm(tangent, axis=-1, keepdims=True)
+        vectors[edge[: edge.size // 2]] = (1e-3 * normal[edge] + math.sqrt(1 - 1e-6) * tangent)[: edge.size // 2]
+    s = rng.uniform(0.0, 0.99, count)
+    s[:2000] = 0.99
+    m, t, color = rng.uniform(0, 1, count), rng.uniform(0, 1, count), rng.uniform(0, 1, (count, 3))
+    keep = (np.sum(normal * to_light, -1) >= 1e-3 - 1e-12) & (np.sum(normal * to_eye, -1) >= 1e-3 - 1e-12)
+    args = (color, s, m, t, normal, to_light, to_eye)
+    out64 = np.asarray(_shade_batch(jnp.float64)(*(jnp.asarray(a, jnp.float64) for a in args)))
+    out32 = np.asarray(_shade_batch(jnp.float32)(*(jnp.asarray(a, jnp.float32) for a in args)))
+    assert out32.dtype == np.float32
+    error = np.abs(out32.astype(np.float64) - out64)[keep]
+    assert keep.sum() > 15000
+    assert float(error.max()) <= SHADE_F32_ATOL, float(error.max())
+
+
+# --- 3. rendering: a transparent sphere over a checkerboard, depth 2 ---------------------
+
+_G = math.radians(GRAZING)
+RENDER_SCENE = f"""
+[camera]
+width = 24
+height = 24
+[[light]]
+kind = "directional"
+direction = [0.0, 0.0, 1.0]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [{math.sin(_G)!r}, 0.0, {math.cos(_G)!r}]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [0.0, 1.0, 0.0]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [0.3, 0.2, -1.0]
+intensity = 1.0
+[[light]]
+kind = "point"
+position = [0.5, 2.0, 1.0]
+intensity = 1.0
+attenuation = [1.0, 0.5, 0.25]
+[[light]]
+kind = "ambient"
+intensity = 1.0
+[background]
+kind = "checkerboard"
+point = [0.0, 0.0, -3.0]
+square_size = 0.5
+colors = [[0.9, 0.8, 0.3], [0.1, 0.2, 0.6]]
+sharpness = 20.0
+[render]
+depth = 2
+"""
+# Lights: frontal, grazing (90° - 1e-6° from the view axis), exactly perpendicular,
+# from behind (N·L < 0 on most of the visible half), a point light, ambient.
+
+
+@functools.lru_cache(maxsize=None)
+def _render_scene():
+    return parse_scene(tomllib.loads(RENDER_SCENE), source="stability")
+
+
+@functools.lru_cache(maxsize=None)
+def _render_grid_function(dtype):
+    scene = _render_scene()
+    plan = RenderPlan(reflect=True, transmit=True)  # trace everything, even where t = 0
+
+    def total(color, s, m, t, n, directional, point, ambient):
+        material = sf.Material(color=color, smoothness=s, metalness=m, transparency=t, ior=n)
+        lights = scene.lights.with_intensities({"directional": directional, "point": point, "ambient": ambient})
+        image, _ = render(eqx.tree_at(lambda q: q.lights, scene, lights), material, dtype=dtype, plan=plan)
+        return jnp.sum(image * jnp.linspace(1.0, 2.0, image.size, dtype=dtype).reshape(image.shape)), image
+
+    value_and_grad = jax.value_and_grad(total, argnums=tuple(range(8)), has_aux=True)
+    return jax.jit(jax.vmap(value_and_grad, in_axes=(None, 0, 0, 0, None, None, None, None)))
+
+
+@functools.lru_cache(maxsize=None)
+def _render_grid(dtype, n: float, intensity: float):
+    """Images (125, 24, 24, 3) and gradients over :data:`GRID` (cached across tests)."""
+    f = _render_grid_function(dtype)
+    dt = dtype
+    (total, image), grads = f(jnp.asarray([0.2, 0.5, 0.9], dt), *(jnp.asarray(GRID[:, k], dt) for k in range(3)),
+                              jnp.asarray(n, dt), jnp.full(4, intensity, dt), jnp.full(1, intensity, dt),
+                              jnp.asarray(intensity, dt))
+    return np.asarray(total), np.asarray(image), [np.asarray(g) for g in grads]
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: jnp.dtype(d).name)
+@pytest.mark.parametrize("n", [1.0, 1.5, 3.0])
+def test_render_values_and_gradients_finite_at_the_extremes(dtype, n):
+    for intensity in (0.0, 1.0, 1e6):
+        total, image, grads = _render_grid(dtype, n, intensity)
+        assert image.dtype == dtype and image.shape == (len(GRID), 24, 24, 3)
+        assert_all_finite((total, image), f"render values (n={n}, I={intensity})")
+        names = ("color", "s", "m", "t", "n", "directional", "point", "ambient")
+        for name, g in zip(names, grads):
+            assert_all_finite(g, f"render gradient in {name} (n={n}, I={intensity}, {jnp.dtype(dtype).name})")
+
+
+def _inner_sphere_pixels() -> np.ndarray:
+    """The sphere's pixels whose 8 neighbours are all on the sphere (the outer ring dropped)."""
+    size = 24  # pixel centres of shared/formats.md; the sphere where x² + y² < 1
+    x = (np.arange(size) + 0.5) / size * 2 - 1
+    hit = (x[None, :] ** 2 + x[:, None] ** 2) < 1
+    padded = np.pad(hit, 1)
+    inner = hit.copy()
+    for di in (-1, 0, 1):
+        for dk in (-1, 0, 1):
+            inner &= padded[1 + di: 1 + di + hit.shape[0], 1 + dk: 1 + dk + hit.shape[1]]
+    return inner
+
+
+@pytest.mark.parametrize("n,atol", [(1.0, RENDER_F32_ATOL), (1.5, RENDER_F32_ATOL), (3.0, RENDER_F32_ATOL_N3)])
+def test_render_float32_agrees_with_float64_inside_the_rim(n, atol):
+    inner = _inner_sphere_pixels()
+    assert 300 < inner.sum() < np.pi * 144  # 24 px: 448 sphere pixels, 356 inside the ring
+    away = GRID[:, 0] <= 0.99
+    _, image32, _ = _render_grid(jnp.float32, n, 1.0)
+    _, image64, _ = _render_grid(jnp.float64, n, 1.0)
+    error = np.abs(image32.astype(np.float64) - image64)[away][:, inner]
+    assert float(error.max()) <= atol, float(error.max())
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: jnp.dtype(d).name)
+def test_total_internal_reflection_inside_the_sphere_is_finite_and_keeps_the_light(dtype):
+    # Chords from the top of the sphere at internal angles around and beyond the critical
+    # angle arcsin(1/n): at the exit every ray beyond it is totally reflected.
+    n = 1.5
+    critical = math.asin(1 / n)
+    angles = np.array([0.0, critical - 1e-3, critical, critical + 1e-7, critical + 1e-3, 1.2, math.pi / 2 - 1e-6])
+    origin = jnp.asarray(np.tile(UP, (angles.size, 1)), dtype=dtype)
+    direction = jnp.asarray(np.stack([np.sin(angles), np.zeros_like(angles), -np.cos(angles)], -1), dtype=dtype)
+    background = _render_scene().background
+
+    def total(color, s, m, t, ior):
+        material = sf.Material(color=color, smoothness=s, metalness=m, transparency=t, ior=ior)
+        out = _interior(material, background, origin, direction, 2)
+        return jnp.sum(out), out
+
+    f = jax.jit(jax.vmap(jax.value_and_grad(total, argnums=(0, 1, 2, 3, 4), has_aux=True),
+                         in_axes=(None, 0, 0, 0, None)))
+    s, m, t = (jnp.asarray(v, dtype) for v in zip((0.0, 0.0, 1.0), (0.5, 0.5, 0.5), (1 - 1e-6, 1.0, 1e-6),
+                                                   (1.0, 0.0, 1.0), (1.0, 1.0, 0.0)))
+    (_, out), grads = f(jnp.asarray((0.2, 0.5, 0.9), dtype), s, m, t, jnp.asarray(n, dtype))
+    assert_all_finite(out, "interior radiance")
+    assert_all_finite(grads, "interior gradients")
+    # the exit's weights never create light (reflected + transmitted share ≤ 1), so no ray
+    # carries more than the brightest background colour
+    assert float(jnp.max(out)) <= 0.9 + 1e-5
+    inward = -jnp.asarray(np.stack([np.sin(2 * angles), np.zeros_like(angles), -np.cos(2 * angles)], -1), dtype=dtype)
+    _, total = refract(direction, inward, jnp.full(angles.size, n, dtype=dtype))
+    assert not bool(total[0]) and not bool(total[1]) and bool(total[-1]) and bool(total[-2])
+
+
+# --- 4. fits started at the extremes ---------------------------------------------------
+
+FIT_SCENE = """
+[camera]
+width = 24
+height = 24
+[[light]]
+kind = "directional"
+direction = [0.3, 0.5, 1.0]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [-0.6, -0.2, 0.8]
+intensity = 0.5
+[[light]]
+kind = "ambient"
+intensity = 0.1
+[background]
+color = [0.4, 0.45, 0.5]
+[render]
+depth = 2
+"""
+# A grey backdrop at depth 2, so that a mirror (s = 1) still shows something; one free set
+# for every fit, so that the solver compiles once.
+FIT_OPTIONS = FitOptions(free=("color", "smoothness", "metalness"))
+FIT_TRUTHS = [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0), (1 - 1e-6, 0.0), (0.5, 0.5)]
+
+
+def _fit_scene(s: float, m: float):
+    data = tomllib.loads(FIT_SCENE)
+    data["material"] = {"color": [0.5, 0.5, 0.5], "smoothness": s, "metalness": m}
+    return parse_scene(data, source="stability-fit")
+
+
+def _target(scene, s, m, noise=0.005, seed=0):
+    image, hit = sf.render(scene, sf.Material(color=(0.5, 0.7, 0.2), smoothness=s, metalness=m))
+    pixels = np.asarray(image) + noise * np.random.default_rng(seed).normal(size=np.shape(image))
+    return Target(pixels, np.ones(np.shape(hit), bool), "synthetic", "linear", 0, 0)
+
+
+@functools.lru_cache(maxsize=None)
+def _fits():
+    results = {}
+    for s, m in FIT_TRUTHS:
+        # the scene's material (the held values and the guess's fallback) at the opposite corner
+        scene = _fit_scene(1.0 - round(s), 1.0 - round(m))
+        results[(s, m)] = fit(scene, _target(scene, s, m), FIT_OPTIONS)
+    return results
+
+
+@pytest.mark.parametrize("s,m", FIT_TRUTHS)
+def test_fits_of_extreme_materials_converge_without_nan(s, m):
+    result = _fits()[(s, m)]
+    json.dumps(result.to_json(), allow_nan=False)  # raises on NaN or infinity anywhere
+    assert result.solver["status"] != "nonfinite"
+    assert_all_finite((result.material.color, result.material.smoothness, result.material.metalness,
+                       result.fitted_image, result.x), "fit result")
+    for name in ("smoothness", "metalness"):
+        assert 0.0 <= float(getattr(result.material, name)) <= 1.0
+    assert result.residual["rms"] < 0.02  # noise 0.005: the fit explains the image
+
+
+def test_solver_started_exactly_at_the_bounds_stays_finite():
+    # Every corner of (s, m) with the colour at its bounds, both exactly at the bounds
+    # (where the sin transform's slope vanishes) and START_MARGIN inside them (what fit()
+    # generates). Same shapes and settings as fit()'s own starts: no recompilation.
+    result = _fits()[(0.5, 0.5)]
+    problem = result.problem
+    size = problem.layout.size
+    problem = problem.pin(np.zeros(size, bool), np.zeros(size))
+    corners = [problem.layout.join({"color": c, "smoothness": s, "metalness": m})
+               for c, s, m in (((0.0, 0.0, 0.0), 0.0, 0.0), ((1.0, 1.0, 1.0), 1.0, 1.0),
+                               ((0.0, 1.0, 0.0), 0.0, 1.0), ((1.0, 0.0, 1.0), 1.0, 0.0))]
+    cost = jax.jit(jax.vmap(lambda theta: jnp.sum(problem.residual(theta) ** 2)))
+    for margin in (0.0, START_MARGIN):
+        thetas = jnp.asarray(problem.layout.to_unconstrained(np.stack(corners), margin=margin))
+        assert thetas.shape == (FIT_OPTIONS.starts, size)
+        values, costs, steps, codes = _solve_all(problem, thetas, FIT_OPTIONS.solver, FIT_OPTIONS.rtol,
+                                                 FIT_OPTIONS.atol, FIT_OPTIONS.start_steps)
+        physical = np.asarray(_to_physical(problem.layout, values))
+        assert_all_finite((values, costs, physical), f"solver from the bounds (margin {margin})")
+        assert np.all((physical >= 0) & (physical <= 1))
+        # Levenberg–Marquardt only accepts steps that lower the cost
+        assert np.all(np.asarray(costs) <= np.asarray(cost(thetas)) * (1 + 1e-12))
+
+
+# --- 5. invariants for random materials and directions (hypothesis) ---------------------
+
+unit_floats = st.floats(0.0, 1.0, allow_nan=False)
+materials = st.fixed_dictionaries({
+    "color": st.tuples(unit_floats, unit_floats, unit_floats),
+    "smoothness": unit_floats, "metalness": unit_floats, "transparency": unit_floats,
+    "ior": st.floats(1.0, 3.0, allow_nan=False),
+})
+unit_vectors = st.tuples(*[st.floats(-1.0, 1.0, allow_nan=False)] * 3).filter(
+    lambda v: math.fsum(x * x for x in v) > 1e-6).map(lambda v: tuple(np.asarray(v) / math.sqrt(math.fsum(x * x for x in v))))
+PROPERTY = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@functools.lru_cache(maxsize=None)
+def _shade_one(dtype):
+    def one(color, s, m, t, n, normal, to_light, to_eye, light_color):
+        material = sf.Material(color=color, smoothness=s, metalness=m, transparency=t, ior=n)
+        return shade(material, normal, to_light, to_eye, light_color=light_color)
+    return jax.jit(one)
+
+
+def _call_shade(dtype, material, normal, to_light, to_eye, light_color=(1.0, 1.0, 1.0)) -> np.ndarray:
+    args = (material["color"], material["smoothness"], material["metalness"], material["transparency"],
+            material["ior"], normal, to_light, to_eye, light_color)
+    return np.asarray(_shade_one(dtype)(*(jnp.asarray(a, dtype=dtype) for a in args)), dtype=np.float64)
+
+
+def _dot(a, b) -> float:
+    return float(np.dot(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)))
+
+
+@PROPERTY
+@given(material=materials, normal=unit_vectors, to_light=unit_vectors, to_eye=unit_vectors)
+def test_shade_is_finite_non_negative_and_dark_behind_the_surface(material, normal, to_light, to_eye):
+    n_dot_l, n_dot_v = _dot(normal, to_light), _dot(normal, to_eye)
+    for dtype in DTYPES:
+        out = _call_shade(dtype, material, normal, to_light, to_eye)
+        assert np.all(np.isfinite(out))
+        # float32: see the module docstring (shadow(1) < 0 in float32 within ~1e-6° of grazing)
+        grazing = dtype == jnp.float32 and (0 < n_dot_l < 1e-6 or 0 < n_dot_v < 1e-6)
+        if not grazing:
+            assert np.all(out >= 0), (jnp.dtype(dtype).name, out)
+        if n_dot_l < -1e-12 or n_dot_v < -1e-12:  # margin: the library may round the dot differently
+            assert np.all(out == 0)
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=lambda d: jnp.dtype(d).name)
+def test_shade_is_exactly_zero_at_exactly_grazing_light_or_view(dtype):
+    material = {"color": (1.0, 1.0, 1.0), "smoothness": 1.0, "metalness": 0.0, "transparency": 0.0, "ior": 1.5}
+    side = np.array([1.0, 0.0, 0.0])
+    for to_light, to_eye in ((side, UP), (UP, side), (side, -side), (side, side)):
+        assert np.all(_call_shade(dtype, dict(material, smoothness=0.5), UP, to_light, to_eye) == 0)
+        assert np.all(_call_shade(dtype, material, UP, to_light, to_eye) == 0)
+
+
+@PROPERTY
+@given(material=materials, normal=unit_vectors, to_light=unit_vectors, to_eye=unit_vectors)
+def test_non_metal_specular_part_is_grey_under_white_light(material, normal, to_light, to_eye):
+    material = dict(material, metalness=0.0)
+    out = _call_shade(jnp.float64, material, normal, to_light, to_eye)
+    s, t = material["smoothness"], material["transparency"]
+    n_dot_l, n_dot_v = _dot(normal, to_light), _dot(normal, to_eye)
+    lit = n_dot_l > 0 and n_dot_v > 0
+    diffuse = (1 - s**3) * (1 - t) * np.asarray(material["color"]) * min(max(n_dot_l, 0.0), 1.0) * lit
+    specular = out - diffuse  # Q_s = r_s C_s with C_s = C_L = white at m = 0
+    np.testing.assert_allclose(specular, np.full(3, specular.mean()), rtol=0, atol=1e-12)
+    assert specular.min() >= -1e-12
+
+
+@PROPERTY
+@given(material=materials, j=unit_floats)
+def test_reflectivities_and_energy(material, j):
+    s, t = material["smoothness"], material["transparency"]
+    for dtype in DTYPES:
+        m = sf.Material(**material, dtype=dtype)
+        r_d, r_n = float(diffuse_reflectivity(m)), float(specular_base(m))
+        tol = 1e-12 if dtype == jnp.float64 else 1e-6
+        assert r_n == pytest.approx((1 - t) * s**3, abs=tol)
+        assert r_d >= 0 and r_n >= 0
+        assert r_d + r_n <= 1 - t + tol
+        # at one surface interaction of the global model, the reflected share r_j and the
+        # transmitted share z = t (1 - r_j) / (1 - r_n) never add up to more than 1
+        r_j = specular_peak(m, jnp.asarray(j, dtype=dtype))
+        z = float(transmission_weight(m, r_j))
+        assert 0 <= z <= 1 + tol
+        assert float(r_j) + z <= 1 + tol
+        assert float(r_j) <= 1 and float(r_j) >= r_n - tol and float(r_j) <= r_n + j * (r_n + K_J) + tol
+
+
+LINEAR_SCENE = """
+[camera]
+width = 8
+height = 8
+[[light]]
+kind = "directional"
+direction = [0.3, 0.5, 1.0]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [-0.9, 0.1, 0.2]
+intensity = 1.0
+[[light]]
+kind = "point"
+position = [1.0, -1.5, 2.0]
+intensity = 1.0
+attenuation = [0.5, 0.3, 0.2]
+[[light]]
+kind = "ambient"
+intensity = 1.0
+[render]
+depth = 1
+"""
+
+
+@functools.lru_cache(maxsize=None)
+def _linear_render():
+    scene = parse_scene(tomllib.loads(LINEAR_SCENE), source="linear")
+
+    def image(color, s, m, t, intensities):
+        material = sf.Material(color=color, smoothness=s, metalness=m, transparency=t)
+        lights = scene.lights.with_intensities({"directional": intensities[:2], "point": intensities[2:3],
+                                                "ambient": intensities[3]})
+        return render(eqx.tree_at(lambda q: q.lights, scene, lights), material, dtype=jnp.float64,
+                      plan=RenderPlan(False, False))[0]
+
+    return jax.jit(image)
+
+
+intensity_vectors = st.lists(st.floats(0.0, 1e6, allow_nan=False), min_size=4, max_size=4)
+
+
+@PROPERTY
+@given(material=materials, first=intensity_vectors, second=intensity_vectors, scale=st.floats(0.0, 1e3))
+def test_rendering_is_linear_in_the_light_intensities(material, first, second, scale):
+    f = _linear_render()
+    args = tuple(jnp.asarray(material[k]) for k in ("color", "smoothness", "metalness", "transparency"))
+    a, b = np.asarray(first), np.asarray(second)
+    image_a, image_b = np.asarray(f(*args, jnp.asarray(a))), np.asarray(f(*args, jnp.asarray(b)))
+    image_sum = np.asarray(f(*args, jnp.asarray(a + b)))
+    image_scaled = np.asarray(f(*args, jnp.asarray(scale * a)))
+    assert np.all(np.isfinite(image_sum)) and np.all(image_a >= 0)
+    # atol: relative to the image's largest value, plus 1e-300 for products that underflow
+    np.testing.assert_allclose(image_sum, image_a + image_b, rtol=1e-12,
+                               atol=1e-12 * float(image_a.max() + image_b.max()) + 1e-300)
+    np.testing.assert_allclose(image_scaled, scale * image_a, rtol=1e-12,
+                               atol=1e-12 * scale * float(image_a.max()) + 1e-300)
+    assert np.all(np.asarray(f(*args, jnp.zeros(4))) == 0)
