@@ -182,6 +182,13 @@ def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, enc
     return path
 
 
+def write_bytes(path: str | Path, data: bytes, *, force: bool = False) -> Path:
+    """Write bytes (e.g. an encoded PNG) atomically (refusing to overwrite without ``force``)."""
+    path = check_writable(path, force)
+    _atomic(path, lambda tmp: tmp.write_bytes(data))
+    return path
+
+
 def write_text(path: str | Path, text: str, *, force: bool = False) -> Path:
     """Write a text file atomically (refusing to overwrite without ``force``)."""
     path = check_writable(path, force)

@@ -18,8 +18,6 @@ import base64
 import datetime as _dt
 import html
 import io
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -27,7 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import StraussFitError
-from .io import check_writable, srgb_encode
+from .io import check_writable, srgb_encode, write_bytes
 from .sample import Chain
 from .uncertainty import (
     Laplace,
@@ -414,21 +412,6 @@ def report_paths(html_path: str | Path) -> tuple[Path, Path, Path]:
     return html_path, html_path.with_suffix(".md"), html_path.parent / f"{html_path.stem}_files"
 
 
-def _write_bytes(path: Path, data: bytes, force: bool) -> None:
-    path = check_writable(path, force)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def check_report_outputs(html_path: str | Path, force: bool, image_names: Sequence[str] = (
         "images.png", "correlation.png", "corner.png", "trace.png")) -> None:
     """Refuse (before any work) to overwrite an existing report without ``force``."""
@@ -449,10 +432,10 @@ def write_report(report: Report, html_path: str | Path, *, force: bool = False) 
     folder.mkdir(exist_ok=True)
     written = []
     for name, png in report.images.items():
-        _write_bytes(folder / name, png, force)
+        write_bytes(folder / name, png, force=force)
         written.append(folder / name)
-    _write_bytes(markdown, report.markdown.encode("utf-8"), force)
-    _write_bytes(page, report.html.encode("utf-8"), force)
+    write_bytes(markdown, report.markdown.encode("utf-8"), force=force)
+    write_bytes(page, report.html.encode("utf-8"), force=force)
     return [page, markdown] + written
 
 

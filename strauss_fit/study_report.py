@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .errors import StraussFitError
-from .io import _atomic, check_writable, write_json, write_text
+from .io import check_writable, write_bytes, write_json, write_text
 
 FILES = ("study.json", "study.md", "study.html", "fig-consistency.png", "fig-independence.png",
          "fig-uniformity.png", "fig-expressiveness.png")
@@ -514,9 +514,7 @@ def write_report(study: dict[str, Any], outdir: str | Path, *, force: bool = Fal
     blocks = _blocks(study, verdicts)
     written = [write_json(outdir / "study.json", document, force=force)]
     for name, data in images.items():
-        path = outdir / name
-        _atomic(path, lambda tmp, data=data: tmp.write_bytes(data))
-        written.append(path)
+        written.append(write_bytes(outdir / name, data, force=force))
     written.append(write_text(outdir / "study.md", to_markdown(blocks), force=force))
     written.append(write_text(outdir / "study.html", to_html(blocks, images), force=force))
     return written
