@@ -43,6 +43,9 @@ class Decision:
     free: list[str]
     held: dict[str, str] = field(default_factory=dict)
     predicted_sd: dict[str, float] = field(default_factory=dict)
+    #: For a parameter held by the numerical analysis: the parameter it trades off with,
+    #: or None when the image does not depend on it (or only barely).
+    partner: dict[str, str | None] = field(default_factory=dict)
 
 
 def structural_reasons(candidates: list[str], *, depth: int, background_kind: str, background_black: bool,
@@ -95,15 +98,23 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
     scales = {n: _scale(n, probe[columns[n]]) for n in layout.names}
     names = list(layout.names)
     held: dict[str, str] = {}
+    partners: dict[str, str | None] = {}
     predicted: dict[str, float] = {}
     while names:
         index = np.concatenate([columns[n] for n in names])
         owner = np.concatenate([[n] * columns[n].size for n in names])
         j = jacobian[:, index]
-        covariance = np.linalg.pinv(j.T @ j / sigma**2, rcond=1e-12, hermitian=True)
+        scale = np.concatenate([scales[n] for n in names])
+        # In units of each parameter's scale, with a ridge 1e-12 of the mean information:
+        # an exact degeneracy (two columns that move the image the same way, as m and C
+        # do for a mirror) then shows as a huge deviation along it, where a
+        # pseudo-inverse would drop that direction and report a small one.
+        fisher = (j * scale).T @ (j * scale) / sigma**2
+        ridge = 1e-12 * max(float(np.trace(fisher)) / len(scale), 1e-300)
+        covariance = np.linalg.inv(fisher + ridge * np.eye(len(scale))) * np.outer(scale, scale)
         sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
         insensitive = np.linalg.norm(j, axis=0) == 0
-        relative = np.where(insensitive, np.inf, sd / np.concatenate([scales[n] for n in names]))
+        relative = np.where(insensitive, np.inf, sd / scale)
         predicted = {n: float(sd[owner == n].max()) for n in names}
         if relative.max() <= threshold:
             break
@@ -113,6 +124,7 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
         weak = np.flatnonzero(relative > threshold)
         worst = int(min(weak, key=lambda k: (_HOLD_ORDER(str(owner[k])), -relative[k])))
         name = str(owner[worst])
+        partners[name] = None
         if insensitive[worst]:
             reason = "the image does not change with it at all"
         else:
@@ -120,10 +132,11 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
             others = np.flatnonzero(owner != name)
             partner = others[np.argmax(np.abs(corr[others]))] if others.size else None
             if partner is not None and abs(corr[partner]) >= 0.9:
+                partners[name] = str(owner[partner])
                 reason = (f"it trades off with {owner[partner]} (correlation {corr[partner]:+.2f}); "
                           f"the image would pin it only to ±{sd[worst]:.2g}")
             else:
                 reason = f"the image barely changes with it (it would be pinned only to ±{sd[worst]:.2g})"
         held[name] = reason
         names.remove(name)
-    return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names})
+    return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names}, partner=partners)

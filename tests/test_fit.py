@@ -192,3 +192,58 @@ def test_other_solvers_recover_the_truth(solver):
     result = fit(scene, make_target(scene, sf.Material(**truth)), FitOptions(solver=solver))
     assert float(result.material.smoothness) == pytest.approx(truth["smoothness"], abs=1e-3)
     np.testing.assert_allclose(np.asarray(result.material.color), truth["color"], atol=1e-3)
+
+
+MIRROR_ROOM = OPAQUE.replace('[[light]]\nkind = "ambient"', '[background]\ncolor = [0.6, 0.6, 0.6]\n[[light]]\nkind = "ambient"')
+
+
+@pytest.mark.parametrize("metalness", [0.5, 1.0])
+def test_metal_mirror_over_a_uniform_backdrop_reports_the_tint_and_holds_metalness(metalness):
+    # s = 1 over a constant backdrop: no diffuse light, no highlight, only the backdrop
+    # tinted by C_s = 1 + m (1 - F)(C - 1). Every (m, C) with the same m (C - 1) renders
+    # the same image, so the fit must hold m (at 1) and report the tint as the colour.
+    scene = parse_scene(tomllib.loads(MIRROR_ROOM), source="mirror")
+    color = np.array([0.8, 0.3, 0.2])
+    result = fit(scene, make_target(scene, sf.Material(color=color, smoothness=1.0, metalness=metalness)))
+    assert "metalness" in result.held and "color" in result.free
+    assert result.held["metalness"]["value"] == 1.0
+    assert "m·(C − 1)" in result.held["metalness"]["reason"]
+    assert float(result.material.smoothness) == 1.0
+    np.testing.assert_allclose(np.asarray(result.material.color), 1.0 + metalness * (color - 1.0), atol=1e-4)
+    assert result.residual["rms"] < 1e-6
+
+
+def test_plastic_mirror_over_a_uniform_backdrop_holds_the_colour():
+    scene = parse_scene(tomllib.loads(MIRROR_ROOM), source="mirror")
+    result = fit(scene, make_target(scene, sf.Material(color=(0.8, 0.3, 0.2), smoothness=1.0, metalness=0.0)))
+    assert "color" in result.held and "does not change" in result.held["color"]["reason"]
+    assert float(result.material.metalness) == 0.0 and float(result.material.smoothness) == 1.0
+
+
+def test_index_of_refraction_is_held_when_the_fit_finds_an_opaque_material():
+    # before a checkerboard n is a candidate, but an opaque sphere (t = 0) shows nothing
+    # through it: wherever n lands the image is the same, so it must be held, not reported
+    scene = parse_scene(tomllib.loads(GLASS), source="glass")
+    truth = sf.Material(color=(0.9, 0.85, 0.7), smoothness=0.6, metalness=0.0, transparency=0.0, ior=1.7)
+    result = fit(scene, make_target(scene, truth, noise=0.005, seed=2))
+    assert "ior" in result.held and result.held["ior"]["value"] == 1.4  # the scene file's
+    assert "does not change" in result.held["ior"]["reason"]
+    assert float(result.material.transparency) == 0.0
+
+
+def test_large_targets_start_on_a_subsample_and_end_at_the_full_image_optimum(monkeypatch):
+    # 224² has ~39 000 sphere pixels: the starts run on every second one, then the polish
+    # finishes on all of them; the answer must be the one of a fit on all pixels throughout
+    from strauss_fit import fit as fit_module
+
+    scene = parse_scene(tomllib.loads(OPAQUE.replace("40", "224")), source="big")
+    target = make_target(scene, sf.Material(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.3), noise=0.01, seed=5)
+    options = FitOptions(starts=2, free=("color", "smoothness", "metalness"))
+    coarse = fit(scene, target, options)
+    assert coarse.starts[0]["cost"] > 0 and coarse.solver["polish_steps"] > 0
+    monkeypatch.setattr(fit_module, "COARSE_PIXELS", 10**9)
+    full = fit(scene, target, options)
+    for name in ("smoothness", "metalness"):
+        assert float(getattr(coarse.material, name)) == pytest.approx(float(getattr(full.material, name)), abs=1e-5)
+    np.testing.assert_allclose(np.asarray(coarse.material.color), np.asarray(full.material.color), atol=1e-5)
+    assert coarse.residual["sum_of_squares"] == pytest.approx(full.residual["sum_of_squares"], rel=1e-8)

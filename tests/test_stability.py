@@ -417,11 +417,12 @@ def test_solver_started_exactly_at_the_bounds_stays_finite():
                for c, s, m in (((0.0, 0.0, 0.0), 0.0, 0.0), ((1.0, 1.0, 1.0), 1.0, 1.0),
                                ((0.0, 1.0, 0.0), 0.0, 1.0), ((1.0, 0.0, 1.0), 1.0, 0.0))]
     cost = jax.jit(jax.vmap(lambda theta: jnp.sum(problem.residual(theta) ** 2)))
-    for margin in (0.0, START_MARGIN):
+    # both ways of running the starts: one after the other (CPU) and vectorised (GPU)
+    for margin, batched in ((0.0, False), (START_MARGIN, False), (0.0, True)):
         thetas = jnp.asarray(problem.layout.to_unconstrained(np.stack(corners), margin=margin))
         assert thetas.shape == (FIT_OPTIONS.starts, size)
         values, costs, steps, codes = _solve_all(problem, thetas, FIT_OPTIONS.solver, FIT_OPTIONS.rtol,
-                                                 FIT_OPTIONS.atol, FIT_OPTIONS.start_steps)
+                                                 FIT_OPTIONS.atol, FIT_OPTIONS.start_steps, batched)
         physical = np.asarray(_to_physical(problem.layout, values))
         assert_all_finite((values, costs, physical), f"solver from the bounds (margin {margin})")
         assert np.all((physical >= 0) & (physical <= 1))
