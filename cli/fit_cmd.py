@@ -28,9 +28,9 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm",
                         help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS")
     parser.add_argument("--starts", type=positive_int, metavar="N",
-                        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality, 4)")
+                        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: 1, 2 or 4)")
     parser.add_argument("--max-steps", type=positive_int, metavar="N",
-                        help="solver step limit of the polish (default: from --quality, 100)")
+                        help="solver step limit of the polish (default: from --quality: 50, 320 or 560)")
     parser.add_argument("--free", metavar="NAMES",
                         help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",

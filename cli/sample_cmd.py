@@ -49,7 +49,7 @@ def add_parser(subparsers) -> None:
                         help="cap on the chain's total length in steps, earlier runs included (default: from "
                         "--quality, 10000)")
     parser.add_argument("--min-tau-multiple", type=float, metavar="K",
-                        help="stop when the chain is K autocorrelation times long (default: from --quality, 50)")
+                        help="stop when the chain is K autocorrelation times long (default: from --quality: 10, 50 or 100)")
     parser.add_argument("--check-every", type=positive_int, default=100, metavar="N",
                         help="steps between convergence checks and progress lines (default 100)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the walkers (default 0)")

@@ -8,8 +8,9 @@ Gauss–Newton, or the quasi-Newton minimiser BFGS, all from optimistix.
 Speed: everything that does not depend on the material (pixel geometry, the angular terms
 F, G and j of every light, backgrounds seen along mirror directions) is computed once
 (:func:`strauss_fit.render.prepare`) and restricted to the usable pixels; the solver then
-evaluates only the material-dependent part. All starts run at once, vectorised with
-``vmap``.
+evaluates only the material-dependent part. The starts run on a pixel subsample of a
+large image, one after another on a CPU and vectorised with ``vmap`` elsewhere
+(:func:`_solve_all`, :func:`_solve`).
 
 Only what the scene constrains is fitted (:mod:`strauss_fit.identifiability`); held
 parameters keep the scene file's ``[material]`` values and the result says why.
@@ -176,8 +177,9 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
     """Continue the best start with an active set. Entries within :data:`BOUND_SNAP` of a
     bound are pinned to it and the rest re-solved (Levenberg–Marquardt, whatever the
     solver of the starts; Gauss–Newton when ``near``, i.e. the start converged on the
-    subsample and only the last few digits are left — it gets there in fewer steps, and
-    a round where it raised the cost is redone with Levenberg–Marquardt); a pinned entry is released if moving it inward would lower χ²
+    subsample, nothing is pinned and only the last few digits are left — it gets there in
+    fewer steps, and a round where it raised the cost or did not converge is redone with
+    Levenberg–Marquardt); a pinned entry is released if moving it inward would lower χ²
     (at the reference noise) by more than 1 — the Newton estimate :math:`N g^2 / H`, g and
     H the normalised cost's slope and curvature along it: a KKT check with a statistical
     tolerance — and entries that reach a bound are pinned. At most three rounds.
@@ -190,15 +192,19 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
     lower, upper = layout.lower_bounds(), layout.upper_bounds()
     count = problem.target.size
     x = np.asarray(problem.physical(jnp.asarray(theta)))
+    start_theta = theta
+    start_cost = float(np.asarray(_costs(problem, jnp.asarray(x[None])))[0])
     at_lower, at_upper = x - lower < BOUND_SNAP, upper - x < BOUND_SNAP
     total_steps = 0
     for round_ in range(3):
         pinned = at_lower | at_upper
         trial = problem.pin(pinned, np.where(at_lower, lower, np.where(at_upper, upper, x)))
         start = jnp.asarray(theta)
+        # Gauss–Newton's QR would divide by the zero Jacobian column of a pinned entry
+        gauss_newton = near and not round_ and not pinned.any()
         theta, cost, steps, code, gradient, curvature, cost0 = (np.asarray(v) for v in _polish_solve(
-            trial, start, options.rtol, options.atol, options.max_steps, "gauss-newton" if near and not round_ else "lm"))
-        if near and not round_ and not (np.isfinite(cost) and cost <= cost0):
+            trial, start, options.rtol, options.atol, options.max_steps, "gauss-newton" if gauss_newton else "lm"))
+        if gauss_newton and not (np.isfinite(cost) and cost <= cost0 and _status(int(code)) == "successful"):
             theta, cost, more, code, gradient, curvature, _ = (np.asarray(v) for v in _polish_solve(
                 trial, start, options.rtol, options.atol, options.max_steps, "lm"))
             steps = steps + more
@@ -213,6 +219,14 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
             break
         at_lower = (at_lower & ~release_lower) | new_lower
         at_upper = (at_upper & ~release_upper) | new_upper
+    if (at_lower | at_upper).any() and float(cost) > start_cost * (1 + 1e-9):
+        # The Newton estimate of the release gain can miss a gain that is far from
+        # quadratic (s just below 1, where the highlight's exponent 3/(1 − s) explodes):
+        # pinning must never end above the cost the polish started from.
+        theta, cost, steps, code, *_ = (np.asarray(v) for v in _polish_solve(
+            problem, jnp.asarray(start_theta), options.rtol, options.atol, options.max_steps, "lm"))
+        total_steps += int(steps)
+        trial = problem
     return theta, float(cost), total_steps, _status(int(code)), trial
 
 
@@ -399,8 +413,10 @@ def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -
 def decide_free(scene: Scene, target: Target, options: FitOptions, material: Material, guess: dict[str, Any],
                 candidates: list[str], fixed: dict[str, Any], sigma: float, margin: float = 0.15) -> Decision:
     """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`), probing at
-    ``guess`` with unit-interval values kept ``margin`` inside their bounds (at a bound some
-    sensitivities vanish: m has no effect at s = 0)."""
+    ``guess`` with unit-interval values kept ``margin`` inside their bounds. At a first
+    guess a margin keeps a rough estimate off the bounds, where some sensitivities vanish
+    (m has no effect at s = 0); at an optimum the fit calls it with margin 0 on purpose:
+    if the fit lands on s = 0, m really is invisible."""
     if options.free is not None:
         return Decision(free=[n for n in candidates if n in options.free and n not in fixed],
                         held={n: "held by the user (--free)" for n in candidates if n not in options.free and n not in fixed})
@@ -478,7 +494,10 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     solve_started = time.perf_counter()
     kept = None  # the fit that stands: (decision, problem, prepared_full, index, solved, plan, material, scene)
     tried = [_decision_key(decision, material, scene.lights)]
+    best_rss = np.inf
     for attempt in range(MAX_DECISIONS):
+        if not decision.free and kept is not None:
+            break  # nothing left to refit: the fit before stands
         if not decision.free:
             raise StraussFitError("no parameter is left to fit: the scene constrains none of the candidates "
                                   f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})")
@@ -489,18 +508,20 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
         fits_done = attempt + 1
         # Holding a parameter never lowers the cost; a refit under a new decision stands
         # only if it costs at most Δχ² = 1 more at the reference noise than the fit before.
-        if kept is not None and solved.rss > kept[4].rss + sigma_ref**2:
+        if kept is not None and solved.rss > best_rss + sigma_ref**2:
             say("the refit was worse: keeping the fit before it")
             break
         kept = (decision, problem, prepared_full, index, solved, plan, material, scene)
-        if options.free is not None:
+        best_rss = min(solved.rss, best_rss)
+        if options.free is not None or attempt == MAX_DECISIONS - 1:
             break
         # The decision was taken at the first guess, which may be far from the truth (a
         # metal mistaken for plastic, say): take it again at the optimum, probing exactly
         # where the fit landed, bounds included (a mirror, s = 1, or an opaque glass, t = 0,
         # must be seen as such, not as the generic material a first guess is), and refit
         # from there if the answer is new.
-        fitted = {**guess, **_jsonable(problem.layout.split(solved.x))}
+        fitted = {**guess, **{name: _value_of(name, material, scene.lights) for name in decision.held},
+                  **_jsonable(problem.layout.split(solved.x))}
         again = decide_free(scene, target, options, material, fitted, candidates, fixed, sigma_ref, margin=0.0)
         held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
         again.held.update(reasons_at_optimum)
@@ -510,7 +531,7 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
         # a decision is new if it frees other parameters or holds one at another value
         # (a mirror's metalness held at 1 rather than at the scene's 0, say)
         key = _decision_key(again, next_material, next_scene.lights)
-        if key in tried or attempt == MAX_DECISIONS - 1:
+        if key in tried:
             break
         tried.append(key)
         say(f"at the optimum the image constrains {', '.join(again.free) or 'nothing'}: fitting again from there")
@@ -590,13 +611,15 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
     """Values for the parameters that the decision at the optimum (``again``) holds and the
     first one (``before``) fitted, and reasons that replace the analysis's.
 
-    A parameter that *trades off* with another is held at the value the fit reached: the
-    image pins only a combination, and the refit from there reproduces it exactly. One such
+    A parameter that *trades off* with another, or that the image depends on only barely, is
+    held at the value the fit reached: the image pins only a combination (or nothing
+    useful), and the refit from there reproduces it. One such
     combination has a canonical choice: over a uniform backdrop a mirror (s = 1) shows no
     diffuse light and no highlight, only the backdrop tinted by C_s = 1 + m(1 − F)(C − 1),
     so metalness and colour enter only as the tint m·(C − 1). Metalness is held at 1 there,
     which reproduces every tint with C = 1 + m(C − 1) in [0, 1], so that the colour reported
-    *is* the mirror's tint. A parameter the image does not depend on keeps the scene's value.
+    *is* the mirror's tint. A parameter the image does not depend on at all keeps the value
+    it had (the scene's): the fit's value of it means nothing.
     """
     values: dict[str, Any] = {}
     reasons: dict[str, str] = {}
@@ -604,7 +627,7 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
         if name in before.held:
             reasons[name] = before.held[name]  # held before, at the value it still has
             continue
-        if again.partner.get(name) is None:
+        if name in again.dead or name not in again.partner:
             continue
         if name == "metalness" and again.partner[name] == "color" and "color" in again.free \
                 and float(fitted["smoothness"]) >= MIRROR_SMOOTHNESS:
@@ -693,7 +716,9 @@ def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, co
     starts = [{"start": _jsonable(layout.split(start_points[i])), "end": _jsonable(layout.split(physical[i])),
                "cost": float(costs[i]), "steps": int(steps[i]), "status": statuses[i]} for i in range(len(costs))]
     # "equally good": within Δχ² = 1 of the best at the reference noise (costs are χ²/N)
-    agree = finite & (costs <= costs[best] + 1.0 / screen.target.size)
+    # (on a subsample the costs are the same χ² per value, so the full image's Δχ² = 1
+    # is still 1 / N of them)
+    agree = finite & (costs <= costs[best] + 1.0 / problem.target.size)
     spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
     lower, upper = layout.lower_bounds(), layout.upper_bounds()
     interior = bool(np.all((physical[best] - lower >= BOUND_SNAP) & (upper - physical[best] >= BOUND_SNAP)))

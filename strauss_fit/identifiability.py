@@ -9,11 +9,13 @@ Two kinds of reasons, checked in this order:
    smoothness) can mimic; over a constant colour, light through the sphere is
    indistinguishable from that colour reflected (a clear glass ball and a mirror look
    alike over a uniform backdrop).
-2. *Numerical*: at a probe point (the first guess, kept away from the bounds), the Fisher
-   information of the image, :math:`\mathcal{I} = J^\top J/\sigma^2` with J the Jacobian
-   of the rendered pixels with respect to the physical parameters and σ a reference
-   noise level, predicts each parameter's standard deviation
-   :math:`\sqrt{(\mathcal{I}^{-1})_{ii}}`. While the worst parameter's predicted
+2. *Numerical*: at a probe point (the first guess, kept away from the bounds, or the
+   optimum of a fit, exactly), the Fisher information of the image,
+   :math:`\mathcal{I} = J^\top J/\sigma^2` with J the Jacobian of the rendered pixels
+   with respect to the physical parameters and σ a reference noise level, predicts each
+   parameter's standard deviation :math:`\sqrt{((\mathcal{I} + \epsilon)^{-1})_{ii}}`,
+   with a ridge ε of 1e-12 of the mean information (in units of each parameter's scale)
+   so that an exact degeneracy reads as an enormous deviation, not as none. While the worst parameter's predicted
    deviation exceeds ``threshold`` times its scale (1 for values in [0, 1], 0.5 for n,
    the current value for light intensities), one of those over the threshold is held
    fixed — n first, then t, m, light intensities, s, C — and the analysis repeats.
@@ -46,6 +48,8 @@ class Decision:
     #: For a parameter held by the numerical analysis: the parameter it trades off with,
     #: or None when the image does not depend on it (or only barely).
     partner: dict[str, str | None] = field(default_factory=dict)
+    #: Held parameters the image does not depend on at all (a zero Jacobian column).
+    dead: list[str] = field(default_factory=list)
 
 
 def structural_reasons(candidates: list[str], *, depth: int, background_kind: str, background_black: bool,
@@ -99,6 +103,7 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
     names = list(layout.names)
     held: dict[str, str] = {}
     partners: dict[str, str | None] = {}
+    dead: list[str] = []
     predicted: dict[str, float] = {}
     while names:
         index = np.concatenate([columns[n] for n in names])
@@ -126,6 +131,7 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
         name = str(owner[worst])
         partners[name] = None
         if insensitive[worst]:
+            dead.append(name)
             reason = "the image does not change with it at all"
         else:
             corr = covariance[worst] / np.maximum(sd[worst] * sd, 1e-300)
@@ -139,4 +145,5 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
                 reason = f"the image barely changes with it (it would be pinned only to ±{sd[worst]:.2g})"
         held[name] = reason
         names.remove(name)
-    return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names}, partner=partners)
+    return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names}, partner=partners,
+                    dead=dead)
