@@ -411,7 +411,8 @@ def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -
 
 
 def decide_free(scene: Scene, target: Target, options: FitOptions, material: Material, guess: dict[str, Any],
-                candidates: list[str], fixed: dict[str, Any], sigma: float, margin: float = 0.15) -> Decision:
+                candidates: list[str], fixed: dict[str, Any], sigma: float, margin: float = 0.15,
+                at_bound: frozenset[str] = frozenset()) -> Decision:
     """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`), probing at
     ``guess`` with unit-interval values kept ``margin`` inside their bounds. At a first
     guess a margin keeps a rough estimate off the bounds, where some sensitivities vanish
@@ -437,7 +438,7 @@ def decide_free(scene: Scene, target: Target, options: FitOptions, material: Mat
     problem, _, _ = build_problem(scene, target, names, material, plan, options)
     probe = problem.layout.join(probe_values)
     jacobian = np.asarray(_jacobian(problem, jnp.asarray(probe)))
-    decision = numerical_decision(problem.layout, jacobian, probe, sigma, options.threshold)
+    decision = numerical_decision(problem.layout, jacobian, probe, sigma, options.threshold, at_bound)
     decision.held = {**held, **decision.held}
     return decision
 
@@ -522,7 +523,12 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
         # from there if the answer is new.
         fitted = {**guess, **{name: _value_of(name, material, scene.lights) for name in decision.held},
                   **_jsonable(problem.layout.split(solved.x))}
-        again = decide_free(scene, target, options, material, fitted, candidates, fixed, sigma_ref, margin=0.0)
+        pinned = np.asarray(solved.problem.pinned)
+        at_bound = frozenset(name for name, size, offset in zip(problem.layout.names, problem.layout.sizes,
+                                                                problem.layout.offsets)
+                             if size == 1 and pinned[offset])
+        again = decide_free(scene, target, options, material, fitted, candidates, fixed, sigma_ref, margin=0.0,
+                            at_bound=at_bound)
         held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
         again.held.update(reasons_at_optimum)
         next_material = material_with(material, {k: v for k, v in held_values.items() if k in MATERIAL_SIZES})
@@ -603,8 +609,10 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
 #: How many times the free set is decided and fitted at most: at the first guess, then at
 #: each optimum while the answer is new.
 MAX_DECISIONS = 3
-#: A fitted smoothness this close to 1 is a mirror (see :func:`held_at_optimum`).
-MIRROR_SMOOTHNESS = 1.0 - 1e-9
+#: A fitted smoothness at least this is a mirror (see :func:`held_at_optimum`): above it the
+#: diffuse term (1 − s³) and the highlight (exponent 3/(1 − s) ≥ 300) are nearly invisible,
+#: and the rule applies only where the analysis found metalness trading off with colour.
+MIRROR_SMOOTHNESS = 0.99
 
 
 def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
@@ -614,7 +622,7 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
     A parameter that *trades off* with another, or that the image depends on only barely, is
     held at the value the fit reached: the image pins only a combination (or nothing
     useful), and the refit from there reproduces it. One such
-    combination has a canonical choice: over a uniform backdrop a mirror (s = 1) shows no
+    combination has a canonical choice: over a uniform backdrop a mirror (s ≈ 1) shows no
     diffuse light and no highlight, only the backdrop tinted by C_s = 1 + m(1 − F)(C − 1),
     so metalness and colour enter only as the tint m·(C − 1). Metalness is held at 1 there,
     which reproduces every tint with C = 1 + m(C − 1) in [0, 1], so that the colour reported
@@ -635,7 +643,8 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
             tint = metalness * (np.asarray(fitted["color"], dtype=float) - 1.0)
             values["metalness"] = 1.0
             values["color"] = np.clip(1.0 + tint, 0.0, 1.0).tolist()
-            reasons["metalness"] = ("the fit found a mirror (s = 1), which shows only the backdrop tinted by "
+            reasons["metalness"] = (f"the fit found a mirror (s = {float(fitted['smoothness']):.4g}), which shows "
+                                    "only the backdrop tinted by "
                                     "C_s = 1 + m(1 − F)(C − 1): metalness and colour enter only as the tint "
                                     "m·(C − 1). Held at 1, so that the colour reported is the mirror's tint "
                                     f"({again.held[name]})")

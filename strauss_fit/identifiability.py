@@ -93,10 +93,14 @@ def _HOLD_ORDER(name: str) -> int:
 
 
 def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, sigma: float,
-                       threshold: float = DEFAULT_THRESHOLD) -> Decision:
+                       threshold: float = DEFAULT_THRESHOLD, at_bound: frozenset[str] = frozenset()) -> Decision:
     """Hold parameters whose predicted deviation at noise ``sigma`` is too large.
 
     ``jacobian`` (N, P) is taken at the physical point ``probe`` (P,) for ``layout``.
+    ``at_bound``: parameters a fit pinned at a bound because the data pushes against it.
+    There the first derivative may vanish (at s = 0 every term in s is of second order)
+    while the data still decides the value, one-sidedly, so they are held only if the
+    image does not depend on them at all.
     """
     columns = {n: np.arange(o, o + k) for n, k, o in zip(layout.names, layout.sizes, layout.offsets)}
     scales = {n: _scale(n, probe[columns[n]]) for n in layout.names}
@@ -126,7 +130,9 @@ def numerical_decision(layout: Layout, jacobian: np.ndarray, probe: np.ndarray, 
         # Of the parameters the image cannot pin down, hold the one a scene least often
         # needs (n, then t, m, light intensities, s, C): when t and m trade off in an
         # opaque-looking image, holding t at its usual 0 is the better bet than holding m.
-        weak = np.flatnonzero(relative > threshold)
+        weak = np.flatnonzero((relative > threshold) & (insensitive | ~np.isin(owner, list(at_bound))))
+        if weak.size == 0:
+            break
         worst = int(min(weak, key=lambda k: (_HOLD_ORDER(str(owner[k])), -relative[k])))
         name = str(owner[worst])
         partners[name] = None
