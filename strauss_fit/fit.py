@@ -158,19 +158,24 @@ def _solve_all(problem: Problem, thetas: Array, solver_name: str, rtol: float, a
 BOUND_SNAP = 0.02
 
 
+def _near_bounds(layout: Layout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which entries of the physical point ``x`` lie within :data:`BOUND_SNAP` of their
+    lower and of their upper bound."""
+    return x - layout.lower_bounds() < BOUND_SNAP, layout.upper_bounds() - x < BOUND_SNAP
+
+
 @eqx.filter_jit
 def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int, solver_name: str):
     solver = _solver(solver_name, rtol, atol)
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
     r = problem.residual(solution.value)
-    r0 = problem.residual(theta)
     code = jnp.argmax(jnp.stack([solution.result == getattr(optx.RESULTS, name) for name in _RESULT_NAMES]))
     x = problem.physical(solution.value)
     jac = jax.jacfwd(problem.residual_physical)(x) / problem.residual_scale
     residual = problem.residual_physical(x) / problem.residual_scale
     gradient = jac.T @ residual
     curvature = jnp.sum(jac * jac, axis=0)
-    return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code, gradient, curvature, jnp.sum(r0 * r0)
+    return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code, gradient, curvature
 
 
 def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool = False):
@@ -194,7 +199,7 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
     x = np.asarray(problem.physical(jnp.asarray(theta)))
     start_theta = theta
     start_cost = float(np.asarray(_costs(problem, jnp.asarray(x[None])))[0])
-    at_lower, at_upper = x - lower < BOUND_SNAP, upper - x < BOUND_SNAP
+    at_lower, at_upper = _near_bounds(layout, x)
     total_steps = 0
     for round_ in range(3):
         pinned = at_lower | at_upper
@@ -202,10 +207,11 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
         start = jnp.asarray(theta)
         # Gauss–Newton's QR would divide by the zero Jacobian column of a pinned entry
         gauss_newton = near and not round_ and not pinned.any()
-        theta, cost, steps, code, gradient, curvature, cost0 = (np.asarray(v) for v in _polish_solve(
+        theta, cost, steps, code, gradient, curvature = (np.asarray(v) for v in _polish_solve(
             trial, start, options.rtol, options.atol, options.max_steps, "gauss-newton" if gauss_newton else "lm"))
-        if gauss_newton and not (np.isfinite(cost) and cost <= cost0 and _status(int(code)) == "successful"):
-            theta, cost, more, code, gradient, curvature, _ = (np.asarray(v) for v in _polish_solve(
+        # (with nothing pinned the trial is the problem itself, so its start cost is start_cost)
+        if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and _status(int(code)) == "successful"):
+            theta, cost, more, code, gradient, curvature = (np.asarray(v) for v in _polish_solve(
                 trial, start, options.rtol, options.atol, options.max_steps, "lm"))
             steps = steps + more
         total_steps += int(steps)
@@ -213,8 +219,9 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
         gain = count * gradient**2 / np.maximum(curvature, 1e-300)
         release_lower = at_lower & (gradient < 0) & (gain > 1.0)
         release_upper = at_upper & (gradient > 0) & (gain > 1.0)
-        new_lower = ~pinned & (x - lower < BOUND_SNAP) & (gradient >= 0)
-        new_upper = ~pinned & (upper - x < BOUND_SNAP) & (gradient <= 0)
+        near_lower, near_upper = _near_bounds(layout, x)
+        new_lower = ~pinned & near_lower & (gradient >= 0)
+        new_upper = ~pinned & near_upper & (gradient <= 0)
         if not (release_lower | release_upper | new_lower | new_upper).any():
             break
         at_lower = (at_lower & ~release_lower) | new_lower
@@ -729,8 +736,8 @@ def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, co
     # is still 1 / N of them)
     agree = finite & (costs <= costs[best] + 1.0 / problem.target.size)
     spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
-    lower, upper = layout.lower_bounds(), layout.upper_bounds()
-    interior = bool(np.all((physical[best] - lower >= BOUND_SNAP) & (upper - physical[best] >= BOUND_SNAP)))
+    near_lower, near_upper = _near_bounds(layout, physical[best])
+    interior = not (near_lower | near_upper).any()
     if coarse is None and statuses[best] == "successful" and interior:
         # converged away from every bound: the active-set polish would only repeat it
         theta_best, cost_best, polish_steps, status = values[best], costs[best], 0, statuses[best]

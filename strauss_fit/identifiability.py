@@ -15,12 +15,12 @@ Two kinds of reasons, checked in this order:
    with respect to the physical parameters and σ a reference noise level, predicts each
    parameter's standard deviation :math:`\sqrt{((\mathcal{I} + \epsilon)^{-1})_{ii}}`,
    with a ridge ε of 1e-12 of the mean information (in units of each parameter's scale)
-   so that an exact degeneracy reads as an enormous deviation, not as none. While the worst parameter's predicted
-   deviation exceeds ``threshold`` times its scale (1 for values in [0, 1], 0.5 for n,
-   the current value for light intensities), one of those over the threshold is held
-   fixed — n first, then t, m, light intensities, s, C — and the analysis repeats.
-   The reason names the parameter it trades off with (the largest correlation) or says
-   that the image barely changes with it.
+   so that an exact degeneracy reads as an enormous deviation, not as none. While the worst
+   parameter's predicted deviation exceeds ``threshold`` times its scale (1 for values in
+   [0, 1], 0.5 for n, the current value for light intensities), one of those over the
+   threshold is held fixed — n first, then t, m, light intensities, s, C — and the analysis
+   repeats. The reason names the parameter it trades off with (the largest correlation) or
+   says that the image barely changes with it.
 """
 
 from __future__ import annotations
