@@ -61,7 +61,8 @@ import functools
 
 import numpy as np
 
-from .model import K_F, K_G, K_J
+from .model import K_J
+from .model import _fresnel, _shadow  # plain arithmetic: the same formulas on NumPy arrays
 
 #: Gauss–Legendre nodes per axis (the w axis has two pieces of this many).
 DEFAULT_NODES = 48
@@ -74,16 +75,8 @@ def _gauss(n: int) -> tuple[np.ndarray, np.ndarray]:
     return (x + 1) / 2, w / 2
 
 
-def _fresnel(x: np.ndarray) -> np.ndarray:
-    return ((x - K_F) ** -2 - K_F**-2) / ((1 - K_F) ** -2 - K_F**-2)
-
-
-def _shadow(x: np.ndarray) -> np.ndarray:
-    return ((1 - K_G) ** -2 - (x - K_G) ** -2) / ((1 - K_G) ** -2 - K_G**-2)
-
-
 def _normalised(cosine: np.ndarray) -> np.ndarray:
-    return np.arccos(np.clip(cosine, 0.0, 1.0)) * (2 / np.pi)
+    return np.minimum(np.arccos(np.clip(cosine, 0.0, 1.0)) * (2 / np.pi), 1.0)
 
 
 def lobe_nodes(alpha: np.ndarray, k: np.ndarray, nodes: int = DEFAULT_NODES) -> tuple[np.ndarray, np.ndarray]:

@@ -61,8 +61,25 @@ def fresnel(x: ArrayLike) -> Array:
     :math:`F(x) = \dfrac{(x - k_f)^{-2} - k_f^{-2}}{(1 - k_f)^{-2} - k_f^{-2}}`;
     F(0) = 0, F(1) = 1. Safe for all x in [0, 1] since :math:`k_f > 1`.
     """
-    x = jnp.asarray(x)
-    return ((x - K_F) ** -2 - K_F**-2) / ((1 - K_F) ** -2 - K_F**-2)
+    return _fresnel(jnp.asarray(x))
+
+
+def _fresnel(x):
+    # Factored, (k_f^2 - (x - k_f)^2) = x (2 k_f - x), so F(0) = 0 exactly in any precision
+    # and F(x) >= 0 on [0, 1] by construction (two non-negative factors).
+    return x * (2 * K_F - x) / (K_F**2 * (x - K_F) ** 2 * _FRESNEL_SCALE)
+
+
+_FRESNEL_SCALE = (1 - K_F) ** -2 - K_F**-2
+_SHADOW_SCALE = (1 - K_G) ** -2 - K_G**-2
+
+
+def _shadow(x):
+    # Factored, (x - k_g)^2 - (1 - k_g)^2 = (x - 1)(x + 1 - 2 k_g): G(1) = 0 exactly in any
+    # precision and G(x) >= 0 on [0, 1] (both factors <= 0). The textbook difference of
+    # reciprocals rounds to a small negative number at grazing (-2e-6 in float32), which
+    # made highlights slightly negative there.
+    return (x - 1) * (x + 1 - 2 * K_G) / ((1 - K_G) ** 2 * (x - K_G) ** 2 * _SHADOW_SCALE)
 
 
 def shadow(x: ArrayLike) -> Array:
@@ -71,14 +88,14 @@ def shadow(x: ArrayLike) -> Array:
     :math:`G(x) = \dfrac{(1 - k_g)^{-2} - (x - k_g)^{-2}}{(1 - k_g)^{-2} - k_g^{-2}}`;
     G(0) = 1 (normal incidence), G(1) = 0 (grazing).
     """
-    x = jnp.asarray(x)
-    return ((1 - K_G) ** -2 - (x - K_G) ** -2) / ((1 - K_G) ** -2 - K_G**-2)
+    return _shadow(jnp.asarray(x))
 
 
 def normalised_angle(cosine: ArrayLike) -> Array:
     """``2 acos(c) / pi`` in [0, 1] for a cosine c clamped to [0, 1] (finite gradient)."""
     c = jnp.clip(jnp.asarray(cosine), 0.0, 1.0)
-    return safe_arccos(c) * (2.0 / jnp.pi)
+    # arccos(0) * 2/pi can round to one ulp above 1, outside F's and G's domain.
+    return jnp.minimum(safe_arccos(c) * (2.0 / jnp.pi), 1.0)
 
 
 # --- tabulated modes (the source's speed-ups) -------------------------------------------
@@ -90,9 +107,7 @@ def _tables(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if size < 2:
         raise ValueError(f"table size must be at least 2, got {size}")
     x = np.linspace(0.0, 1.0, size)
-    f = ((x - K_F) ** -2 - K_F**-2) / ((1 - K_F) ** -2 - K_F**-2)
-    g = ((1 - K_G) ** -2 - (x - K_G) ** -2) / ((1 - K_G) ** -2 - K_G**-2)
-    return x, f, g
+    return x, _fresnel(x), _shadow(x)
 
 
 @functools.lru_cache(maxsize=32)

@@ -16,6 +16,7 @@ from strauss_fit.model import (
     angular_terms,
     diffuse_reflectivity,
     highlight_falloff,
+    normalised_angle,
     shade,
     shade_terms,
     specular_base,
@@ -45,6 +46,20 @@ def test_fresnel_and_shadow_end_points():
     x = np.linspace(0, 1, 101)
     assert np.all(np.diff(np.asarray(sf.fresnel(x))) > 0)  # F rises, G falls
     assert np.all(np.diff(np.asarray(sf.shadow(x))) < 0)
+    np.testing.assert_allclose(np.asarray(sf.fresnel(x)), F_hand(x), rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(sf.shadow(x)), G_hand(x), rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_fresnel_and_shadow_vanish_exactly_at_their_zero_in_both_precisions(dtype):
+    # The textbook difference of reciprocals gives G(1) = -1.95e-6 in float32; the factored
+    # form is exactly zero, and never negative just inside grazing.
+    assert float(sf.fresnel(jnp.asarray(0.0, dtype))) == 0.0
+    assert float(sf.shadow(jnp.asarray(1.0, dtype))) == 0.0
+    tiny = jnp.asarray([0.0, 1e-33, 1e-20, 1e-12, 1e-7, 1e-4], dtype)
+    x = normalised_angle(tiny)  # angles a hair short of 90°
+    assert float(jnp.max(x)) <= 1.0
+    assert np.all(np.asarray(sf.shadow(x)) >= 0)
 
 
 def test_constants_are_the_lecture_values():

@@ -33,11 +33,12 @@ Tolerances for float32 against float64 (absolute, radiance per unit light intens
   edges amplify rounding: ``benchmarks/README.md`` found float32 errors up to 0.48 within
   0.2 % of the rim of a 512² transparent scene (0.02 in the outer ring at 24² here).
 
-Known float32 defect kept out of the assertions (reported, not fixed here): in float32,
-``shadow(1.0)`` is -1.95e-6 instead of 0, so within about 1e-6° of grazing (N·L or N·V
-below ~3e-8 but positive) a material with r_n = 0 gets a slightly negative highlight
-(-1.2e-7 per unit intensity). The float32 non-negativity property below is therefore
-asserted where N·L and N·V are ≤ 0 or ≥ 1e-6; float64 is asserted everywhere.
+Non-negativity holds in both precisions right up to grazing: F and G are evaluated in a
+factored form that is exactly 0 at its endpoint (the textbook difference of reciprocals
+gave G(1) = -1.95e-6 in float32 and, one ulp past x = 1, a negative value in float64, which
+made highlights slightly negative within ~1e-6° of grazing). The hypothesis properties run
+derandomised (``derandomize=True``) so that CI is reproducible; the case that the random
+search once found is pinned as an ``@example``.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import strauss_fit as sf
@@ -440,7 +441,7 @@ materials = st.fixed_dictionaries({
 })
 unit_vectors = st.tuples(*[st.floats(-1.0, 1.0, allow_nan=False)] * 3).filter(
     lambda v: math.fsum(x * x for x in v) > 1e-6).map(lambda v: tuple(np.asarray(v) / math.sqrt(math.fsum(x * x for x in v))))
-PROPERTY = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+PROPERTY = settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 
 
 @functools.lru_cache(maxsize=None)
@@ -463,15 +464,16 @@ def _dot(a, b) -> float:
 
 @PROPERTY
 @given(material=materials, normal=unit_vectors, to_light=unit_vectors, to_eye=unit_vectors)
+# Found by the random search (CI, 2026-11-29): N·L = 3.7e-33 put x one ulp above 1 and G(x) < 0.
+@example(material={"color": (0.0, 0.0, 0.0), "smoothness": 0.0, "metalness": 0.0, "transparency": 0.0,
+                   "ior": 1.0},
+         normal=(-1.0, -3.6600210431259307e-33, 0.0), to_light=(0.0, -1.0, 0.0), to_eye=(-1.0, 0.0, 0.0))
 def test_shade_is_finite_non_negative_and_dark_behind_the_surface(material, normal, to_light, to_eye):
     n_dot_l, n_dot_v = _dot(normal, to_light), _dot(normal, to_eye)
     for dtype in DTYPES:
         out = _call_shade(dtype, material, normal, to_light, to_eye)
         assert np.all(np.isfinite(out))
-        # float32: see the module docstring (shadow(1) < 0 in float32 within ~1e-6° of grazing)
-        grazing = dtype == jnp.float32 and (0 < n_dot_l < 1e-6 or 0 < n_dot_v < 1e-6)
-        if not grazing:
-            assert np.all(out >= 0), (jnp.dtype(dtype).name, out)
+        assert np.all(out >= 0), (jnp.dtype(dtype).name, out)
         if n_dot_l < -1e-12 or n_dot_v < -1e-12:  # margin: the library may round the dot differently
             assert np.all(out == 0)
 
