@@ -410,12 +410,13 @@ class Converter:
         if not finite.any():
             raise StraussFitError("every start of the fit diverged to non-finite values")
         best = int(np.argmin(np.where(finite, costs, np.inf)))
-        theta, cost, polish_steps, status, problem = strauss_fit_module._polish(problem, values[best], self.options)
+        theta, cost, polish_steps, status, problem, information = strauss_fit_module._polish(
+            problem, values[best], self.options)
         x = np.asarray(problem.physical(jnp.asarray(theta)))
         if not np.all(np.isfinite(x)):
             raise StraussFitError("the fit ended at non-finite parameters")
         rss = float(cost) * scale**2
-        uncertainty, correlation, _ = strauss_fit_module._laplace(problem, x, rss, None)
+        uncertainty, correlation, _ = strauss_fit_module._laplace(problem, x, rss, None, information)
         model = np.asarray(strauss_fit_module._render_at(problem, jnp.asarray(x)))
         layout = problem.layout
         fitted = self._strauss_values(entry, layout.split(x))

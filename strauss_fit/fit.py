@@ -40,9 +40,9 @@ from .model import DEFAULT_TABLE_SIZE
 from .parameters import MATERIAL_SIZES, Layout, light_parameter_names, lights_with, material_with
 from .render import Prepared, RenderPlan, plan_render, prepare, shade_prepared, take_pixels
 from .scene import Scene
+from .solvers import SOLVERS, make_solver
 from .target import Target
 
-SOLVERS = ("lm", "gauss-newton", "bfgs")
 #: Fixed starting points (smoothness, metalness, transparency) tried besides the guess.
 START_GRID = ((0.3, 0.1, 0.2), (0.8, 0.1, 0.6), (0.6, 0.9, 0.4), (0.2, 0.6, 0.8), (0.9, 0.5, 0.1), (0.5, 0.3, 0.5))
 #: Unit-interval starts are kept this far inside the bounds (the transform is flat there).
@@ -124,16 +124,6 @@ def _unit_intensity_scene(scene: Scene) -> Scene:
     return eqx.tree_at(lambda s: s.lights, scene, scene.lights.with_intensities(ones))
 
 
-def _solver(name: str, rtol: float, atol: float):
-    if name == "lm":
-        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    if name == "gauss-newton":
-        return optx.GaussNewton(rtol=rtol, atol=atol)
-    if name == "bfgs":
-        return optx.BFGS(rtol=rtol, atol=atol)
-    raise StraussFitError(f"unknown solver {name!r}; expected one of {', '.join(SOLVERS)}")
-
-
 @eqx.filter_jit
 def _solve_all(problem: Problem, thetas: Array, solver_name: str, rtol: float, atol: float, max_steps: int,
                batched: bool):
@@ -143,7 +133,7 @@ def _solve_all(problem: Problem, thetas: Array, solver_name: str, rtol: float, a
     pixels already fill the cores, costs about twice a sequential solve (measured:
     53 ms against 102 ms for one start at 256², 211 ms against 392 ms for four); on a
     GPU the batch fills the device instead."""
-    solver = _solver(solver_name, rtol, atol)
+    solver = make_solver(solver_name, rtol, atol)
 
     def one(theta0):
         solution = optx.least_squares(problem.residual, solver, theta0, max_steps=max_steps, throw=False)
@@ -166,7 +156,7 @@ def _near_bounds(layout: Layout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 @eqx.filter_jit
 def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int, solver_name: str):
-    solver = _solver(solver_name, rtol, atol)
+    solver = make_solver(solver_name, rtol, atol)
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
     r = problem.residual(solution.value)
     code = jnp.argmax(jnp.stack([solution.result == getattr(optx.RESULTS, name) for name in _RESULT_NAMES]))
@@ -175,7 +165,7 @@ def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_
     residual = problem.residual_physical(x) / problem.residual_scale
     gradient = jac.T @ residual
     curvature = jnp.sum(jac * jac, axis=0)
-    return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code, gradient, curvature
+    return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code, gradient, curvature, jac.T @ jac
 
 
 def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool = False):
@@ -187,7 +177,9 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
     Levenberg–Marquardt); a pinned entry is released if moving it inward would lower χ²
     (at the reference noise) by more than 1 — the Newton estimate :math:`N g^2 / H`, g and
     H the normalised cost's slope and curvature along it: a KKT check with a statistical
-    tolerance — and entries that reach a bound are pinned. At most three rounds.
+    tolerance — and entries that reach a bound are pinned, unless released before (an entry
+    that a round released and the next pulled back towards its bound would otherwise
+    alternate). At most three rounds; the cheapest round stands (ties go to the later).
 
     Why: the smooth transforms reach a bound only with zero slope, so an optimum on a bound
     (m = 0, say, or a noisy fit pulling past it) is approached ever more slowly; pinning
@@ -200,41 +192,48 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
     start_theta = theta
     start_cost = float(np.asarray(_costs(problem, jnp.asarray(x[None])))[0])
     at_lower, at_upper = _near_bounds(layout, x)
+    released = np.zeros_like(at_lower)
     total_steps = 0
+    best = None
     for round_ in range(3):
         pinned = at_lower | at_upper
         trial = problem.pin(pinned, np.where(at_lower, lower, np.where(at_upper, upper, x)))
         start = jnp.asarray(theta)
         # Gauss–Newton's QR would divide by the zero Jacobian column of a pinned entry
         gauss_newton = near and not round_ and not pinned.any()
-        theta, cost, steps, code, gradient, curvature = (np.asarray(v) for v in _polish_solve(
+        theta, cost, steps, code, gradient, curvature, information = (np.asarray(v) for v in _polish_solve(
             trial, start, options.rtol, options.atol, options.max_steps, "gauss-newton" if gauss_newton else "lm"))
         # (with nothing pinned the trial is the problem itself, so its start cost is start_cost)
         if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and _status(int(code)) == "successful"):
-            theta, cost, more, code, gradient, curvature = (np.asarray(v) for v in _polish_solve(
+            theta, cost, more, code, gradient, curvature, information = (np.asarray(v) for v in _polish_solve(
                 trial, start, options.rtol, options.atol, options.max_steps, "lm"))
             steps = steps + more
         total_steps += int(steps)
+        if best is None or (np.isfinite(cost) and cost <= best[1] * (1 + 1e-9)):
+            best = theta, cost, code, information, trial
         x = np.asarray(trial.physical(jnp.asarray(theta)))
         gain = count * gradient**2 / np.maximum(curvature, 1e-300)
         release_lower = at_lower & (gradient < 0) & (gain > 1.0)
         release_upper = at_upper & (gradient > 0) & (gain > 1.0)
+        released |= release_lower | release_upper
         near_lower, near_upper = _near_bounds(layout, x)
-        new_lower = ~pinned & near_lower & (gradient >= 0)
-        new_upper = ~pinned & near_upper & (gradient <= 0)
+        new_lower = ~pinned & ~released & near_lower & (gradient >= 0)
+        new_upper = ~pinned & ~released & near_upper & (gradient <= 0)
         if not (release_lower | release_upper | new_lower | new_upper).any():
             break
         at_lower = (at_lower & ~release_lower) | new_lower
         at_upper = (at_upper & ~release_upper) | new_upper
-    if (at_lower | at_upper).any() and float(cost) > start_cost * (1 + 1e-9):
+    theta, cost, code, information, trial = best
+    if np.asarray(trial.pinned).any() and not float(cost) <= start_cost * (1 + 1e-9):
         # The Newton estimate of the release gain can miss a gain that is far from
         # quadratic (s just below 1, where the highlight's exponent 3/(1 − s) explodes):
         # pinning must never end above the cost the polish started from.
-        theta, cost, steps, code, *_ = (np.asarray(v) for v in _polish_solve(
+        theta, cost, steps, code, _, _, information = (np.asarray(v) for v in _polish_solve(
             problem, jnp.asarray(start_theta), options.rtol, options.atol, options.max_steps, "lm"))
         total_steps += int(steps)
         trial = problem
-    return theta, float(cost), total_steps, _status(int(code)), trial
+    # JᵀJ at the end, in physical units, for the Laplace errors (saves recomputing J)
+    return theta, float(cost), total_steps, _status(int(code)), trial, information * float(trial.residual_scale) ** 2
 
 
 # Jitted once per shape: run eagerly, these would compile dozens of small XLA programs.
@@ -330,21 +329,35 @@ def _parse_fixed(options: FitOptions, allowed: list[str]) -> dict[str, Any]:
 
 
 def build_problem(scene: Scene, target: Target, names: list[str], material: Material, plan: RenderPlan,
-                  options: FitOptions, reference_noise: float = 1.0) -> tuple[Problem, Prepared, np.ndarray]:
+                  options: FitOptions, reference_noise: float = 1.0,
+                  cache: dict | None = None) -> tuple[Problem, Prepared, np.ndarray]:
     """The :class:`Problem` for the free ``names``, the full prepared image and the
-    flat indices of the pixels used."""
-    prepared_full = _prepare(_unit_intensity_scene(scene), plan, options.mode, options.table_size)
-    hit = np.asarray(prepared_full.hit)
-    used = hit & target.usable
-    if not used.any():
-        raise StraussFitError(f"target {target.path} has no usable sphere pixels (all masked, clipped or outside the sphere)")
-    index = np.flatnonzero(used.ravel())
-    pixels = target.pixels.reshape(-1, 3)[index]
-    if float(np.max(pixels)) <= 0:
-        raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
+    flat indices of the pixels used.
+
+    ``cache`` (a dict owned by one :func:`fit` call) keeps the prepared scene per render
+    plan: preparing depends only on the camera, the background, where the lights are and
+    the plan — not on the material or the lights' intensities, which is all that changes
+    between the problems of one fit."""
+    key = (plan, options.mode, options.table_size)
+    if cache is not None and key in cache:
+        prepared_full, index, prepared, pixels = cache[key]
+    else:
+        prepared_full = _prepare(_unit_intensity_scene(scene), plan, options.mode, options.table_size)
+        hit = np.asarray(prepared_full.hit)
+        used = hit & target.usable
+        if not used.any():
+            raise StraussFitError(f"target {target.path} has no usable sphere pixels "
+                                  "(all masked, clipped or outside the sphere)")
+        index = np.flatnonzero(used.ravel())
+        pixels = jnp.asarray(target.pixels.reshape(-1, 3)[index])
+        if float(jnp.max(pixels)) <= 0:
+            raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
+        prepared = _take_pixels(prepared_full, jnp.asarray(index))
+        if cache is not None:
+            cache[key] = prepared_full, index, prepared, pixels
     problem = Problem(
-        prepared=_take_pixels(prepared_full, jnp.asarray(index)),
-        target=jnp.asarray(pixels),
+        prepared=prepared,
+        target=pixels,
         scene=scene,
         material=material.astype(jnp.float64),
         lights=scene.lights,
@@ -357,17 +370,24 @@ def build_problem(scene: Scene, target: Target, names: list[str], material: Mate
     return problem, prepared_full, index
 
 
-def _starts(layout: Layout, guess: dict[str, Any], count: int, ior_candidates: list[float] | None = None) -> np.ndarray:
+def _starts(layout: Layout, guess: dict[str, Any], count: int, ior_candidates: list[float] | None = None,
+            exact_first: bool = False) -> np.ndarray:
     """The guess first, then points of :data:`START_GRID` (colour always from the guess).
     With ``ior_candidates`` (from :func:`_scan_ior`), each candidate index gets its own
-    copy of those starts."""
+    copy of those starts. Starts are kept :data:`START_MARGIN` inside the bounds, except
+    the first with ``exact_first``: a refit starts from the optimum before it, where the
+    held values were taken, and must be able to stay there (a mirror at s = 0.99995 is
+    not one at s = 0.98)."""
     rows = []
     for ior in ior_candidates or [guess.get("ior")]:
         base = dict(guess, ior=ior)
         rows.append(layout.join(base))
         for s, m, t in START_GRID[: max(count - 1, 0)]:
             rows.append(layout.join(dict(base, smoothness=s, metalness=m, transparency=t)))
-    return layout.to_unconstrained(np.stack(rows), margin=START_MARGIN)
+    thetas = layout.to_unconstrained(np.stack(rows), margin=START_MARGIN)
+    if exact_first:
+        thetas[0] = layout.to_unconstrained(rows[0])
+    return thetas
 
 
 #: Indices of refraction scanned for starting points when n is fitted.
@@ -395,17 +415,24 @@ def _scan_ior(problem: Problem, guess: dict[str, Any], keep: int = 3) -> list[fl
     return [float(IOR_SCAN[i]) for i in minima]
 
 
-def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -> tuple[dict, dict, np.ndarray | None]:
+def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None,
+             information: np.ndarray | None = None) -> tuple[dict, dict, np.ndarray | None]:
     """Standard deviations and correlations from the Gauss–Newton approximation
     :math:`\\Sigma = \\sigma^2 (J^\\top J)^{-1}` at the optimum (σ² = RSS/(N − P) unless given).
-    Entries pinned at a bound get deviation 0 (they are reported in ``solver.at_bound``)."""
+    Entries pinned at a bound get deviation 0 (they are reported in ``solver.at_bound``).
+    ``information``: :math:`J^\\top J` of the physical residuals at ``x`` if already
+    computed (the polish does)."""
     layout = problem.layout
     if layout.size == 0:
         return {}, {}, None
-    j = np.asarray(_jacobian(problem, jnp.asarray(x))) * ~np.asarray(problem.pinned)
-    n, p = j.shape
+    if information is None:
+        jacobian = np.asarray(_jacobian(problem, jnp.asarray(x)))
+        information = jacobian.T @ jacobian
+    free = ~np.asarray(problem.pinned)
+    information = np.asarray(information) * np.outer(free, free)
+    n, p = problem.target.size, layout.size
     variance = sigma**2 if sigma else rss / max(n - p, 1)
-    covariance = variance * np.linalg.pinv(j.T @ j, rcond=1e-14, hermitian=True)
+    covariance = variance * np.linalg.pinv(information, rcond=1e-14, hermitian=True)
     sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     norm = np.outer(sd, sd)
     corr = np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
@@ -419,7 +446,7 @@ def _laplace(problem: Problem, x: np.ndarray, rss: float, sigma: float | None) -
 
 def decide_free(scene: Scene, target: Target, options: FitOptions, material: Material, guess: dict[str, Any],
                 candidates: list[str], fixed: dict[str, Any], sigma: float, margin: float = 0.15,
-                at_bound: frozenset[str] = frozenset()) -> Decision:
+                at_bound: frozenset[str] = frozenset(), cache: dict | None = None) -> Decision:
     """Which of ``candidates`` to fit (see :mod:`strauss_fit.identifiability`), probing at
     ``guess`` with unit-interval values kept ``margin`` inside their bounds. At a first
     guess a margin keeps a rough estimate off the bounds, where some sensitivities vanish
@@ -442,7 +469,7 @@ def decide_free(scene: Scene, target: Target, options: FitOptions, material: Mat
     for key in ("smoothness", "metalness", "transparency"):
         probe_values[key] = float(np.clip(probe_values[key], margin, 1 - margin))
     probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), margin, 1 - margin)
-    problem, _, _ = build_problem(scene, target, names, material, plan, options)
+    problem, _, _ = build_problem(scene, target, names, material, plan, options, cache=cache)
     probe = problem.layout.join(probe_values)
     jacobian = np.asarray(_jacobian(problem, jnp.asarray(probe)))
     decision = numerical_decision(problem.layout, jacobian, probe, sigma, options.threshold, at_bound)
@@ -483,7 +510,9 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
         if unknown:
             raise StraussFitError(f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}")
     probe_plan = plan_render(scene, material, transparent=False)
-    guess_problem, prepared_full, index = build_problem(scene, target, ["color"], material, probe_plan, options)
+    prepared_cache: dict = {}  # one prepared scene per render plan, for every problem of this fit
+    guess_problem, prepared_full, index = build_problem(scene, target, ["color"], material, probe_plan, options,
+                                                        cache=prepared_cache)
     say("computing the first guess")
     direct = guess_problem.prepared.direct
     guess = initial_guess(
@@ -498,7 +527,8 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
 
     sigma_ref = _reference_noise(target, options)
     say("deciding which parameters the image constrains")
-    decision = decide_free(scene, target, options, material, guess, candidates, fixed, sigma_ref)
+    decision = decide_free(scene, target, options, material, guess, candidates, fixed, sigma_ref,
+                           cache=prepared_cache)
     solve_started = time.perf_counter()
     kept = None  # the fit that stands: (decision, problem, prepared_full, index, solved, plan, material, scene)
     tried = [_decision_key(decision, material, scene.lights)]
@@ -511,8 +541,10 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
                                   f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})")
         transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
         plan = plan_render(scene, material, transparent=transparent)
-        problem, prepared_full, index = build_problem(scene, target, decision.free, material, plan, options, sigma_ref)
-        solved = _solve(problem, guess, options, say, coarse_problem(problem, prepared_full, index))
+        problem, prepared_full, index = build_problem(scene, target, decision.free, material, plan, options, sigma_ref,
+                                                      cache=prepared_cache)
+        solved = _solve(problem, guess, options, say, coarse_problem(problem, prepared_full, index),
+                        exact_first=attempt > 0)
         fits_done = attempt + 1
         # Holding a parameter never lowers the cost; a refit under a new decision stands
         # only if it costs at most Δχ² = 1 more at the reference noise than the fit before.
@@ -535,8 +567,10 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
                                                                 problem.layout.offsets)
                              if size == 1 and pinned[offset])
         again = decide_free(scene, target, options, material, fitted, candidates, fixed, sigma_ref, margin=0.0,
-                            at_bound=at_bound)
+                            at_bound=at_bound, cache=prepared_cache)
         held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
+        _hold_jointly_dead_at_fit(again, decision, fitted, solved, material, scene.lights, sigma_ref,
+                                  held_values, reasons_at_optimum)
         again.held.update(reasons_at_optimum)
         next_material = material_with(material, {k: v for k, v in held_values.items() if k in MATERIAL_SIZES})
         next_scene = eqx.tree_at(lambda s: s.lights, scene, lights_with(
@@ -560,16 +594,16 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
     starts, spread = solved.starts, solved.spread
     notes = [f"equally good fits (within Δχ² = 1 of the best) disagree on {label} by {value:.2g}: "
              "the image may not pin it down" for label, value in spread.items() if value > 0.05]
-    uncertainty, correlation, _ = _laplace(problem, x_best, rss, None)
+    uncertainty, correlation, _ = _laplace(problem, x_best, rss, None, solved.information)
     fitted_values = layout.split(x_best)
     fitted_material = material_with(material, fitted_values)
     fitted_lights = lights_with(scene.lights, fitted_values)
-    model = np.asarray(_render_at(problem, jnp.asarray(x_best)))
+    full_fit = np.asarray(_shade_full(fitted_material, prepared_full, fitted_lights, scene, plan)).reshape(-1, 3)
+    model = full_fit[index]  # the fitted radiance at the pixels used
     residual = model - np.asarray(problem.target)
     delta_e = delta_e_2000(model, np.asarray(problem.target))
-    full = np.asarray(prepared_full.miss_radiance).reshape(-1, 3).copy()
-    full_fit = np.asarray(_shade_full(fitted_material, prepared_full, fitted_lights, scene, plan))
-    full = np.where(np.asarray(prepared_full.hit).reshape(-1, 1), full_fit.reshape(-1, 3), full)
+    full = np.where(np.asarray(prepared_full.hit).reshape(-1, 1), full_fit,
+                    np.asarray(prepared_full.miss_radiance).reshape(-1, 3))
 
     if status != "successful":
         notes.append(f"the solver ended with status '{status}'")
@@ -661,6 +695,34 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
     return values, reasons
 
 
+def _hold_jointly_dead_at_fit(again: Decision, before: Decision, fitted: dict[str, Any], solved: "_Solved",
+                              material: Material, lights: Lights, sigma: float, values: dict[str, Any],
+                              reasons: dict[str, str]) -> None:
+    """Hold the parameters that the image ignores at the optimum at the fitted values
+    instead of the scene's, when putting them back to the scene's values would change the
+    image (by more than Δχ² = 1 at the reference noise): they are then invisible only
+    jointly. A white plastic mirror is one: at C = 1 and m = 0 neither colour nor metalness
+    moves the image (the tint is m·(C − 1)), but the scene's colour with its metalness
+    would tint it. Updates ``values`` and ``reasons`` in place."""
+    layout = solved.problem.layout
+    dead = [n for n in again.held if n in again.dead and n not in before.held and n in layout.names]
+    if not dead:
+        return
+    x = np.array(solved.x, dtype=float)
+    for name in dead:
+        offset, size = layout.offsets[layout.names.index(name)], layout.sizes[layout.names.index(name)]
+        x[offset:offset + size] = np.atleast_1d(np.asarray(_value_of(name, material, lights), dtype=float))
+    cost = float(np.asarray(_costs(solved.problem, jnp.asarray(x[None])))[0])
+    if cost * float(solved.problem.residual_scale) ** 2 <= solved.rss + sigma**2:
+        return
+    for name in dead:
+        values[name] = fitted[name]
+        others = [n for n in dead if n != name]
+        jointly = f" (together with {', '.join(others)})" if others else ""
+        reasons[name] = (f"{again.held[name]} at the fitted point{jointly}; held at the value the fit reached, "
+                         "since the scene's value would change the image")
+
+
 def _decision_key(decision: Decision, material: Material, lights: Lights) -> tuple:
     """What makes two decisions the same fit: the free names and the held values."""
     values = tuple(sorted((name, tuple(np.round(np.atleast_1d(np.asarray(_value_of(name, material, lights),
@@ -680,6 +742,8 @@ class _Solved:
     best: int
     starts: list[dict[str, Any]]
     spread: dict[str, float]
+    #: JᵀJ of the physical residuals at ``x`` when the polish computed it, else None
+    information: np.ndarray | None = None
 
 
 #: Above twice this many usable pixels, the starts run on an evenly strided subsample of
@@ -700,7 +764,8 @@ def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray)
         target=problem.target[subset], residual_scale=problem.residual_scale * np.sqrt(subset.size / index.size))
 
 
-def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, coarse: Problem | None = None) -> _Solved:
+def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, coarse: Problem | None = None,
+           exact_first: bool = False) -> _Solved:
     """Every start (:attr:`FitOptions.start_steps` each, or to convergence for a single
     start), then the best one polished (:func:`_polish`) on every pixel.
 
@@ -714,7 +779,7 @@ def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, co
     if "ior" in layout.names:
         say("scanning the index of refraction for starting points")
         ior_candidates = _scan_ior(screen, guess)
-    thetas = _starts(layout, guess, options.starts, ior_candidates)
+    thetas = _starts(layout, guess, options.starts, ior_candidates, exact_first and ior_candidates is None)
     say(f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}"
         + (f" on {screen.target.shape[0]} of {problem.target.shape[0]} pixels" if coarse is not None else ""))
     # one start has nothing to be compared with: let it run to convergence at once
@@ -740,14 +805,15 @@ def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, co
     interior = not (near_lower | near_upper).any()
     if coarse is None and statuses[best] == "successful" and interior:
         # converged away from every bound: the active-set polish would only repeat it
-        theta_best, cost_best, polish_steps, status = values[best], costs[best], 0, statuses[best]
+        theta_best, cost_best, polish_steps, status, information = values[best], costs[best], 0, statuses[best], None
     else:
         say("polishing the best start (parameters at a bound held there)")
-        theta_best, cost_best, polish_steps, status, problem = _polish(
+        theta_best, cost_best, polish_steps, status, problem, information = _polish(
             problem, values[best], options, near=coarse is not None and statuses[best] == "successful")
     x_best = np.asarray(problem.physical(jnp.asarray(theta_best)))
     rss = float(cost_best) * float(problem.residual_scale) ** 2
-    return _Solved(problem, x_best, rss, status, int(steps[best]) + polish_steps, polish_steps, best, starts, spread)
+    return _Solved(problem, x_best, rss, status, int(steps[best]) + polish_steps, polish_steps, best, starts, spread,
+                   information)
 
 
 def _scaled(prepared: Prepared, lights: Lights) -> Prepared:
