@@ -185,7 +185,6 @@ def print_table(title: str, rows: list[dict]) -> None:
 
 def main(args: argparse.Namespace) -> dict:
     size, repeats = args.size, args.repeats
-    pixels = size * size
     info = machine_info()
     print(f"strauss_fit.render vs NumPy float64, {size}x{size}, median of {repeats} interleaved warm calls")
     print(f"machine: {info.get('cpu_model', info['processor'])}, {info['cpu_count']} CPUs, {info['platform']}; "

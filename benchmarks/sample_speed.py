@@ -233,7 +233,7 @@ def main(args: argparse.Namespace) -> dict:
         print(f"{r['walkers']:>7}  {r['name']:<48} {r['wall_s']:>8.2f} {r['steps_per_s']:>8.0f} {r['log_probs_per_s']:>8.0f} "
               f"{r['tau_max']:>7.1f} {r['ess_min']:>8.0f} {r['ess_per_s']:>8.1f} {r['speedup_vs_numpy']:>8.1f}")
     jax_rows = {r["walkers"]: r for r in rows if r["name"].startswith("JAX log-prob")}
-    print(f"\nJAX compile + warm-up per walker count (not in the table): "
+    print("\nJAX compile + warm-up per walker count (not in the table): "
           + ", ".join(f"{w}: {t:.2f} s" for w, t in compile_s.items())
           + f". JAX and NumPy chains identical to 1e-9: {identical}.")
     for walkers, r in jax_rows.items():

@@ -41,11 +41,11 @@ def positive_int(text: str) -> int:
 QUALITY_PRESETS: dict[str, dict[str, float | int | None]] = {
     # derived by benchmarks/tradeoff.py (2026-11-29); the numbers that picked each value
     # are in README.md, "Quality presets"
-    "fast": dict(starts=1, max_steps=50, rtol=1e-2, atol=1e-4, walkers=None, min_tau_multiple=10.0,
+    "fast": dict(starts=2, max_steps=20, rtol=1e-2, atol=1e-4, walkers=None, min_tau_multiple=10.0,
                  sample_max_steps=2000),
     "balanced": dict(starts=2, max_steps=320, rtol=1e-4, atol=1e-6, walkers=None, min_tau_multiple=50.0,
                      sample_max_steps=10000),
-    "accurate": dict(starts=4, max_steps=560, rtol=1e-8, atol=1e-10, walkers=128, min_tau_multiple=100.0,
+    "accurate": dict(starts=4, max_steps=610, rtol=1e-8, atol=1e-10, walkers=128, min_tau_multiple=100.0,
                      sample_max_steps=50000),
 }
 

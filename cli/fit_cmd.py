@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import add_evaluator_options, add_quality_option, check_evaluator_options, positive_int, quality_setting
+from .common import (QUALITY_PRESETS, add_evaluator_options, add_quality_option, check_evaluator_options, positive_int,
+                     quality_setting)
 
 PARAMETER_HELP = "color, smoothness, metalness, transparency, ior (and with --fit-lights: directional_intensity_1, ..., ambient_intensity)"
 
@@ -28,9 +29,10 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm",
                         help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS")
     parser.add_argument("--starts", type=positive_int, metavar="N",
-                        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: 1, 2 or 4)")
+                        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: "
+                             f"{_by_quality('starts')})")
     parser.add_argument("--max-steps", type=positive_int, metavar="N",
-                        help="solver step limit of the polish (default: from --quality: 50, 320 or 560)")
+                        help=f"solver step limit of the polish (default: from --quality: {_by_quality('max_steps')})")
     parser.add_argument("--free", metavar="NAMES",
                         help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
@@ -135,10 +137,13 @@ def comparison_image(target, fitted, mask):
     return np.concatenate([target, gap, fitted, gap, residual_view], axis=1) / scale
 
 
+def _by_quality(setting: str) -> str:
+    """'fast 2, balanced 2, accurate 4' for a preset setting (for help texts)."""
+    return ", ".join(f"{name} {values[setting]}" for name, values in QUALITY_PRESETS.items())
+
+
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
-    import numpy as np
-
     from strauss_fit import load_scene
     from strauss_fit.fit import FitOptions, fit
     from strauss_fit.io import check_writable, write_image, write_json

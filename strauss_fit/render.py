@@ -57,7 +57,7 @@ from jax import Array
 
 from .background import Background, background_radiance
 from .camera import Rays, intersect_unit_sphere, primary_rays
-from .lights import Lights, sample_lights
+from .lights import sample_lights
 from .material import Material
 from .model import (
     DEFAULT_TABLE_SIZE,

@@ -159,7 +159,7 @@ def test_target_of_another_size_is_rendered_at_its_size(tmp_path, scene, capsys)
 
 def test_quality_presets_set_and_record_the_solver_settings(tmp_path, scene, capsys):
     target = render_target(tmp_path, scene, capsys)
-    for quality, starts, rtol in (("fast", 1, 1e-2), ("balanced", 2, 1e-4), ("accurate", 4, 1e-8)):
+    for quality, starts, rtol in (("fast", 2, 1e-2), ("balanced", 2, 1e-4), ("accurate", 4, 1e-8)):
         result = tmp_path / f"{quality}.json"
         assert run(capsys, "fit", target, "--scene", scene, "-o", result, "--quality", quality)[0] == 0
         settings = json.loads(result.read_text())["settings"]

@@ -260,6 +260,23 @@ def test_plastic_mirror_from_an_8_bit_image_keeps_the_first_fits_cost_and_holds_
     assert not np.asarray(trial.pinned).any()
 
 
+def test_release_gain_lets_a_correlated_partner_follow():
+    # H over (colour, metalness), metalness pinned: with correlation rho the Newton gain of
+    # releasing it is N g^2 / (H_mm (1 - rho^2)), not N g^2 / H_mm
+    from strauss_fit.fit import _release_gain
+
+    rho, g, count = 0.995, -0.01, 1000
+    information = np.array([[4.0, rho * 2.0 * 3.0], [rho * 2.0 * 3.0, 9.0]])
+    gain = _release_gain(information, np.array([0.0, g]), np.array([False, True]), count)
+    assert gain[0] == 0.0
+    assert gain[1] == pytest.approx(count * g**2 / (9.0 * (1 - rho**2)), rel=1e-9)
+    # nothing free: the diagonal alone; a column the image ignores gains nothing
+    alone = _release_gain(information, np.array([0.0, g]), np.array([True, True]), count)
+    assert alone[1] == pytest.approx(count * g**2 / 9.0, rel=1e-12)
+    dead = _release_gain(np.diag([4.0, 0.0]), np.array([0.0, 0.0]), np.array([False, True]), count)
+    assert dead[1] == 0.0
+
+
 @pytest.mark.parametrize("scene_metalness,kept_at_fit", [(0.5, True), (0.0, False)])
 def test_parameters_invisible_only_jointly_are_held_at_the_fit_not_the_scene(scene_metalness, kept_at_fit):
     # A white plastic mirror (C = 1, m = 0, s = 1) over a uniform backdrop: the image moves
