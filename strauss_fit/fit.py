@@ -591,6 +591,7 @@ def fit(scene: Scene, target: Target, options: FitOptions = FitOptions(), *, pro
                              if size == 1 and pinned[offset])
         again = decide_free(scene, target, options, material, fitted, candidates, fixed, sigma_ref, margin=0.0,
                             at_bound=at_bound, cache=prepared_cache)
+        _hold_ior_without_significant_transparency(again, solved)
         held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
         _hold_jointly_dead_at_fit(again, decision, fitted, solved, material, scene.lights, sigma_ref,
                                   held_values, reasons_at_optimum)
@@ -733,6 +734,32 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
             values[name] = fitted[name]
             reasons[name] = f"{again.held[name]}; held at the value the fit reached"
     return values, reasons
+
+
+def _hold_ior_without_significant_transparency(again: Decision, solved: "_Solved") -> None:
+    """Hold n at the scene's value — whether the analysis found it free or held it as
+    barely visible — when the fitted transparency is within two Laplace deviations of 0. Why: the local analysis sees n's effect at the fitted t, however small
+    — and with t = 0.003 ± 0.002 noise alone can buy a χ² gain through n (an opaque sphere
+    before a checkerboard, fitted n = 1.02 ± 0.002 against a true 1.7) — but that effect
+    vanishes at t = 0, which the data do not exclude: n is then not what the image shows.
+    Updates ``again`` in place."""
+    layout = solved.problem.layout
+    numerically_held = "ior" in again.held and "ior" in again.partner
+    if not ("ior" in again.free or numerically_held) or not {"ior", "transparency"} <= set(layout.names):
+        return
+    transparency = float(solved.x[layout.offsets[layout.names.index("transparency")]])
+    uncertainty, _, _ = _laplace(solved.problem, solved.x, solved.rss, None, solved.information)
+    deviation = float(uncertainty["transparency"])
+    if transparency > 2 * deviation:
+        return
+    if "ior" in again.free:
+        again.free.remove("ior")
+    # held as the image not showing it (the scene's value), not at the fitted value
+    again.partner.pop("ior", None)
+    if "ior" in again.dead:
+        again.dead.remove("ior")
+    again.held["ior"] = (f"the fitted transparency, t = {transparency:.2g} ± {deviation:.2g}, is not distinguishable "
+                         "from 0: the image need not show anything through the sphere, so n would rest on noise")
 
 
 def _hold_jointly_dead_at_fit(again: Decision, before: Decision, fitted: dict[str, Any], solved: "_Solved",

@@ -218,3 +218,29 @@ def test_refraction_gradient_finite_at_the_critical_angle_and_grazing(dtype):
         direction = jnp.array([math.sin(angle), 0.0, -math.cos(angle)], dtype=dtype)
         g = jax.jacobian(lambda ior: refract(direction, normal, ior)[0])(jnp.asarray(n, dtype=dtype))
         assert np.all(np.isfinite(np.asarray(g))), angle
+
+
+def test_checkerboard_fades_to_its_mean_towards_the_horizon_with_bounded_gradient():
+    # A ray from z = 0 towards the plane z = -2 at a shrinking angle above it: the squares
+    # per radian of direction (h / (size cos^2)) grow without bound, and so would
+    # the pattern's derivative; the fade keeps the radiance and its gradient bounded and
+    # leaves views of the board well above the horizon unchanged.
+    from strauss_fit.background import HORIZON_FADE, Background
+
+    board = Background(kind="checkerboard", colors=jnp.array([[0.9, 0.8, 0.3], [0.1, 0.2, 0.6]]))
+    mean = 0.5 * (np.array([0.9, 0.8, 0.3]) + np.array([0.1, 0.2, 0.6]))
+
+    def radiance(angle):
+        direction = jnp.stack([jnp.cos(angle), 0.0 * angle, -jnp.sin(angle)])
+        return background_radiance(board, Rays(jnp.array([0.0, 0.0, 0.0]), direction))
+
+    for angle in (1e-2, 1e-3, 1e-5):  # 1e-2 rad: 4e4 squares per radian (faded above 300)
+        np.testing.assert_allclose(np.asarray(radiance(jnp.asarray(angle))), mean, atol=1e-12)
+    slopes = [float(jnp.max(jnp.abs(jax.jacfwd(radiance)(jnp.asarray(a))))) for a in np.geomspace(1e-4, 0.5, 200)]
+    assert np.all(np.isfinite(slopes)) and max(slopes) < 20 * np.pi * 2 * HORIZON_FADE
+    # straight down (2 / 0.5 = 4 squares per radian) the board is the plain pattern (to (4/100)^8)
+    straight = background_radiance(board, Rays(jnp.array([0.3, 0.1, 0.0]), jnp.array([0.0, 0.0, -1.0])))
+    u, v = 0.3 / 0.5, 0.1 / 0.5
+    weight = 0.5 + 0.5 * np.tanh(20.0 * np.sin(np.pi * u) * np.sin(np.pi * v))
+    expected = np.array([0.1, 0.2, 0.6]) + weight * (np.array([0.9, 0.8, 0.3]) - np.array([0.1, 0.2, 0.6]))
+    np.testing.assert_allclose(np.asarray(straight), expected, rtol=0, atol=1e-10)
