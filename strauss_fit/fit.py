@@ -158,14 +158,11 @@ def _near_bounds(layout: Layout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int, solver_name: str):
     solver = make_solver(solver_name, rtol, atol)
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
-    r = problem.residual(solution.value)
     code = jnp.argmax(jnp.stack([solution.result == getattr(optx.RESULTS, name) for name in _RESULT_NAMES]))
     x = problem.physical(solution.value)
     jac = jax.jacfwd(problem.residual_physical)(x) / problem.residual_scale
-    residual = problem.residual_physical(x) / problem.residual_scale
-    gradient = jac.T @ residual
-    curvature = jnp.sum(jac * jac, axis=0)
-    return solution.value, jnp.sum(r * r), solution.stats["num_steps"], code, gradient, curvature, jac.T @ jac
+    residual = problem.residual_physical(x) / problem.residual_scale  # = problem.residual(solution.value)
+    return solution.value, jnp.sum(residual**2), solution.stats["num_steps"], code, jac.T @ residual, jac.T @ jac
 
 
 def _release_gain(information: np.ndarray, gradient: np.ndarray, pinned: np.ndarray, count: int) -> np.ndarray:
@@ -221,11 +218,11 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
         start = jnp.asarray(theta)
         # Gauss–Newton's QR would divide by the zero Jacobian column of a pinned entry
         gauss_newton = near and not round_ and not pinned.any()
-        theta, cost, steps, code, gradient, curvature, information = (np.asarray(v) for v in _polish_solve(
+        theta, cost, steps, code, gradient, information = (np.asarray(v) for v in _polish_solve(
             trial, start, options.rtol, options.atol, options.max_steps, "gauss-newton" if gauss_newton else "lm"))
         # (with nothing pinned the trial is the problem itself, so its start cost is start_cost)
         if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and _status(int(code)) == "successful"):
-            theta, cost, more, code, gradient, curvature, information = (np.asarray(v) for v in _polish_solve(
+            theta, cost, more, code, gradient, information = (np.asarray(v) for v in _polish_solve(
                 trial, start, options.rtol, options.atol, options.max_steps, "lm"))
             steps = steps + more
         total_steps += int(steps)
@@ -248,7 +245,7 @@ def _polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool
         # The Newton estimate of the release gain can miss a gain that is far from
         # quadratic (s just below 1, where the highlight's exponent 3/(1 − s) explodes):
         # pinning must never end above the cost the polish started from.
-        theta, cost, steps, code, _, _, information = (np.asarray(v) for v in _polish_solve(
+        theta, cost, steps, code, _, information = (np.asarray(v) for v in _polish_solve(
             problem, jnp.asarray(start_theta), options.rtol, options.atol, options.max_steps, "lm"))
         total_steps += int(steps)
         trial = problem
@@ -738,8 +735,9 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
 
 def _hold_ior_without_significant_transparency(again: Decision, solved: "_Solved") -> None:
     """Hold n at the scene's value — whether the analysis found it free or held it as
-    barely visible — when the fitted transparency is within two Laplace deviations of 0. Why: the local analysis sees n's effect at the fitted t, however small
-    — and with t = 0.003 ± 0.002 noise alone can buy a χ² gain through n (an opaque sphere
+    barely visible — when the fitted transparency is within two Laplace deviations of 0.
+    Why: the local analysis sees n's effect at the fitted t, however small — and with
+    t = 0.003 ± 0.002 noise alone can buy a χ² gain through n (an opaque sphere
     before a checkerboard, fitted n = 1.02 ± 0.002 against a true 1.7) — but that effect
     vanishes at t = 0, which the data do not exclude: n is then not what the image shows.
     Updates ``again`` in place."""
@@ -839,8 +837,8 @@ def _solve(problem: Problem, guess: dict[str, Any], options: FitOptions, say, co
 
     With ``coarse`` (:func:`coarse_problem`), the index scan and the starts run on that
     subsample: a 256² sphere has 51 000 pixels where every sixth (8 500) tells the starts
-    apart as well, and each step there costs a sixth; the polish then finishes on the full image in a
-    few steps, so the answer is the full image's optimum."""
+    apart as well, and each step there costs a sixth; the polish then finishes on the full
+    image in a few steps, so the answer is the full image's optimum."""
     layout = problem.layout
     screen = coarse if coarse is not None else problem
     ior_candidates = None
