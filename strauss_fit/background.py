@@ -80,7 +80,8 @@ def _checkerboard(background: Background, rays: Rays) -> Array:
     # contrast is 1 to better than 1e-8. Computed as q = 1/f, floored at 1/3 (contrast
     # e^-6561 = 0), so that nothing overflows and the gradient is finite in float32.
     height = jnp.abs(dot(point, normal))
-    inverse_rate = safe_divide(size * facing**2 * HORIZON_FADE, height, fallback=1.0)
+    # (a plane through the origin has no horizon seen from it: no fade, q = inf)
+    inverse_rate = safe_divide(size * facing**2 * HORIZON_FADE, height, fallback=jnp.inf)
     contrast = jnp.exp(-(1.0 / jnp.maximum(inverse_rate, 1.0 / 3.0)) ** 8)
     weight = 0.5 + 0.5 * contrast * jnp.tanh(background.sharpness * jnp.sin(jnp.pi * u) * jnp.sin(jnp.pi * v))
     colors = background.colors.astype(dtype)

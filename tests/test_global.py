@@ -244,3 +244,8 @@ def test_checkerboard_fades_to_its_mean_towards_the_horizon_with_bounded_gradien
     weight = 0.5 + 0.5 * np.tanh(20.0 * np.sin(np.pi * u) * np.sin(np.pi * v))
     expected = np.array([0.1, 0.2, 0.6]) + weight * (np.array([0.9, 0.8, 0.3]) - np.array([0.1, 0.2, 0.6]))
     np.testing.assert_allclose(np.asarray(straight), expected, rtol=0, atol=1e-10)
+    # a plane through the origin (h = 0) is not faded at all
+    through = Background(kind="checkerboard", point=jnp.array([0.0, 0.0, 0.0]),
+                         colors=jnp.array([[0.9, 0.8, 0.3], [0.1, 0.2, 0.6]]))
+    seen = background_radiance(through, Rays(jnp.array([0.3, 0.1, 1.0]), jnp.array([0.0, 0.0, -1.0])))
+    np.testing.assert_allclose(np.asarray(seen), expected, rtol=0, atol=1e-12)
