@@ -6,9 +6,10 @@ Both fit the same 256×256 HDR target (an opaque sphere under one directional li
 ambient light, 1 % Gaussian noise) for colour, smoothness and metalness from the same
 starting point:
 
-- **strauss-fit**: :func:`strauss_fit.fit.fit` with ``free=(color, smoothness, metalness)``
-  — the whole call (geometry precomputed once, Levenberg–Marquardt from 1 start and from
-  the default 4, bound polish, Laplace errors, CIEDE2000, the full fitted image) and the
+- **strauss-fit**: :func:`strauss_fit.fit.api.fit` with ``free=(color, smoothness, metalness)``
+  and the tolerances of ``bench_common.LEGACY_FIT`` — the whole call (geometry precomputed
+  once, Levenberg–Marquardt from 1 start and from 4, bound polish, Laplace errors, CIEDE2000,
+  the full fitted image) and the
   solver alone (``timing.solve_s``). Warm: a first call compiles (reported separately).
 - **SciPy**: ``least_squares(method="trf", bounds=[0, 1])`` with its default 2-point
   finite-difference Jacobian on :func:`numpy_reference.shade_numpy` over the sphere's
@@ -34,13 +35,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import jax  # noqa: E402
 import scipy  # noqa: E402
+from bench_common import legacy_options  # noqa: E402
+from numpy_reference import shade_numpy, sphere_normals  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
-from numpy_reference import shade_numpy, sphere_normals  # noqa: E402
-from strauss_fit.fit import FitOptions, fit  # noqa: E402
-from strauss_fit.scene import parse_scene  # noqa: E402
-from strauss_fit.target import Target  # noqa: E402
+from strauss_fit import Target, fit, parse_scene  # noqa: E402
 
 TRUTH = dict(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.3)
 START = dict(color=(0.5, 0.5, 0.5), smoothness=0.4, metalness=0.5)
@@ -55,9 +55,9 @@ def make_scene(size: int) -> sf.Scene:
 width = {size}
 height = {size}
 [material]
-color = {list(START['color'])}
-smoothness = {START['smoothness']}
-metalness = {START['metalness']}
+color = {list(START["color"])}
+smoothness = {START["smoothness"]}
+metalness = {START["metalness"]}
 [[light]]
 kind = "directional"
 direction = {DIRECTION.tolist()}
@@ -74,8 +74,9 @@ def scipy_fit(size: int, target: np.ndarray) -> tuple[np.ndarray, int]:
     observed = target[mask]
 
     def residual(p):
-        radiance = shade_numpy(normals, p[:3], p[3], p[4], 0.0, DIRECTION[None, :], np.array([1.0]),
-                               np.ones((1, 3)), 0.1)
+        radiance = shade_numpy(
+            normals, p[:3], p[3], p[4], 0.0, DIRECTION[None, :], np.array([1.0]), np.ones((1, 3)), 0.1
+        )
         return (radiance - observed).ravel()
 
     x0 = np.array([*START["color"], START["smoothness"], START["metalness"]])
@@ -98,7 +99,7 @@ def main() -> None:
     rows = []
 
     for starts in (1, 4):
-        options = FitOptions(free=free, starts=starts)
+        options = legacy_options(free=free, starts=starts)
         first = time.perf_counter()
         result = fit(scene, target, options)
         compile_s = time.perf_counter() - first
@@ -108,11 +109,20 @@ def main() -> None:
             result = fit(scene, target, options)
             totals.append(time.perf_counter() - started)
             solves.append(result.compile_and_solve["solve_s"])
-        error = max(abs(float(result.material.smoothness) - TRUTH["smoothness"]),
-                    float(np.max(np.abs(np.asarray(result.material.color) - TRUTH["color"]))))
-        rows.append(dict(method=f"strauss-fit fit(), {starts} start(s)", total_s=statistics.median(totals),
-                         solve_s=statistics.median(solves), first_call_s=compile_s, steps=result.solver["steps"],
-                         max_param_error=error))
+        error = max(
+            abs(float(result.material.smoothness) - TRUTH["smoothness"]),
+            float(np.max(np.abs(np.asarray(result.material.color) - TRUTH["color"]))),
+        )
+        rows.append(
+            dict(
+                method=f"strauss-fit fit(), {starts} start(s)",
+                total_s=statistics.median(totals),
+                solve_s=statistics.median(solves),
+                first_call_s=compile_s,
+                steps=result.solver["steps"],
+                max_param_error=error,
+            )
+        )
 
     times = []
     for _ in range(args.repeats):
@@ -120,26 +130,45 @@ def main() -> None:
         x, nfev = scipy_fit(args.size, pixels)
         times.append(time.perf_counter() - started)
     error = max(abs(x[3] - TRUTH["smoothness"]), float(np.max(np.abs(x[:3] - TRUTH["color"]))))
-    scipy_row = dict(method="scipy least_squares (trf, 2-point FD) on NumPy", total_s=statistics.median(times),
-                     solve_s=statistics.median(times), first_call_s=None, steps=int(nfev), max_param_error=error)
+    scipy_row = dict(
+        method="scipy least_squares (trf, 2-point FD) on NumPy",
+        total_s=statistics.median(times),
+        solve_s=statistics.median(times),
+        first_call_s=None,
+        steps=int(nfev),
+        max_param_error=error,
+    )
     rows.append(scipy_row)
 
     print(f"warm fit of (C, s, m) on a {args.size}x{args.size} HDR target, median of {args.repeats}")
-    print(f"{'method':48s} {'total s':>9s} {'solve s':>9s} {'1st call s':>10s} {'steps/nfev':>10s} "
-          f"{'max err':>9s} {'x SciPy':>8s}")
+    print(
+        f"{'method':48s} {'total s':>9s} {'solve s':>9s} {'1st call s':>10s} {'steps/nfev':>10s} "
+        f"{'max err':>9s} {'x SciPy':>8s}"
+    )
     for row in rows:
         ratio = scipy_row["total_s"] / row["total_s"]
         first_call = f"{row['first_call_s']:.2f}" if row["first_call_s"] is not None else "-"
-        print(f"{row['method']:48s} {row['total_s']:9.3f} {row['solve_s']:9.3f} {first_call:>10s} "
-              f"{row['steps']:10d} {row['max_param_error']:9.1e} {ratio:8.1f}")
+        print(
+            f"{row['method']:48s} {row['total_s']:9.3f} {row['solve_s']:9.3f} {first_call:>10s} "
+            f"{row['steps']:10d} {row['max_param_error']:9.1e} {ratio:8.1f}"
+        )
         row["speedup_vs_scipy"] = ratio
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    info = dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__, scipy=scipy.__version__,
-                backend=jax.default_backend(), load_average=os.getloadavg()[0], size=args.size, repeats=args.repeats)
+    info = dict(
+        platform=platform.platform(),
+        cpus=os.cpu_count(),
+        jax=jax.__version__,
+        scipy=scipy.__version__,
+        backend=jax.default_backend(),
+        load_average=os.getloadavg()[0],
+        size=args.size,
+        repeats=args.repeats,
+    )
     out.write_text(json.dumps(dict(machine=info, rows=rows), indent=2) + "\n")
     print(f"wrote {out}")
 
 
 if __name__ == "__main__":
-    main()
+    with sf.float64():  # all of it in float64 (importing strauss_fit no longer switches it on)
+        main()

@@ -1,9 +1,9 @@
 """A plain NumPy float64 implementation of strauss-fit's local Strauss model.
 
 This is the honest baseline the benchmarks compare strauss-fit against: the formulas of
-``shared/strauss-model.md`` (and of :mod:`strauss_fit.model`) written as ordinary,
+``shared/strauss-model.md`` (and of :mod:`strauss_fit.models.strauss`) written as ordinary,
 vectorised-over-pixels NumPy code, with no JIT and no tricks. It renders the canonical
-orthographic view of the unit sphere exactly as :func:`strauss_fit.render.render` does for
+orthographic view of the unit sphere exactly as :func:`strauss_fit.render.strauss.render` does for
 a scene whose background is black (a constant colour is also accepted; see below):
 
 - pixel (row i, column k) is at x = (k + 0.5)/width·2 − 1, y = 1 − (i + 0.5)/height·2 and
@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from strauss_fit.model import K_F, K_G, K_J
+from strauss_fit.models.strauss import K_F, K_G, K_J
 
 __all__ = [
     "arrays_from_scene",
@@ -150,7 +150,11 @@ def shade_numpy(
         directions = np.atleast_2d(np.asarray(directions, dtype=np.float64))
         k = directions.shape[0]
         intensities = np.broadcast_to(np.asarray(intensities, dtype=np.float64), (k,))
-        colors = np.ones((k, 3)) if light_colors is None else np.broadcast_to(np.asarray(light_colors, dtype=np.float64), (k, 3))
+        colors = (
+            np.ones((k, 3))
+            if light_colors is None
+            else np.broadcast_to(np.asarray(light_colors, dtype=np.float64), (k, 3))
+        )
         for direction, intensity, light_color in zip(directions, intensities, colors):
             radiance += intensity * _one_light(normals, direction, n_dot_v, g_gamma, color, s, m, r_d, r_n, light_color)
 
@@ -158,15 +162,24 @@ def shade_numpy(
         positions = np.atleast_2d(np.asarray(point_positions, dtype=np.float64))
         k = positions.shape[0]
         intensities = np.broadcast_to(np.asarray(point_intensities, dtype=np.float64), (k,))
-        colors = np.ones((k, 3)) if point_colors is None else np.broadcast_to(np.asarray(point_colors, dtype=np.float64), (k, 3))
-        attenuation = (np.broadcast_to([1.0, 0.0, 0.0], (k, 3)) if point_attenuation is None
-                       else np.broadcast_to(np.asarray(point_attenuation, dtype=np.float64), (k, 3)))
+        colors = (
+            np.ones((k, 3))
+            if point_colors is None
+            else np.broadcast_to(np.asarray(point_colors, dtype=np.float64), (k, 3))
+        )
+        attenuation = (
+            np.broadcast_to([1.0, 0.0, 0.0], (k, 3))
+            if point_attenuation is None
+            else np.broadcast_to(np.asarray(point_attenuation, dtype=np.float64), (k, 3))
+        )
         for position, intensity, light_color, (c0, c1, c2) in zip(positions, intensities, colors, attenuation):
             offset = position - normals  # the surface point of the unit sphere is its normal
             distance = np.linalg.norm(offset, axis=-1)
             to_light = offset / distance[:, None]
             irradiance = intensity / (c0 + c1 * distance + c2 * distance**2)
-            radiance += irradiance[:, None] * _one_light(normals, to_light, n_dot_v, g_gamma, color, s, m, r_d, r_n, light_color)
+            radiance += irradiance[:, None] * _one_light(
+                normals, to_light, n_dot_v, g_gamma, color, s, m, r_d, r_n, light_color
+            )
 
     if ambient:
         radiance += float(ambient) * r_d * color
@@ -198,8 +211,18 @@ def render_numpy(
     """
     normals, mask = sphere_normals(width, height)
     radiance = shade_numpy(
-        normals, color, smoothness, metalness, transparency, directions, intensities, light_colors, ambient,
-        point_positions=point_positions, point_intensities=point_intensities, point_colors=point_colors,
+        normals,
+        color,
+        smoothness,
+        metalness,
+        transparency,
+        directions,
+        intensities,
+        light_colors,
+        ambient,
+        point_positions=point_positions,
+        point_intensities=point_intensities,
+        point_colors=point_colors,
         point_attenuation=point_attenuation,
     )
     image = np.empty((height, width, 3))

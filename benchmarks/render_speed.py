@@ -47,11 +47,20 @@ HERE = Path(__file__).resolve().parent
 def _parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=512, help="image width and height in pixels (default 512)")
-    parser.add_argument("--repeats", type=int, default=30, help="timed warm calls per row (median reported; default 30)")
-    parser.add_argument("--json", type=Path, default=HERE / "results" / "render_speed.json",
-                        help="where to write the results (default benchmarks/results/render_speed.json)")
-    parser.add_argument("--disable-ynn-fusion", action="store_true",
-                        help="run with XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= (diagnostic)")
+    parser.add_argument(
+        "--repeats", type=int, default=30, help="timed warm calls per row (median reported; default 30)"
+    )
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=HERE / "results" / "render_speed.json",
+        help="where to write the results (default benchmarks/results/render_speed.json)",
+    )
+    parser.add_argument(
+        "--disable-ynn-fusion",
+        action="store_true",
+        help="run with XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= (diagnostic)",
+    )
     return parser.parse_args(argv)
 
 
@@ -72,9 +81,9 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(HERE))
 from numpy_reference import arrays_from_scene, check_against_strauss_fit, render_numpy  # noqa: E402
 
-import strauss_fit  # noqa: E402  (enables float64)
+import strauss_fit  # noqa: E402
 from strauss_fit import Background, Camera, DirectionalLights, Lights, Material, Scene, render  # noqa: E402
-from strauss_fit.model import DEFAULT_TABLE_SIZE, MODES  # noqa: E402
+from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE, MODES  # noqa: E402
 
 DTYPES = (jnp.float32, jnp.float64)
 LIGHT_DIRECTION = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
@@ -84,13 +93,20 @@ TRANSPARENT = dict(color=(0.8, 0.3, 0.2), smoothness=0.6, metalness=0.3, transpa
 
 def make_scene(size: int, depth: int = 4, background: Background | None = None, material: dict = OPAQUE) -> Scene:
     """The benchmark scene: orthographic sphere, one white directional light."""
-    lights = Lights(directional=DirectionalLights(
-        direction=jnp.asarray(LIGHT_DIRECTION[None, :]),
-        intensity=jnp.asarray([1.0]),
-        color=jnp.ones((1, 3)),
-    ))
-    return Scene(camera=Camera("orthographic", size, size), lights=lights,
-                 background=background or Background(), material=Material(**material), depth=depth)
+    lights = Lights(
+        directional=DirectionalLights(
+            direction=jnp.asarray(LIGHT_DIRECTION[None, :]),
+            intensity=jnp.asarray([1.0]),
+            color=jnp.ones((1, 3)),
+        )
+    )
+    return Scene(
+        camera=Camera("orthographic", size, size),
+        lights=lights,
+        background=background or Background(),
+        material=Material(**material),
+        depth=depth,
+    )
 
 
 def checkerboard() -> Background:
@@ -117,14 +133,17 @@ def time_interleaved(calls: dict, repeats: int) -> dict:
             start = time.perf_counter()
             call()
             times[name].append(time.perf_counter() - start)
-    return {name: {"median_s": statistics.median(t), "min_s": min(t), "max_s": max(t), "repeats": repeats}
-            for name, t in times.items()}
+    return {
+        name: {"median_s": statistics.median(t), "min_s": min(t), "max_s": max(t), "repeats": repeats}
+        for name, t in times.items()
+    }
 
 
 def jax_call(scene: Scene, mode: str, dtype):
     def call():
         image, mask = render(scene, mode=mode, dtype=dtype)
         return jax.block_until_ready((image, mask))
+
     return call
 
 
@@ -156,40 +175,52 @@ def machine_info() -> dict:
     return info
 
 
-def row(label: str, mode: str, dtype: str, timing: dict, pixels: int, numpy_s: float | None,
-        error: float | None, scene: str) -> dict:
+def row(
+    label: str, mode: str, dtype: str, timing: dict, pixels: int, numpy_s: float | None, error: float | None, scene: str
+) -> dict:
     first = timing.get("first_s")
     return {
-        "scene": scene, "label": label, "mode": mode, "dtype": dtype,
-        "ms_per_frame": timing["median_s"] * 1e3, "min_ms": timing["min_s"] * 1e3,
+        "scene": scene,
+        "label": label,
+        "mode": mode,
+        "dtype": dtype,
+        "ms_per_frame": timing["median_s"] * 1e3,
+        "min_ms": timing["min_s"] * 1e3,
         "megapixels_per_s": pixels / timing["median_s"] / 1e6,
         "ratio_to_numpy": None if numpy_s is None else numpy_s / timing["median_s"],
         "first_call_ms": None if first is None else first * 1e3,
-        "max_abs_error_vs_exact_float64": error, "repeats": timing["repeats"],
+        "max_abs_error_vs_exact_float64": error,
+        "repeats": timing["repeats"],
     }
 
 
 def print_table(title: str, rows: list[dict]) -> None:
     print(f"\n{title}")
-    header = (f"{'case':<26} {'mode':<8} {'dtype':<8} {'ms/frame':>9} {'MP/s':>8} {'x NumPy':>8} "
-              f"{'min ms':>8} {'1st call ms':>11} {'max |err|':>10}")
+    header = (
+        f"{'case':<26} {'mode':<8} {'dtype':<8} {'ms/frame':>9} {'MP/s':>8} {'x NumPy':>8} "
+        f"{'min ms':>8} {'1st call ms':>11} {'max |err|':>10}"
+    )
     print(header)
     print("-" * len(header))
     for r in rows:
         ratio = "" if r["ratio_to_numpy"] is None else f"{r['ratio_to_numpy']:.2f}"
         error = "" if r["max_abs_error_vs_exact_float64"] is None else f"{r['max_abs_error_vs_exact_float64']:.1e}"
         first = "" if r["first_call_ms"] is None else f"{r['first_call_ms']:.0f}"
-        print(f"{r['label']:<26} {r['mode']:<8} {r['dtype']:<8} {r['ms_per_frame']:>9.2f} "
-              f"{r['megapixels_per_s']:>8.2f} {ratio:>8} {r['min_ms']:>8.2f} {first:>11} {error:>10}")
+        print(
+            f"{r['label']:<26} {r['mode']:<8} {r['dtype']:<8} {r['ms_per_frame']:>9.2f} "
+            f"{r['megapixels_per_s']:>8.2f} {ratio:>8} {r['min_ms']:>8.2f} {first:>11} {error:>10}"
+        )
 
 
 def main(args: argparse.Namespace) -> dict:
     size, repeats = args.size, args.repeats
     info = machine_info()
     print(f"strauss_fit.render vs NumPy float64, {size}x{size}, median of {repeats} interleaved warm calls")
-    print(f"machine: {info.get('cpu_model', info['processor'])}, {info['cpu_count']} CPUs, {info['platform']}; "
-          f"jax {info['jax']} on {info['jax_device']}; load average before {info['load_average_before']}"
-          + (f"; XLA_FLAGS={info['XLA_FLAGS']}" if info["XLA_FLAGS"] else ""))
+    print(
+        f"machine: {info.get('cpu_model', info['processor'])}, {info['cpu_count']} CPUs, {info['platform']}; "
+        f"jax {info['jax']} on {info['jax_device']}; load average before {info['load_average_before']}"
+        + (f"; XLA_FLAGS={info['XLA_FLAGS']}" if info["XLA_FLAGS"] else "")
+    )
 
     local = make_scene(size, depth=4)
     local_depth1 = make_scene(size, depth=1)
@@ -197,24 +228,47 @@ def main(args: argparse.Namespace) -> dict:
     tiny = make_scene(8, depth=4)
 
     # 1. the reference must agree with the library before anything is timed
-    agreement = max(check_against_strauss_fit(scene, tol=1e-10)
-                    for scene in (make_scene(97, depth=1), make_scene(64, depth=4), local))
-    print(f"self-check: NumPy reference vs strauss_fit.render (float64, exact): max |diff| = {agreement:.2e} (<= 1e-10)")
+    agreement = max(
+        check_against_strauss_fit(scene, tol=1e-10)
+        for scene in (make_scene(97, depth=1), make_scene(64, depth=4), local)
+    )
+    print(
+        f"self-check: NumPy reference vs strauss_fit.render (float64, exact): max |diff| = {agreement:.2e} (<= 1e-10)"
+    )
 
     # every configuration: (section, label, mode, dtype name, scene, call)
     numpy_args = arrays_from_scene(local)
     configs = [("local", "NumPy reference", "exact", "float64", local, lambda: render_numpy(**numpy_args))]
     for mode in MODES:
         for dtype in DTYPES:
-            configs.append(("local", "local model (opaque/black)", mode, jnp.dtype(dtype).name, local,
-                            jax_call(local, mode, dtype)))
-    for label, scene in (("opaque/black depth 1", local_depth1), ("opaque/black depth 4", local),
-                         ("t=0.9/checker depth 4", glass)):
+            configs.append(
+                (
+                    "local",
+                    "local model (opaque/black)",
+                    mode,
+                    jnp.dtype(dtype).name,
+                    local,
+                    jax_call(local, mode, dtype),
+                )
+            )
+    for label, scene in (
+        ("opaque/black depth 1", local_depth1),
+        ("opaque/black depth 4", local),
+        ("t=0.9/checker depth 4", glass),
+    ):
         for dtype in DTYPES:
             configs.append(("global", label, "exact", jnp.dtype(dtype).name, scene, jax_call(scene, "exact", dtype)))
     for dtype in DTYPES:
-        configs.append(("overhead", "8x8 (fixed cost per call)", "exact", jnp.dtype(dtype).name, tiny,
-                        jax_call(tiny, "exact", dtype)))
+        configs.append(
+            (
+                "overhead",
+                "8x8 (fixed cost per call)",
+                "exact",
+                jnp.dtype(dtype).name,
+                tiny,
+                jax_call(tiny, "exact", dtype),
+            )
+        )
 
     # first calls, each from empty caches (the depth-4 opaque rows share one compilation
     # with the local rows, so they are compiled once here too)
@@ -236,31 +290,45 @@ def main(args: argparse.Namespace) -> dict:
         error = None if section == "overhead" else float(np.max(np.abs(image - references[key])))
         timing = dict(timings[i], first_s=firsts[i])
         n = scene.camera.width * scene.camera.height
-        rows[section].append(row(label, mode, dtype_name, timing, n, None if section == "overhead" else numpy_s,
-                                 error, section))
+        rows[section].append(
+            row(label, mode, dtype_name, timing, n, None if section == "overhead" else numpy_s, error, section)
+        )
 
-    print_table(f"Local model: {size}x{size}, one directional light, opaque over black (depth 4 -> local plan); "
-                f"table size {DEFAULT_TABLE_SIZE}; error against exact float64", rows["local"])
-    print_table("Global model (exact; error against the same scene in float64; ratio against the NumPy local frame)",
-                rows["global"])
+    print_table(
+        f"Local model: {size}x{size}, one directional light, opaque over black (depth 4 -> local plan); "
+        f"table size {DEFAULT_TABLE_SIZE}; error against exact float64",
+        rows["local"],
+    )
+    print_table(
+        "Global model (exact; error against the same scene in float64; ratio against the NumPy local frame)",
+        rows["global"],
+    )
     print_table("Fixed cost of one render() call", rows["overhead"])
 
-    exact32 = next(r for r in rows["local"] if r["mode"] == "exact" and r["dtype"] == "float32"
-                   and r["label"] != "NumPy reference")
+    exact32 = next(
+        r for r in rows["local"] if r["mode"] == "exact" and r["dtype"] == "float32" and r["label"] != "NumPy reference"
+    )
     numpy_min = rows["local"][0]["min_ms"]
     exact32["ratio_to_numpy_of_min_times"] = numpy_min / exact32["min_ms"]
-    print(f"\nexact float32 / NumPy float64: {exact32['ratio_to_numpy']:.1f}x by medians, "
-          f"{exact32['ratio_to_numpy_of_min_times']:.1f}x by minima (target: >= 50x)")
+    print(
+        f"\nexact float32 / NumPy float64: {exact32['ratio_to_numpy']:.1f}x by medians, "
+        f"{exact32['ratio_to_numpy_of_min_times']:.1f}x by minima (target: >= 50x)"
+    )
     info["load_average_after"] = os.getloadavg()
 
     result = {
-        "benchmark": "render_speed", "size": size, "repeats": repeats,
+        "benchmark": "render_speed",
+        "size": size,
+        "repeats": repeats,
         "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "machine": info, "self_check_max_abs_diff": agreement,
+        "machine": info,
+        "self_check_max_abs_diff": agreement,
         "numpy_ms_per_frame": numpy_s * 1e3,
         "exact_float32_ratio_to_numpy": exact32["ratio_to_numpy"],
         "exact_float32_ratio_to_numpy_of_min_times": exact32["ratio_to_numpy_of_min_times"],
-        "local": rows["local"], "global": rows["global"], "overhead": rows["overhead"],
+        "local": rows["local"],
+        "global": rows["global"],
+        "overhead": rows["overhead"],
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n")
@@ -269,4 +337,5 @@ def main(args: argparse.Namespace) -> dict:
 
 
 if __name__ == "__main__":
-    main(ARGS)
+    with strauss_fit.float64():  # all of it in float64 (importing strauss_fit no longer switches it on)
+        main(ARGS)

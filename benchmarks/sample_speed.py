@@ -11,9 +11,9 @@ What it does (all in one process, on this machine):
    over black, the local model; material C = (0.7, 0.4, 0.2), s = 0.6, m = 0.4) with
    Gaussian noise σ = 0.01, and fits colour, smoothness and metalness (5 parameters).
 2. Builds two log-posteriors of the *same* model (Gaussian likelihood at the known σ, the
-   uniform prior of :mod:`strauss_fit.posterior`):
+   uniform prior of :mod:`strauss_fit.inference.posterior`):
 
-   - **JAX**: :class:`strauss_fit.posterior.LogPosterior`, one jitted ``vmap`` over the
+   - **JAX**: :class:`strauss_fit.inference.posterior.LogPosterior`, one jitted ``vmap`` over the
      walkers, called by emcee with ``vectorize=True`` (what ``strauss-fit sample`` runs);
    - **NumPy**: ``benchmarks/numpy_reference.shade_numpy`` (plain NumPy float64,
      vectorised over pixels, the sphere's normals computed once), one call per walker,
@@ -24,7 +24,7 @@ What it does (all in one process, on this machine):
    and the same random seed (in-memory backend: storage is not what is compared), timing
    the whole ``run_mcmc``; the JAX function is compiled and warmed first (its compile
    time is printed apart). For the first walker count a third row runs the JAX version
-   through ``strauss_fit.sample.run_sampler`` with the HDF5 chain file, to show what
+   through ``strauss_fit.inference.sampler.run_sampler`` with the HDF5 chain file, to show what
    storage and the convergence checks cost.
 4. Effective samples = walkers × (steps − burn-in) / τ̂ for the worst-mixing parameter
    (τ̂ emcee's integrated autocorrelation time, burn-in 2 τ̂); the speed-up is the ratio of
@@ -59,43 +59,23 @@ sys.path.insert(0, str(HERE))
 import emcee  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
+from bench_common import key_and_fill_scene, legacy_options  # noqa: E402
 from numpy_reference import shade_numpy, sphere_normals  # noqa: E402
 
-import strauss_fit as sf  # noqa: E402  (enables float64)
-from strauss_fit.fit import FitOptions, fit  # noqa: E402
-from strauss_fit.posterior import LogPosterior, default_prior, laplace_covariance  # noqa: E402
-from strauss_fit.sample import (  # noqa: E402
+import strauss_fit as sf  # noqa: E402
+from strauss_fit import Target, fit  # noqa: E402
+from strauss_fit.inference.laplace import laplace_covariance  # noqa: E402
+from strauss_fit.inference.posterior import LogPosterior, default_prior  # noqa: E402
+from strauss_fit.inference.sampler import (  # noqa: E402
     SampleSettings,
     autocorrelation_times,
     burn_in,
     initial_walkers,
     run_sampler,
 )
-from strauss_fit.scene import parse_scene  # noqa: E402
-from strauss_fit.target import Target  # noqa: E402
 
-SCENE = """
-[camera]
-width = {size}
-height = {size}
-[material]
-color = [0.5, 0.5, 0.5]
-smoothness = 0.5
-metalness = 0.2
-[[light]]
-kind = "directional"
-direction = [0.3, 0.5, 1.0]
-intensity = 1.0
-[[light]]
-kind = "directional"
-direction = [-0.6, -0.2, 0.8]
-intensity = 0.5
-[[light]]
-kind = "ambient"
-intensity = 0.1
-[render]
-depth = 1
-"""
+#: The material of the scene (key_and_fill.toml, local model only).
+SCENE_MATERIAL = dict(color=[0.5, 0.5, 0.5], smoothness=0.5, metalness=0.2)
 TRUTH = dict(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.4)
 SIGMA = 0.01
 
@@ -104,12 +84,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=32, help="image width and height in pixels (default 32)")
     parser.add_argument("--steps", type=int, default=1000, help="emcee steps per run (default 1000)")
-    parser.add_argument("--walkers", type=lambda t: [int(v) for v in t.split(",")], default=[32, 64, 128],
-                        help="walker counts, comma-separated (default 32,64,128; 32 is what 'sample' uses for 5 "
-                        "parameters)")
+    parser.add_argument(
+        "--walkers",
+        type=lambda t: [int(v) for v in t.split(",")],
+        default=[32, 64, 128],
+        help="walker counts, comma-separated (default 32,64,128; 32 is what 'sample' uses for 5 parameters)",
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=Path, default=HERE / "results" / "sample_speed.json",
-                        help="where to write the results (default benchmarks/results/sample_speed.json)")
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=HERE / "results" / "sample_speed.json",
+        help="where to write the results (default benchmarks/results/sample_speed.json)",
+    )
     return parser.parse_args(argv)
 
 
@@ -133,8 +120,9 @@ class NumpyLogPosterior:
     def __call__(self, x: np.ndarray) -> float:
         if np.any(x < self.lower) or np.any(x > self.upper):
             return -np.inf
-        radiance = shade_numpy(self.normals, x[:3], x[3], x[4], 0.0, self.directions, self.intensities,
-                               self.light_colors, self.ambient)
+        radiance = shade_numpy(
+            self.normals, x[:3], x[3], x[4], 0.0, self.directions, self.intensities, self.light_colors, self.ambient
+        )
         r = radiance - self.target
         return self.scale * float(np.sum(r * r))
 
@@ -144,8 +132,13 @@ def effective(chain: np.ndarray) -> dict:
     tau = autocorrelation_times(chain)
     burn = burn_in(tau, steps)
     ess = walkers * (steps - burn) / tau
-    return {"tau": tau.tolist(), "tau_max": float(tau.max()), "burn_in": burn, "ess_min": float(ess.min()),
-            "ess": ess.tolist()}
+    return {
+        "tau": tau.tolist(),
+        "tau_max": float(tau.max()),
+        "burn_in": burn,
+        "ess_min": float(ess.min()),
+        "ess": ess.tolist(),
+    }
 
 
 def run_emcee(log_prob, vectorize: bool, start: np.ndarray, steps: int, seed: int) -> tuple[np.ndarray, float, float]:
@@ -158,9 +151,16 @@ def run_emcee(log_prob, vectorize: bool, start: np.ndarray, steps: int, seed: in
 
 
 def machine_info() -> dict:
-    info = {"platform": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
-            "numpy": np.__version__, "jax": jax.__version__, "emcee": emcee.__version__,
-            "jax_device": str(jax.devices()[0]), "load_average_before": os.getloadavg()}
+    info = {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+        "numpy": np.__version__,
+        "jax": jax.__version__,
+        "emcee": emcee.__version__,
+        "jax_device": str(jax.devices()[0]),
+        "load_average_before": os.getloadavg(),
+    }
     try:
         with open("/proc/cpuinfo") as handle:
             info["cpu_model"] = next(line.split(":", 1)[1].strip() for line in handle if line.startswith("model name"))
@@ -171,20 +171,24 @@ def machine_info() -> dict:
 
 def main(args: argparse.Namespace) -> dict:
     info = machine_info()
-    scene = parse_scene(__import__("tomllib").loads(SCENE.format(size=args.size)), source="benchmark")
+    scene = key_and_fill_scene(args.size, material=SCENE_MATERIAL, depth=1)
     image, hit = sf.render(scene, sf.Material(**TRUTH))
     pixels = np.asarray(image) + SIGMA * np.random.default_rng(args.seed).normal(size=np.shape(image))
     target = Target(pixels, np.ones(np.shape(hit), bool), "synthetic", "linear", 0, 0)
-    result = fit(scene, target, FitOptions(free=("color", "smoothness", "metalness")))
+    result = fit(scene, target, legacy_options(free=("color", "smoothness", "metalness")))
     problem, x_hat = result.problem, np.asarray(result.x)
     prior = default_prior(problem.layout, x_hat)
     jax_lp = LogPosterior(problem, prior, SIGMA)
     used = np.asarray(hit) & target.usable
     numpy_lp = NumpyLogPosterior(scene, used, pixels, prior.lower, prior.upper, SIGMA)
-    print(f"emcee on the Strauss posterior: {args.size}x{args.size} image, {int(used.sum())} pixels, "
-          f"{x_hat.size} parameters, {args.steps} steps with {', '.join(map(str, args.walkers))} walkers")
-    print(f"machine: {info.get('cpu_model', '?')}, {info['cpu_count']} CPUs; jax {info['jax']} on {info['jax_device']}; "
-          f"load average before {tuple(round(v, 2) for v in info['load_average_before'])}")
+    print(
+        f"emcee on the Strauss posterior: {args.size}x{args.size} image, {int(used.sum())} pixels, "
+        f"{x_hat.size} parameters, {args.steps} steps with {', '.join(map(str, args.walkers))} walkers"
+    )
+    print(
+        f"machine: {info.get('cpu_model', '?')}, {info['cpu_count']} CPUs; jax {info['jax']} on {info['jax_device']}; "
+        f"load average before {tuple(round(v, 2) for v in info['load_average_before'])}"
+    )
 
     covariance = laplace_covariance(problem, x_hat, SIGMA)
     start = initial_walkers(x_hat, covariance, prior, max(args.walkers), np.random.default_rng(args.seed), jax_lp)
@@ -203,20 +207,46 @@ def main(args: argparse.Namespace) -> dict:
         jax_lp(begin[: walkers // 2])
         compile_s[walkers] = time.perf_counter() - t0
         chain_np, wall, acc = run_emcee(numpy_lp, False, begin, args.steps, args.seed)
-        rows.append({"walkers": walkers, "name": "NumPy log-prob, one walker per call", "wall_s": wall,
-                     "acceptance": acc, **effective(chain_np)})
+        rows.append(
+            {
+                "walkers": walkers,
+                "name": "NumPy log-prob, one walker per call",
+                "wall_s": wall,
+                "acceptance": acc,
+                **effective(chain_np),
+            }
+        )
         chain, wall, acc = run_emcee(jax_lp, True, begin, args.steps, args.seed)
-        rows.append({"walkers": walkers, "name": "JAX log-prob, jit + vmap, vectorize=True", "wall_s": wall,
-                     "acceptance": acc, **effective(chain)})
+        rows.append(
+            {
+                "walkers": walkers,
+                "name": "JAX log-prob, jit + vmap, vectorize=True",
+                "wall_s": wall,
+                "acceptance": acc,
+                **effective(chain),
+            }
+        )
         identical[walkers] = bool(np.allclose(chain, chain_np, rtol=0, atol=1e-9))
         if walkers == args.walkers[0]:
             with tempfile.TemporaryDirectory() as folder:
                 t0 = time.perf_counter()
-                run = run_sampler(jax_lp, Path(folder) / "chain.h5", start=begin, metadata={},
-                                  settings=SampleSettings(max_steps=args.steps, min_tau_multiple=1e9, seed=args.seed))
+                run = run_sampler(
+                    jax_lp,
+                    Path(folder) / "chain.h5",
+                    start=begin,
+                    metadata={},
+                    settings=SampleSettings(max_steps=args.steps, min_tau_multiple=1e9, seed=args.seed),
+                )
                 wall = time.perf_counter() - t0
-            rows.append({"walkers": walkers, "name": "JAX, strauss-fit run_sampler + HDF5 chain file", "wall_s": wall,
-                         "acceptance": run.diagnostics.acceptance_mean, **effective(run.chain)})
+            rows.append(
+                {
+                    "walkers": walkers,
+                    "name": "JAX, strauss-fit run_sampler + HDF5 chain file",
+                    "wall_s": wall,
+                    "acceptance": run.diagnostics.acceptance_mean,
+                    **effective(run.chain),
+                }
+            )
     for r in rows:
         baseline = next(b for b in rows if b["walkers"] == r["walkers"] and b["name"].startswith("NumPy"))
         r["steps_per_s"] = args.steps / r["wall_s"]
@@ -224,28 +254,47 @@ def main(args: argparse.Namespace) -> dict:
         r["ess_per_s"] = r["ess_min"] / r["wall_s"]
         r["speedup_vs_numpy"] = r["ess_per_s"] / (baseline["ess_min"] / baseline["wall_s"])
 
-    header = (f"{'walkers':>7}  {'run':<48} {'wall s':>8} {'steps/s':>8} {'logp/s':>8} {'tau max':>7} "
-              f"{'min ESS':>8} {'ESS/s':>8} {'x NumPy':>8}")
+    header = (
+        f"{'walkers':>7}  {'run':<48} {'wall s':>8} {'steps/s':>8} {'logp/s':>8} {'tau max':>7} "
+        f"{'min ESS':>8} {'ESS/s':>8} {'x NumPy':>8}"
+    )
     print()
     print(header)
     print("-" * len(header))
     for r in rows:
-        print(f"{r['walkers']:>7}  {r['name']:<48} {r['wall_s']:>8.2f} {r['steps_per_s']:>8.0f} {r['log_probs_per_s']:>8.0f} "
-              f"{r['tau_max']:>7.1f} {r['ess_min']:>8.0f} {r['ess_per_s']:>8.1f} {r['speedup_vs_numpy']:>8.1f}")
+        print(
+            f"{r['walkers']:>7}  {r['name']:<48} {r['wall_s']:>8.2f} {r['steps_per_s']:>8.0f} "
+            f"{r['log_probs_per_s']:>8.0f} "
+            f"{r['tau_max']:>7.1f} {r['ess_min']:>8.0f} {r['ess_per_s']:>8.1f} {r['speedup_vs_numpy']:>8.1f}"
+        )
     jax_rows = {r["walkers"]: r for r in rows if r["name"].startswith("JAX log-prob")}
-    print("\nJAX compile + warm-up per walker count (not in the table): "
-          + ", ".join(f"{w}: {t:.2f} s" for w, t in compile_s.items())
-          + f". JAX and NumPy chains identical to 1e-9: {identical}.")
+    print(
+        "\nJAX compile + warm-up per walker count (not in the table): "
+        + ", ".join(f"{w}: {t:.2f} s" for w, t in compile_s.items())
+        + f". JAX and NumPy chains identical to 1e-9: {identical}."
+    )
     for walkers, r in jax_rows.items():
-        print(f"effective samples per second, JAX / NumPy, {walkers} walkers: {r['speedup_vs_numpy']:.1f}x "
-              "(target: >= 20x)")
+        print(
+            f"effective samples per second, JAX / NumPy, {walkers} walkers: {r['speedup_vs_numpy']:.1f}x "
+            "(target: >= 20x)"
+        )
     info["load_average_after"] = os.getloadavg()
-    out = {"benchmark": "sample_speed", "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": info,
-           "size": args.size, "pixels": int(used.sum()), "parameters": int(x_hat.size), "walkers": args.walkers,
-           "steps": args.steps, "sigma": SIGMA, "self_check_max_relative_difference": agreement,
-           "jax_compile_s": {str(k): v for k, v in compile_s.items()},
-           "chains_identical": {str(k): v for k, v in identical.items()}, "rows": rows,
-           "speedup_ess_per_s": {str(w): r["speedup_vs_numpy"] for w, r in jax_rows.items()}}
+    out = {
+        "benchmark": "sample_speed",
+        "timestamp": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "machine": info,
+        "size": args.size,
+        "pixels": int(used.sum()),
+        "parameters": int(x_hat.size),
+        "walkers": args.walkers,
+        "steps": args.steps,
+        "sigma": SIGMA,
+        "self_check_max_relative_difference": agreement,
+        "jax_compile_s": {str(k): v for k, v in compile_s.items()},
+        "chains_identical": {str(k): v for k, v in identical.items()},
+        "rows": rows,
+        "speedup_ess_per_s": {str(w): r["speedup_vs_numpy"] for w, r in jax_rows.items()},
+    }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(out, indent=2) + "\n")
     print(f"wrote {args.json}")
@@ -253,4 +302,5 @@ def main(args: argparse.Namespace) -> dict:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    with sf.float64():  # all of it in float64 (importing strauss_fit no longer switches it on)
+        main(parse_args())

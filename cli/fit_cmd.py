@@ -6,10 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import (QUALITY_PRESETS, add_evaluator_options, add_quality_option, check_evaluator_options, positive_int,
-                     quality_setting)
+from strauss_fit.fit.options import QUALITY_PRESETS
 
-PARAMETER_HELP = "color, smoothness, metalness, transparency, ior (and with --fit-lights: directional_intensity_1, ..., ambient_intensity)"
+from .common import add_evaluator_options, add_quality_option, check_evaluator_options, positive_int
+
+PARAMETER_HELP = (
+    "color, smoothness, metalness, transparency, ior "
+    "(and with --fit-lights: directional_intensity_1, ..., ambient_intensity)"
+)
 
 
 def add_parser(subparsers) -> None:
@@ -24,25 +28,55 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--scene", required=True, metavar="SCENE.toml", help="the scene the target was taken in")
     parser.add_argument("-o", "--output", required=True, metavar="RESULT.json", help="fit result (JSON)")
     parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
-    parser.add_argument("--encoding", choices=("auto", "linear", "srgb"), default="auto",
-                        help="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)")
-    parser.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm",
-                        help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS")
-    parser.add_argument("--starts", type=positive_int, metavar="N",
-                        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: "
-                             f"{_by_quality('starts')})")
-    parser.add_argument("--max-steps", type=positive_int, metavar="N",
-                        help=f"solver step limit of the polish (default: from --quality: {_by_quality('max_steps')})")
-    parser.add_argument("--free", metavar="NAMES",
-                        help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}")
-    parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
-                        help="hold a parameter at a value (repeatable); color takes R,G,B")
+    parser.add_argument(
+        "--encoding",
+        choices=("auto", "linear", "srgb"),
+        default="auto",
+        help="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)",
+    )
+    parser.add_argument(
+        "--solver",
+        choices=("lm", "gauss-newton", "bfgs"),
+        default="lm",
+        help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS",
+    )
+    parser.add_argument(
+        "--starts",
+        type=positive_int,
+        metavar="N",
+        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: "
+        f"{_by_quality('starts')})",
+    )
+    parser.add_argument(
+        "--max-steps",
+        type=positive_int,
+        metavar="N",
+        help=f"solver step limit of the polish (default: from --quality: {_by_quality('max_steps')})",
+    )
+    parser.add_argument(
+        "--free",
+        metavar="NAMES",
+        help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}",
+    )
+    parser.add_argument(
+        "--fix",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="hold a parameter at a value (repeatable); color takes R,G,B",
+    )
     parser.add_argument("--fit-lights", action="store_true", help="also consider the light intensities as parameters")
-    parser.add_argument("--reference-noise", type=float, metavar="SIGMA",
-                        help="noise level used to decide what the image constrains (default: 1%% of the target's "
-                        "98th percentile)")
-    parser.add_argument("--render-fit", metavar="OUT",
-                        help="write the fitted image to OUT and a target | fit | residual PNG beside it (OUT.compare.png)")
+    parser.add_argument(
+        "--reference-noise",
+        type=float,
+        metavar="SIGMA",
+        help="noise level used to decide what the image constrains (default: 1%% of the target's 98th percentile)",
+    )
+    parser.add_argument(
+        "--render-fit",
+        metavar="OUT",
+        help="write the fitted image to OUT and a target | fit | residual PNG beside it (OUT.compare.png)",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
     parser.add_argument("--quiet", action="store_true", help="print only the result table")
     add_evaluator_options(parser)
@@ -73,11 +107,32 @@ def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]]
     return tuple(fixed)
 
 
-def _check_fixed_ranges(fixed) -> None:
+def fit_options(args: argparse.Namespace, fixed, **more):
+    """The :class:`~strauss_fit.fit.options.FitOptions` of ``--quality`` with the options
+    given explicitly (also used by ``sample`` when it fits first)."""
+    from strauss_fit import FitOptions
+
+    return FitOptions.preset(
+        args.quality,
+        solver=args.solver,
+        starts=args.starts,
+        mode=args.mode,
+        table_size=args.table_size,
+        free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
+        fixed=fixed,
+        fit_lights=args.fit_lights,
+        **more,
+    )
+
+
+def check_fixed_ranges(fixed) -> None:
     from strauss_fit import Material
 
-    material_values = {k: (list(v) if k == "color" else v) for k, v in fixed if k in
-                       ("color", "smoothness", "metalness", "transparency", "ior")}
+    material_values = {
+        k: (list(v) if k == "color" else v)
+        for k, v in fixed
+        if k in ("color", "smoothness", "metalness", "transparency", "ior")
+    }
     Material.from_dict(material_values)  # raises a one-line MaterialError naming field and range
     for name, value in fixed:
         if "intensity" in name and value < 0:
@@ -114,11 +169,15 @@ def format_table(result: dict) -> str:
     lines.insert(1, "-" * min(100, sum(widths) + 6 + 6))
     res = result["residual"]
     lines.append("")
-    lines.append(f"residual: RMS {res['rms']:.3g} (linear), CIEDE2000 mean {res['delta_e2000_mean']:.3g}, "
-                 f"95th percentile {res['delta_e2000_p95']:.3g}; {result['pixels_used']} pixels")
+    lines.append(
+        f"residual: RMS {res['rms']:.3g} (linear), CIEDE2000 mean {res['delta_e2000_mean']:.3g}, "
+        f"95th percentile {res['delta_e2000_p95']:.3g}; {result['pixels_used']} pixels"
+    )
     solver = result["solver"]
-    lines.append(f"solver: {solver['name']}, {solver['steps']} steps, {solver['status']}, "
-                 f"{len(result['starts'])} start(s); wall time {result['wall_time_s']:.2f} s")
+    lines.append(
+        f"solver: {solver['name']}, {solver['steps']} steps, {solver['status']}, "
+        f"{len(result['starts'])} start(s); wall time {result['wall_time_s']:.2f} s"
+    )
     for note in result.get("notes", []):
         lines.append(f"note: {note}")
     return "\n".join(lines)
@@ -144,10 +203,8 @@ def _by_quality(setting: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
-    from strauss_fit import load_scene
-    from strauss_fit.fit import FitOptions, fit
-    from strauss_fit.io import check_writable, write_image, write_json
-    from strauss_fit.target import load_target, match_scene
+    from strauss_fit import fit, load_scene, load_target, match_scene, write_image
+    from strauss_fit.io.files import check_writable, write_json
 
     log = (lambda message: None) if args.quiet else (lambda message: print(f"... {message}", file=sys.stderr))
     check_writable(args.output, args.force)
@@ -157,19 +214,13 @@ def run(args: argparse.Namespace) -> int:
         compare_path = Path(args.render_fit).with_suffix(".compare.png")
         check_writable(compare_path, args.force)
     fixed = parse_fixed(args.fix)
-    _check_fixed_ranges(fixed)
+    check_fixed_ranges(fixed)
     scene = load_scene(args.scene)
     target = load_target(args.target, args.mask, args.encoding)
     scene, message = match_scene(scene, target)
     if message:
         log(message)
-    options = FitOptions(
-        solver=args.solver, starts=quality_setting(args, "starts"), max_steps=quality_setting(args, "max_steps"),
-        rtol=quality_setting(args, "rtol"), atol=quality_setting(args, "atol"), mode=args.mode,
-        table_size=args.table_size,
-        free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
-        fixed=fixed, fit_lights=args.fit_lights, reference_noise=args.reference_noise,
-    )
+    options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
     if args.precision != "float64":
         log("fits always run in float64; --precision is ignored")
     result = fit(scene, target, options, progress=log)

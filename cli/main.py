@@ -12,10 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from . import fit_cmd, render_cmd, synth_cmd
-from . import phong2strauss_cmd, study_cmd
-from . import sample_cmd
-from . import report_cmd
+from . import fit_cmd, phong2strauss_cmd, render_cmd, report_cmd, sample_cmd, study_cmd, synth_cmd
 
 #: Subcommand modules; each has ``add_parser(subparsers)`` and ``run(args)``.
 COMMANDS = [render_cmd, fit_cmd, synth_cmd, sample_cmd, report_cmd, phong2strauss_cmd, study_cmd]
@@ -71,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
         print("strauss-fit: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:  # a full disk, a vanished folder: still one line
-        print(f"strauss-fit: error: {exc.strerror or exc}{f': {exc.filename}' if exc.filename else ''}", file=sys.stderr)
+        print(
+            f"strauss-fit: error: {exc.strerror or exc}{f': {exc.filename}' if exc.filename else ''}", file=sys.stderr
+        )
         return 2
 
 

@@ -1,50 +1,63 @@
 """``strauss-fit phong2strauss`` and ``strauss-fit strauss2phong``: convert materials by fitting.
 
 This module registers both subcommands (see :data:`COMMANDS` in ``main.py``: the module's
-``add_parser`` adds both).
+``add_parser`` adds both). The work is :func:`strauss_fit.convert.converter.convert_files`.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
 
-from .common import QUALITY_PRESETS, add_quality_option, positive_int, quality_setting
+from .common import add_quality_option, positive_int
 
 FORMATS_HELP = {
     "phong2strauss": "one Phong material as KEY=VALUE pairs (ka kd ks exponent|n|Ns diffuse_color|Cd "
-                     "specular_color|Cs blinn opacity|d ior|Ni; RGB as r,g,b) or a JSON object, or a .json, "
-                     ".csv or Wavefront .mtl file",
+    "specular_color|Cs blinn opacity|d ior|Ni; RGB as r,g,b) or a JSON object, or a .json, "
+    ".csv or Wavefront .mtl file",
     "strauss2phong": "one Strauss material as KEY=VALUE pairs (color|C smoothness|s metalness|m transparency|t "
-                     "ior|n; RGB as r,g,b) or a JSON object, or a .json (also a 'strauss-fit fit' result or "
-                     "phong2strauss output) or .csv file",
+    "ior|n; RGB as r,g,b) or a JSON object, or a .json (also a 'strauss-fit fit' result or "
+    "phong2strauss output) or .csv file",
 }
 
 
 def add_parser(subparsers) -> None:
-    for direction, (source, destination) in (("phong2strauss", ("Phong", "Strauss")),
-                                             ("strauss2phong", ("Strauss", "Phong"))):
+    for direction, (source, destination) in (
+        ("phong2strauss", ("Phong", "Strauss")),
+        ("strauss2phong", ("Strauss", "Phong")),
+    ):
         outputs = ".json or .csv" + (" or .mtl" if direction == "strauss2phong" else "")
         parser = subparsers.add_parser(
             direction,
             help=f"convert {source} materials to {destination} parameters (by fitting sphere renders)",
             description=f"Render each {source} material on the conversion scene (a sphere under three lights, "
-            f"see README.md (Phong ↔ Strauss conversion and the study)) and fit {destination}'s parameters to that image, starting from a "
+            f"see README.md (Phong ↔ Strauss conversion and the study)) and fit {destination}'s parameters to that "
+            "image, starting from a "
             f"closed-form guess. Writes, per material, the {destination} parameters, the residual of the match "
             "(RMS and CIEDE2000) and Laplace uncertainties; a material that fails is reported and skipped.",
         )
         parser.add_argument("input", nargs="+", metavar="INPUT", help=FORMATS_HELP[direction])
-        parser.add_argument("-o", "--output", required=True, metavar="OUTPUT",
-                            help=f"results: {outputs} (by extension)")
-        parser.add_argument("--scene", metavar="SCENE.toml",
-                            help="conversion scene (lights and camera; rendered at depth 1; default: "
-                            "data_synth/scenes/conversion_default.toml)")
-        parser.add_argument("--size", type=positive_int, metavar="N",
-                            help="render the conversion image N pixels wide (default: the scene's, 64)")
-        parser.add_argument("--starts", type=positive_int, metavar="N",
-                            help="starts per material: the closed-form guess plus N-1 fixed points (default: from "
-                            "--quality, 4)")
+        parser.add_argument(
+            "-o", "--output", required=True, metavar="OUTPUT", help=f"results: {outputs} (by extension)"
+        )
+        parser.add_argument(
+            "--scene",
+            metavar="SCENE.toml",
+            help="conversion scene (lights and camera; rendered at depth 1; default: "
+            "data_synth/scenes/conversion_default.toml)",
+        )
+        parser.add_argument(
+            "--size",
+            type=positive_int,
+            metavar="N",
+            help="render the conversion image N pixels wide (default: the scene's, 64)",
+        )
+        parser.add_argument(
+            "--starts",
+            type=positive_int,
+            metavar="N",
+            help="starts per material: the closed-form guess plus N-1 fixed points (default: from --quality, 4)",
+        )
         add_quality_option(parser)
         if direction == "strauss2phong":
             parser.add_argument("--blinn", action="store_true", help="fit Blinn-Phong (half-vector highlight)")
@@ -61,60 +74,45 @@ def _table(results: list[dict], direction: str) -> str:
             continue
         if direction == "phong2strauss":
             v = r["strauss"]
-            text = (f"C=({', '.join(f'{c:.3f}' for c in v['color'])}) s={v['smoothness']:.3f} "
-                    f"m={v['metalness']:.3f} t={v['transparency']:.3g} n={v['ior']:.3g}")
+            text = (
+                f"C=({', '.join(f'{c:.3f}' for c in v['color'])}) s={v['smoothness']:.3f} "
+                f"m={v['metalness']:.3f} t={v['transparency']:.3g} n={v['ior']:.3g}"
+            )
         else:
             v = r["phong"]
-            text = (f"ka={v['ka']:.3f} kd={v['kd']:.3f} ks={v['ks']:.3f} n={v['exponent']:.4g} "
-                    f"Cd=({', '.join(f'{c:.3f}' for c in v['diffuse_color'])}) "
-                    f"Cs=({', '.join(f'{c:.3f}' for c in v['specular_color'])})")
+            text = (
+                f"ka={v['ka']:.3f} kd={v['kd']:.3f} ks={v['ks']:.3f} n={v['exponent']:.4g} "
+                f"Cd=({', '.join(f'{c:.3f}' for c in v['diffuse_color'])}) "
+                f"Cs=({', '.join(f'{c:.3f}' for c in v['specular_color'])})"
+            )
         res = r["residual"]
         rows.append((r["name"], "ok", text, f"{res['rms']:.3g}", f"{res['delta_e2000_mean']:.3g}"))
     widths = [min(40, max(len(row[i]) for row in rows)) for i in range(2)]
-    return "\n".join(f"{row[0]:<{widths[0]}}  {row[1]:<{widths[1]}}  {row[3]:>8}  {row[4]:>11}  {row[2]}"
-                     for row in rows)
+    return "\n".join(
+        f"{row[0]:<{widths[0]}}  {row[1]:<{widths[1]}}  {row[3]:>8}  {row[4]:>11}  {row[2]}" for row in rows
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    from strauss_fit.conversion import Converter, Settings, conversion_scene
-    from strauss_fit.conversion_io import output_format, read_phong_input, read_strauss_input, write_results
-    from strauss_fit.io import check_writable
+    from strauss_fit.convert.converter import Settings, convert_files
 
-    direction = args.direction
-    output_format(args.output, direction)
-    check_writable(args.output, args.force)
-    started = time.perf_counter()
-    reader = read_phong_input if direction == "phong2strauss" else read_strauss_input
-    entries, input_notes, description = reader(args.input)
     log = (lambda message: None) if args.quiet else (lambda message: print(message, file=sys.stderr, flush=True))
-    for note in input_notes:
-        log(f"{direction}: note: {note}")
-    scene = conversion_scene(args.scene, args.size)
-    preset = QUALITY_PRESETS[args.quality]
-    settings = Settings(starts=quality_setting(args, "starts"), max_steps=preset["max_steps"], rtol=preset["rtol"],
-                        atol=preset["atol"])
-    log(f"{direction}: {len(entries)} material(s) from {description}; preparing the conversion scene "
-        f"({scene.camera.width}x{scene.camera.height})")
-    converter = Converter(scene, settings, scene_label=args.scene or "data_synth/scenes/conversion_default.toml")
-
-    def progress(done: int, total: int, message: str) -> None:
-        log(f"{direction}: [{done}/{total}] {message}")
-
-    if direction == "phong2strauss":
-        results = converter.phong_to_strauss(entries, progress)
-    else:
-        results = converter.strauss_to_phong(entries, progress, blinn=args.blinn)
+    document = convert_files(
+        args.direction,
+        args.input,
+        args.output,
+        scene=args.scene,
+        size=args.size,
+        settings=Settings.preset(args.quality, starts=args.starts),
+        blinn=getattr(args, "blinn", False),
+        force=args.force,
+        log=log,
+    )
+    results = document["materials"]
     failed = [r for r in results if r["status"] != "ok"]
-    document = {
-        "format": f"strauss-fit {direction}", "version": 1,
-        "input": description, "input_notes": input_notes,
-        "scene": converter.describe(), "settings": settings.as_dict(),
-        "summary": {"materials": len(results), "converted": len(results) - len(failed), "errors": len(failed)},
-        "wall_time_s": time.perf_counter() - started,
-        "materials": results,
-    }
-    write_results(args.output, document, direction, force=args.force)
-    print(_table(results, direction))
-    print(f"{len(results) - len(failed)} of {len(results)} material(s) converted"
-          f"{f', {len(failed)} failed (see the output)' if failed else ''}; wrote {args.output}")
+    print(_table(results, args.direction))
+    print(
+        f"{len(results) - len(failed)} of {len(results)} material(s) converted"
+        f"{f', {len(failed)} failed (see the output)' if failed else ''}; wrote {args.output}"
+    )
     return 1 if failed else 0

@@ -19,8 +19,11 @@ def add_parser(subparsers) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="OUT", help="output image")
     parser.add_argument("--width", type=positive_int, help="override the camera's width in pixels")
     parser.add_argument("--height", type=positive_int, help="override the camera's height in pixels")
-    parser.add_argument("--depth", type=positive_int,
-                        help="recursion depth of the global model (1 = local model only); default: the scene's")
+    parser.add_argument(
+        "--depth",
+        type=positive_int,
+        help="recursion depth of the global model (1 = local model only); default: the scene's",
+    )
     parser.add_argument("--mask", metavar="MASK_OUT", help="also write the sphere mask (white = sphere)")
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
     add_evaluator_options(parser)
@@ -32,8 +35,8 @@ def run(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from strauss_fit import load_scene, render
-    from strauss_fit.io import check_writable, write_image
+    from strauss_fit import load_scene, render, write_image
+    from strauss_fit.io.files import check_writable
 
     check_writable(args.output, args.force)
     if args.mask:
@@ -46,8 +49,12 @@ def run(args: argparse.Namespace) -> int:
     image, mask = render(scene, mode=args.mode, table_size=args.table_size, dtype=jnp.dtype(args.precision))
     write_image(args.output, np.asarray(image), force=args.force)
     if args.mask:
-        write_image(args.mask, np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1), force=args.force,
-                    encoding="linear")
+        write_image(
+            args.mask,
+            np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1),
+            force=args.force,
+            encoding="linear",
+        )
     height, width = mask.shape
     print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels)")
     return 0

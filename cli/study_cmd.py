@@ -15,11 +15,20 @@ def add_parser(subparsers) -> None:
         "expressiveness (conversions both ways) — and write OUTDIR/study.html (self-contained), study.md with "
         "PNG plots, and study.json with every figure. See README.md (Phong ↔ Strauss conversion and the study).",
     )
-    parser.add_argument("-o", "--output", required=True, metavar="OUTDIR",
-                        help="folder for the report (created if missing; its parent must exist)")
-    parser.add_argument("--size", choices=("small", "full", "tiny"), default="small",
-                        help="small (default, a few minutes on two cores), full (thorough, much longer), or tiny "
-                        "(a smoke test; too small to conclude anything)")
+    parser.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="OUTDIR",
+        help="folder for the report (created if missing; its parent must exist)",
+    )
+    parser.add_argument(
+        "--size",
+        choices=("small", "full", "tiny"),
+        default="small",
+        help="small (default, a few minutes on two cores), full (thorough, much longer), or tiny "
+        "(a smoke test; too small to conclude anything)",
+    )
     parser.add_argument("--seed", type=int, metavar="N", help="seed of every random draw (default 1990)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing report in OUTDIR")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -27,16 +36,19 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from strauss_fit import run_study, study_config
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.study import run_study, study_config
-    from strauss_fit.study_report import check_outputs, conclusions, write_report
+    from strauss_fit.reporting.study_report import check_outputs, conclusions, write_report
 
     if args.seed is not None and args.seed < 0:
         raise StraussFitError(f"--seed must be >= 0, got {args.seed}")
     check_outputs(args.output, args.force)
     config = study_config(args.size, args.seed)
-    log = (lambda message: None) if args.quiet else (lambda message: print(f"study: {message}", file=sys.stderr,
-                                                                           flush=True))
+    log = (
+        (lambda message: None)
+        if args.quiet
+        else (lambda message: print(f"study: {message}", file=sys.stderr, flush=True))
+    )
     log(f"running the '{config.name}' study (seed {config.seed})")
     study = run_study(config, log)
     written = write_report(study, args.output, force=args.force)

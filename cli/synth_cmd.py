@@ -21,13 +21,19 @@ def add_parser(subparsers) -> None:
     parser.add_argument("spec", metavar="SPEC.toml", help="dataset spec (see README.md, 'Synthetic datasets')")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="dataset folder (created if missing)")
     mode = parser.add_mutually_exclusive_group()
-    mode.add_argument("--force", action="store_true",
-                      help="replace the dataset in a non-empty OUTDIR (removes the files its index lists)")
-    mode.add_argument("--resume", action="store_true",
-                      help="continue the dataset in OUTDIR, skipping complete samples")
+    mode.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the dataset in a non-empty OUTDIR (removes the files its index lists)",
+    )
+    mode.add_argument("--resume", action="store_true", help="continue the dataset in OUTDIR, skipping complete samples")
     parser.add_argument("--seed", type=int, metavar="N", help="override the spec's seed (an integer >= 0)")
-    parser.add_argument("--limit", type=positive_int, metavar="N",
-                        help="write at most N samples in this run (continue later with --resume)")
+    parser.add_argument(
+        "--limit",
+        type=positive_int,
+        metavar="N",
+        help="write at most N samples in this run (continue later with --resume)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress lines, only the summary")
     parser.set_defaults(run=run)
 
@@ -42,11 +48,12 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"synth: [{p.done}/{p.total}] {p.sample_id} ({p.seconds:.2f} s)", file=sys.stderr, flush=True)
 
-    report = generate(spec, args.output, force=args.force, resume=args.resume, limit=args.limit,
-                      progress=progress)
+    report = generate(spec, args.output, force=args.force, resume=args.resume, limit=args.limit, progress=progress)
     resumed = f", {report.skipped} already complete" if report.skipped else ""
-    print(f"wrote {report.written} sample(s) to {report.output}{resumed}; "
-          f"{report.complete} of {report.total} complete (index: {report.output / 'index.json'})")
+    print(
+        f"wrote {report.written} sample(s) to {report.output}{resumed}; "
+        f"{report.complete} of {report.total} complete (index: {report.output / 'index.json'})"
+    )
     if not report.finished:
         print(f"stopped after --limit {args.limit}; rerun with --resume to continue")
     return 0

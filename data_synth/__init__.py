@@ -18,8 +18,6 @@ Example::
 
 from pathlib import Path
 
-import strauss_fit  # noqa: F401  (enables float64 before any rendering)
-
 from .generate import GenerationError, Progress, Report, generate, render_clean, render_model
 from .index import Sample, load_sample, read_index
 from .params import MODELS, SpecError
@@ -35,7 +33,25 @@ SPECS = Path(__file__).with_name("specs")
 SCENES = Path(__file__).with_name("scenes")
 
 __all__ = [
-    "BUNDLED", "DatasetSpec", "GenerationError", "MODELS", "Progress", "Report", "SCENES", "SPECS", "Sample",
-    "SamplePlan", "Sensor", "SpecError", "encode_ldr", "generate", "load_sample", "load_spec", "parse_spec",
-    "plan_samples", "read_index", "render_clean", "render_model",
+    "BUNDLED",
+    "DatasetSpec",
+    "GenerationError",
+    "MODELS",
+    "Progress",
+    "Report",
+    "SCENES",
+    "SPECS",
+    "Sample",
+    "SamplePlan",
+    "Sensor",
+    "SpecError",
+    "encode_ldr",
+    "generate",
+    "load_sample",
+    "load_spec",
+    "parse_spec",
+    "plan_samples",
+    "read_index",
+    "render_clean",
+    "render_model",
 ]

@@ -1,11 +1,11 @@
 """Writing a sample's files reproducibly (same pixels → same bytes), atomically.
 
-- HDR: float32 linear OpenEXR (zip compression, no timestamp: :func:`strauss_fit.io.write_image`),
+- HDR: float32 linear OpenEXR (zip compression, no timestamp: :func:`strauss_fit.io.images.write_image`),
   so that the same seed gives byte-identical files.
 - LDR: 8-bit PNG holding exactly the given sRGB codes.
 - Clip mask: 8-bit single-channel PNG, 255 where the LDR image is clipped, 0 elsewhere.
 
-Every write goes through a temporary file and a rename (:mod:`strauss_fit.io`).
+Every write goes through a temporary file and a rename (:mod:`strauss_fit.io.files`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from strauss_fit.errors import ImageError
-from strauss_fit.io import write_image
+from strauss_fit.io.images import write_image
 
 
 def write_exr(path: str | Path, image: np.ndarray, *, force: bool = False) -> Path:

@@ -19,9 +19,10 @@ byte-identical to an uninterrupted run.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -71,8 +72,8 @@ def render_model(model: str, scene: Any, material: Any) -> tuple[np.ndarray, np.
     """Render ``scene`` with a material of ``model`` (``"strauss"``: the full renderer,
     global model included; ``"phong"``: the local Phong model): the linear radiance
     (H, W, 3) float64 and the sphere mask (H, W), as numpy arrays."""
-    from strauss_fit.phong import render_phong
-    from strauss_fit.render import render
+    from strauss_fit.render.phong import render_phong
+    from strauss_fit.render.strauss import render
 
     if model == "phong":
         image, mask = render_phong(scene, material)
@@ -105,7 +106,7 @@ class _WriteFailed(Exception):
 
 def write_sample(spec: DatasetSpec, sample: SamplePlan, output: Path) -> dict[str, Any]:
     """Render and write one sample's images and sidecar; return its index entry."""
-    from strauss_fit.io import write_json
+    from strauss_fit.io.files import write_json
 
     from .sensor import encode_ldr
 
@@ -113,8 +114,7 @@ def write_sample(spec: DatasetSpec, sample: SamplePlan, output: Path) -> dict[st
     observed = sample.group.sensor.apply(clean, noise_rng(spec, sample))
     files = sample_files(sample)
     sidecar = {"format": SIDECAR_FORMAT, "version": FORMAT_VERSION, **describe(spec, sample)}
-    sidecar["image"] = {"width": int(clean.shape[1]), "height": int(clean.shape[0]),
-                        "sphere_pixels": int(sphere.sum())}
+    sidecar["image"] = {"width": int(clean.shape[1]), "height": int(clean.shape[0]), "sphere_pixels": int(sphere.sum())}
     try:
         if "exr" in files:
             write_exr(output / files["exr"], observed, force=True)
@@ -131,15 +131,21 @@ def write_sample(spec: DatasetSpec, sample: SamplePlan, output: Path) -> dict[st
     except ImageError as exc:
         raise _WriteFailed(str(exc)) from None
     return {
-        "id": sample.id, "group": sample.group.name, "model": sample.model, "scene": sample.scene.name,
-        "parameters": sample.parameters, "files": files, "sha256": checksums,
+        "id": sample.id,
+        "group": sample.group.name,
+        "model": sample.model,
+        "scene": sample.scene.name,
+        "parameters": sample.parameters,
+        "files": files,
+        "sha256": checksums,
     }
 
 
 def _is_intact(entry: dict[str, Any], output: Path) -> bool:
     try:
-        return all((output / name).is_file() and sha256(output / name) == digest
-                   for name, digest in entry["sha256"].items())
+        return all(
+            (output / name).is_file() and sha256(output / name) == digest for name, digest in entry["sha256"].items()
+        )
     except (KeyError, AttributeError, TypeError, OSError):
         return False
 
@@ -164,12 +170,14 @@ def prepare_output(output: Path, digest: str, *, force: bool, resume: bool) -> d
             raise OutputExistsError(f"cannot resume: {output} has no {INDEX_NAME} (not a dataset folder)")
         index = read_index(output)
         if index.get("plan_sha256") != digest:
-            raise OutputExistsError(f"cannot resume: {output} holds a dataset from another spec or seed; "
-                                    "pass --force to replace it")
+            raise OutputExistsError(
+                f"cannot resume: {output} holds a dataset from another spec or seed; pass --force to replace it"
+            )
         return {e["id"]: e for e in index.get("samples", []) if isinstance(e, dict) and "id" in e}
     if not force:
-        raise OutputExistsError(f"output folder {output} is not empty; pass --resume to continue the dataset "
-                                "in it or --force to replace it")
+        raise OutputExistsError(
+            f"output folder {output} is not empty; pass --resume to continue the dataset in it or --force to replace it"
+        )
     if index_path.is_file():  # replace the old dataset: remove exactly the files it lists
         try:
             old = read_index(output)
@@ -183,8 +191,15 @@ def prepare_output(output: Path, digest: str, *, force: bool, resume: bool) -> d
     return {}
 
 
-def generate(spec: DatasetSpec, output: str | Path, *, force: bool = False, resume: bool = False,
-             limit: int | None = None, progress: Callable[[Progress], None] | None = None) -> Report:
+def generate(
+    spec: DatasetSpec,
+    output: str | Path,
+    *,
+    force: bool = False,
+    resume: bool = False,
+    limit: int | None = None,
+    progress: Callable[[Progress], None] | None = None,
+) -> Report:
     """Generate (or resume) the dataset of ``spec`` in the folder ``output``.
 
     An existing non-empty folder is refused unless ``resume`` (continue the same dataset:

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from strauss_fit.errors import StraussFitError
-from strauss_fit.io import read_json, write_json
+from strauss_fit.io.files import read_json, write_json
 
 INDEX_NAME = "index.json"
 INDEX_FORMAT = "strauss-fit synth index"
@@ -85,7 +85,7 @@ def load_sample(sidecar_path: str | Path, scene_dir: str | Path | None = None) -
     scene definition (an environment image); by default the sidecar's folder."""
     import equinox as eqx
 
-    from strauss_fit.scene import parse_scene
+    from strauss_fit.scene.loading import parse_scene
 
     from .params import MODELS
 

@@ -21,8 +21,11 @@ def studio() -> np.ndarray:
     azimuth = ((np.arange(WIDTH) + 0.5) / WIDTH - 0.5) * 2 * np.pi  # 0 toward -z
     theta, phi = np.meshgrid(polar, azimuth, indexing="ij")
     up = np.cos(theta)
-    sky = np.where(up[..., None] > 0, (1 - up[..., None]) * np.array([0.9, 0.95, 1.0]) + up[..., None] * np.array([0.2, 0.4, 0.9]),
-                   np.array([0.35, 0.25, 0.15]))
+    sky = np.where(
+        up[..., None] > 0,
+        (1 - up[..., None]) * np.array([0.9, 0.95, 1.0]) + up[..., None] * np.array([0.2, 0.4, 0.9]),
+        np.array([0.35, 0.25, 0.15]),
+    )
     stripes = 0.5 + 0.5 * np.sign(np.sin(8 * phi))
     band = (np.abs(up) < 0.15)[..., None] * stripes[..., None] * np.array([0.3, 0.3, 0.3])
     boxes = np.zeros_like(sky)
@@ -33,7 +36,7 @@ def studio() -> np.ndarray:
 
 
 def main() -> None:
-    from strauss_fit.io import write_image
+    from strauss_fit.io.images import write_image
 
     OUTPUT.parent.mkdir(parents=True, exist_ok=True)
     write_image(OUTPUT, studio(), force=True)

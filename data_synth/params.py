@@ -31,14 +31,15 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from strauss_fit.errors import StraussFitError
-from strauss_fit.material import Material
-from strauss_fit.phong import MAX_EXPONENT, PhongMaterial
+from strauss_fit.models.material import Material
+from strauss_fit.models.phong import MAX_EXPONENT, PhongMaterial
 
 Shape = Literal["scalar", "rgb", "scalar_or_rgb", "bool"]
 Value = Any  # float | list[float] | bool
@@ -154,10 +155,12 @@ def _check_value(p: Parameter, value: Any, where: str) -> Value:
         if not isinstance(value, bool):
             raise SpecError(f"{where}: {p.name} must be true or false, got {value!r}")
         return value
-    allowed = {"scalar": "a number", "rgb": "a list of 3 numbers",
-               "scalar_or_rgb": "a number or a list of 3 numbers"}[p.shape]
+    allowed = {"scalar": "a number", "rgb": "a list of 3 numbers", "scalar_or_rgb": "a number or a list of 3 numbers"}[
+        p.shape
+    ]
     ok = (_is_number(value) and p.shape in ("scalar", "scalar_or_rgb")) or (
-        _is_rgb(value) and p.shape in ("rgb", "scalar_or_rgb"))
+        _is_rgb(value) and p.shape in ("rgb", "scalar_or_rgb")
+    )
     if not ok:
         raise SpecError(f"{where}: {p.name} must be {allowed}, got {value!r}")
     numbers = [value] if _is_number(value) else value
@@ -177,8 +180,10 @@ def parse_axis(p: Parameter, raw: Any, sampling: str, where: str) -> Axis:
             return _parse_values(p, raw["values"], where)
         unknown = sorted(set(raw) - {"low", "high", "steps", "scale"})
         if unknown:
-            raise SpecError(f"{where}: {p.name}: unknown key(s) {', '.join(unknown)}; a range takes low, high, "
-                            "steps, scale (or give values = [...])")
+            raise SpecError(
+                f"{where}: {p.name}: unknown key(s) {', '.join(unknown)}; a range takes low, high, "
+                "steps, scale (or give values = [...])"
+            )
         return _parse_range(p, raw, sampling, where)
     if isinstance(raw, list):
         if p.shape == "scalar" or p.shape == "bool":
@@ -186,8 +191,9 @@ def parse_axis(p: Parameter, raw: Any, sampling: str, where: str) -> Axis:
         if raw and all(isinstance(v, list) for v in raw):
             return _parse_values(p, raw, where)
         if p.shape == "scalar_or_rgb" and not _is_rgb(raw):
-            raise SpecError(f"{where}: {p.name}: a bare list is one RGB value here; write {{ values = [...] }} "
-                            "for a set of values")
+            raise SpecError(
+                f"{where}: {p.name}: a bare list is one RGB value here; write {{ values = [...] }} for a set of values"
+            )
     return Fixed(_check_value(p, raw, where))
 
 
@@ -219,16 +225,18 @@ def _parse_range(p: Parameter, raw: dict, sampling: str, where: str) -> Range:
     steps = raw.get("steps")
     if sampling == "grid":
         if steps is None:
-            raise SpecError(f"{where}: {p.name}: a range in a grid needs steps = N (or use sampling = \"random\")")
+            raise SpecError(f'{where}: {p.name}: a range in a grid needs steps = N (or use sampling = "random")')
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise SpecError(f"{where}: {p.name}: steps must be an integer >= 1, got {steps!r}")
         if isinstance(low, list) or p.shape == "rgb":
-            raise SpecError(f"{where}: {p.name}: a colour range can only be drawn at random; "
-                            "list the colours in values = [...] for a grid")
+            raise SpecError(
+                f"{where}: {p.name}: a colour range can only be drawn at random; "
+                "list the colours in values = [...] for a grid"
+            )
         if steps == 1 and low != high:
             raise SpecError(f"{where}: {p.name}: steps = 1 needs low == high")
     elif steps is not None:
-        raise SpecError(f"{where}: {p.name}: steps only applies to sampling = \"grid\"")
+        raise SpecError(f'{where}: {p.name}: steps only applies to sampling = "grid"')
     return Range(low, high, steps, scale)
 
 
@@ -284,8 +292,9 @@ def axis_ends(axis: Axis) -> tuple[Value, Value]:
     return axis.low, axis.high
 
 
-def expand_random(model: Model, axes: dict[str, Axis], count: int, extremes: tuple[str, ...],
-                  rng: np.random.Generator) -> list[dict[str, Value]]:
+def expand_random(
+    model: Model, axes: dict[str, Axis], count: int, extremes: tuple[str, ...], rng: np.random.Generator
+) -> list[dict[str, Value]]:
     """The corners of ``extremes`` (others drawn), then ``count`` independent draws."""
     corners = [()]
     if extremes:

@@ -65,8 +65,9 @@ def plan_samples(spec: DatasetSpec) -> list[SamplePlan]:
         combos = list(itertools.product(parameter_sets(spec, g), group.scenes))
         digits = max(4, len(str(len(combos) - 1)))
         for j, (parameters, scene) in enumerate(combos):
-            samples.append(SamplePlan(f"{group.name}-{j:0{digits}d}", group, g, j, scene, parameters,
-                                      (NOISE_STREAM, g, j)))
+            samples.append(
+                SamplePlan(f"{group.name}-{j:0{digits}d}", group, g, j, scene, parameters, (NOISE_STREAM, g, j))
+            )
     return samples
 
 

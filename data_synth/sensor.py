@@ -21,9 +21,9 @@ The noise comes from the :class:`numpy.random.Generator` passed in (Poisson draw
 then the Gaussian draws, both in C order), so a seed fixes it bit for bit.
 
 LDR output (:func:`encode_ldr`): O is clipped to [0, 1], sRGB-encoded with colour-science
-(:func:`strauss_fit.io.srgb_encode`) and rounded to 8 bits. A pixel is *clipped* where any
+(:func:`strauss_fit.color.srgb_encode`) and rounded to 8 bits. A pixel is *clipped* where any
 channel has the top code 255: its true value is unknown (at or above the code's lower
-edge), exactly the rule :func:`strauss_fit.io.read_image` applies when reading an LDR
+edge), exactly the rule :func:`strauss_fit.io.images.read_image` applies when reading an LDR
 image. Values below 0 become code 0 and are not marked.
 """
 
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from strauss_fit.io import srgb_encode
+from strauss_fit.color import srgb_encode
 
 from .params import SpecError
 
@@ -85,7 +85,7 @@ class Sensor:
         return {k: float(v) for k, v in asdict(self).items()}
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any], where: str = "") -> "Sensor":
+    def from_dict(cls, values: dict[str, Any], where: str = "") -> Sensor:
         """Build from a ``[group.sensor]`` table; ``where`` prefixes error messages."""
         prefix = f"{where}: " if where else ""
         unknown = sorted(set(values) - {"exposure", "gain", "read_noise"})

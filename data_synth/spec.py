@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from strauss_fit.errors import StraussFitError
-from strauss_fit.scene import Scene, parse_scene
+from strauss_fit.scene.loading import Scene, parse_scene
 
 from .params import MAX_SAMPLES, MODELS, Axis, Fixed, SpecError, Values, grid_size, parse_axis
 from .sensor import Sensor
@@ -169,13 +169,17 @@ def _parse_group(table: Any, number: int, source: str, base_dir: Path, seen: set
     count = 0
     if sampling == "random":
         if "count" not in table:
-            raise w.error("sampling = \"random\" needs count = N")
+            raise w.error('sampling = "random" needs count = N')
         count = _integer(w, table["count"], "count", 0, MAX_SAMPLES)
     elif "count" in table:
-        raise w.error("count only applies to sampling = \"random\"")
+        raise w.error('count only applies to sampling = "random"')
     formats = table.get("formats", ["exr"])
-    if not isinstance(formats, list) or not formats or any(f not in FORMATS for f in formats) \
-            or len(set(formats)) != len(formats):
+    if (
+        not isinstance(formats, list)
+        or not formats
+        or any(f not in FORMATS for f in formats)
+        or len(set(formats)) != len(formats)
+    ):
         raise w.error(f"formats must be a non-empty list of distinct values from {', '.join(FORMATS)}, got {formats!r}")
     size = table.get("size")
     if size is not None:
@@ -201,11 +205,13 @@ def _parse_group(table: Any, number: int, source: str, base_dir: Path, seen: set
     if unknown:
         raise w.error(f"unknown {model.name} parameter(s) {', '.join(unknown)}; expected {', '.join(model.names)}")
     pw = f"{w.text}: parameters"
-    axes = {p.name: parse_axis(p, raw[p.name], sampling, pw) if p.name in raw else Fixed(p.default)
-            for p in model.parameters}
+    axes = {
+        p.name: parse_axis(p, raw[p.name], sampling, pw) if p.name in raw else Fixed(p.default)
+        for p in model.parameters
+    }
     if sampling == "grid":
         if extremes_raw is not None:
-            raise w.error("extremes only applies to sampling = \"random\" (a grid lists its own values)")
+            raise w.error('extremes only applies to sampling = "random" (a grid lists its own values)')
         extremes: tuple[str, ...] = ()
         total = grid_size(axes)
     else:
@@ -232,8 +238,9 @@ def _parse_group(table: Any, number: int, source: str, base_dir: Path, seen: set
     return Group(name, model.name, refs, sampling, count, axes, extremes, sensor, tuple(formats))
 
 
-def parse_spec(data: dict[str, Any], source: str = "spec", base_dir: str | Path = ".",
-               seed: int | None = None) -> DatasetSpec:
+def parse_spec(
+    data: dict[str, Any], source: str = "spec", base_dir: str | Path = ".", seed: int | None = None
+) -> DatasetSpec:
     """Build a :class:`DatasetSpec` from a parsed TOML mapping; ``seed`` overrides the spec's."""
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
@@ -257,7 +264,9 @@ def load_spec(path: str | Path, seed: int | None = None) -> DatasetSpec:
     """Read and validate a TOML dataset spec; scene paths are relative to its folder."""
     path = Path(path)
     if not path.is_file():
-        raise SpecError(f"dataset spec not found: {path}" if not path.is_dir() else f"dataset spec is a directory: {path}")
+        raise SpecError(
+            f"dataset spec not found: {path}" if not path.is_dir() else f"dataset spec is a directory: {path}"
+        )
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:

@@ -1,29 +1,155 @@
 """strauss-fit: fit the Strauss (1990) lighting model to images.
 
-Importing the package enables JAX's float64 support (``jax_enable_x64``): fits run in
-float64, and every function takes its precision from its inputs or a ``dtype`` argument,
-so float32 stays available.
+The data flow, and the subpackage of each step:
+
+scene → geometry → shading → image → fit → uncertainty → report
+
+- :mod:`strauss_fit.models`: the Strauss and Phong shading models and materials;
+- :mod:`strauss_fit.scene`: camera, lights, background, the scene file;
+- :mod:`strauss_fit.render`: rendering the sphere (Strauss with its global model, Phong);
+- :mod:`strauss_fit.io`: images, fit targets, material tables, safe writes;
+- :mod:`strauss_fit.fit`: least-squares recovery of the material;
+- :mod:`strauss_fit.inference`: Laplace uncertainties, the posterior, emcee sampling;
+- :mod:`strauss_fit.reporting`: the uncertainty report and the study's report;
+- :mod:`strauss_fit.convert`: Phong ↔ Strauss conversion; :mod:`strauss_fit.study`: the
+  intuitive-parameter study.
+
+The whole workflow is importable from here::
+
+    import strauss_fit as sf
+
+    scene = sf.load_scene("data_synth/scenes/two_lights.toml")
+    target = sf.load_target("data_synth/bundled/strauss-noisy-0000.exr")
+    scene, _ = sf.match_scene(scene, target)
+    result = sf.fit(scene, target, sf.FitOptions.preset("balanced"))
+    print(result.to_json()["smoothness"], result.uncertainty["smoothness"])
+
+Precision: importing the package does not touch ``jax_enable_x64``; the library runs its
+own computations in float64 inside a scope (:mod:`strauss_fit.precision`, and
+:func:`float64` for your code).
+
+``strauss_fit.fit`` and ``strauss_fit.render`` are the functions; their subpackages are
+imported as ``from strauss_fit.fit import options`` (or ``from strauss_fit.fit.options
+import FitOptions``). The sampling, reporting, conversion and study entry points are
+imported on first use, so that ``import strauss_fit`` stays light.
 """
 
-import jax
+from __future__ import annotations
 
-jax.config.update("jax_enable_x64", True)
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from .background import Background  # noqa: E402
-from .camera import Camera  # noqa: E402
-from .errors import ImageError, MaterialError, OutputExistsError, SceneError, StraussFitError  # noqa: E402
-from .lights import DirectionalLights, Lights, PointLights  # noqa: E402
-from .material import Material  # noqa: E402
-from .model import K_F, K_G, K_J, MODES, fresnel, shade, shadow  # noqa: E402
-from .phong import PhongMaterial, phong_shade, render_phong  # noqa: E402
-from .render import RenderPlan, plan_render, render  # noqa: E402
-from .scene import Scene, load_scene, parse_scene  # noqa: E402
+from .errors import ImageError, MaterialError, OutputExistsError, SceneError, StraussFitError
+from .fit.api import fit
+from .fit.options import QUALITY_PRESETS, FitOptions
+from .fit.result import FitResult
+from .io.images import read_image, write_image
+from .io.targets import Target, load_target, match_scene
+from .models.material import Material
+from .models.phong import PhongMaterial, phong_shade
+from .models.strauss import K_F, K_G, K_J, MODES, fresnel, shade, shadow
+from .precision import float64, uses_float64
+from .render.phong import render_phong
+from .render.strauss import RenderPlan, plan_render, render
+from .scene.background import Background
+from .scene.camera import Camera
+from .scene.lights import DirectionalLights, Lights, PointLights
+from .scene.loading import Scene, load_scene, parse_scene
+
+if TYPE_CHECKING:
+    from .convert.converter import phong_to_strauss, strauss_to_phong
+    from .inference.sampler import Chain, SampleResult, SampleSettings, load_chain, sample
+    from .reporting.fit_report import Report, build_report, report_from_files, write_report
+    from .study.study import run_study, study_config
 
 __version__ = "0.1.0"
 
+#: Public names imported on first use (module, relative to this package).
+_LAZY = {
+    "sample": ".inference.sampler",
+    "SampleSettings": ".inference.sampler",
+    "SampleResult": ".inference.sampler",
+    "Chain": ".inference.sampler",
+    "load_chain": ".inference.sampler",
+    "Report": ".reporting.fit_report",
+    "build_report": ".reporting.fit_report",
+    "write_report": ".reporting.fit_report",
+    "report_from_files": ".reporting.fit_report",
+    "phong_to_strauss": ".convert.converter",
+    "strauss_to_phong": ".convert.converter",
+    "run_study": ".study.study",
+    "study_config": ".study.study",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
-    "Background", "Camera", "DirectionalLights", "ImageError", "K_F", "K_G", "K_J", "Lights",
-    "MODES", "Material", "MaterialError", "OutputExistsError", "PhongMaterial", "PointLights", "RenderPlan",
-    "Scene", "SceneError", "StraussFitError", "fresnel", "load_scene", "parse_scene",
-    "phong_shade", "plan_render", "render", "render_phong", "shade", "shadow",
+    # errors and precision
+    "ImageError",
+    "MaterialError",
+    "OutputExistsError",
+    "SceneError",
+    "StraussFitError",
+    "float64",
+    "uses_float64",
+    "__version__",
+    # models
+    "K_F",
+    "K_G",
+    "K_J",
+    "MODES",
+    "Material",
+    "PhongMaterial",
+    "fresnel",
+    "phong_shade",
+    "shade",
+    "shadow",
+    # scenes
+    "Background",
+    "Camera",
+    "DirectionalLights",
+    "Lights",
+    "PointLights",
+    "Scene",
+    "load_scene",
+    "parse_scene",
+    # rendering
+    "RenderPlan",
+    "plan_render",
+    "render",
+    "render_phong",
+    # images and targets
+    "Target",
+    "load_target",
+    "match_scene",
+    "read_image",
+    "write_image",
+    # fitting
+    "QUALITY_PRESETS",
+    "FitOptions",
+    "FitResult",
+    "fit",
+    # uncertainty
+    "Chain",
+    "SampleResult",
+    "SampleSettings",
+    "load_chain",
+    "sample",
+    # reports
+    "Report",
+    "build_report",
+    "report_from_files",
+    "write_report",
+    # conversion and study
+    "phong_to_strauss",
+    "strauss_to_phong",
+    "run_study",
+    "study_config",
 ]

@@ -1,0 +1,890 @@
+r"""Converting Phong materials to Strauss parameters and back, by fitting sphere renders.
+
+Both directions render the source material on the *conversion scene* and fit the other
+model to that image by least squares, starting from a closed-form guess:
+
+- **Phong → Strauss** (:meth:`Converter.phong_to_strauss`): the target is the Phong
+  rendering (:func:`strauss_fit.render.phong.render_phong`); C, s and m are fitted with the
+  Strauss fit's machinery (:func:`strauss_fit.fit.problem.build_problem`, its start grid
+  (:func:`strauss_fit.fit.starts.starts`), its bound-aware polish
+  (:func:`strauss_fit.fit.solvers.polish`) and its Laplace uncertainty
+  (:func:`strauss_fit.inference.laplace.problem_laplace`)). Transparency and index of refraction
+  are not visible in a local rendering over black: the fit matches the *opaque* appearance
+  (t = 0), and t = 1 − opacity (``d`` of a ``.mtl``) and n (``Ni``) are carried over as
+  given. Strauss's t scales both its diffuse and its base specular reflectivity by
+  (1 − t), as a dissolve d = 1 − t scales a Phong surface, so the pair stays consistent.
+- **Strauss → Phong** (:meth:`Converter.strauss_to_phong`): the target is the Strauss
+  rendering of the opaque material (local model); D = kd·Cd, S = ks·Cs and the exponent are
+  fitted (:mod:`strauss_fit.convert.phong_fit`); opacity = 1 − t and n are carried over.
+
+The conversion scene (``data_synth/scenes/conversion_default.toml``, overridable): an
+orthographic 64 × 64 view of the unit sphere (V = +z) under three white directional lights
+at 0°, about 45° and about 76° from the view direction, from three different azimuths,
+no ambient light, black background, local model only (depth 1: Phong has no global model,
+and any scene given is rendered at depth 1). Each light's highlight sits on its own part
+of the sphere, so one image holds the lobes at three angles between light and viewer, and
+across the sphere every angle of incidence and of view from 0° to 90°.
+
+Batches are vectorised: the starts of :data:`CHUNK` materials are solved in one call
+(:func:`strauss_fit.convert.phong_fit.solve_batch`, one generic chunk solver for both
+directions), then each material is polished and its
+uncertainty computed. A material that fails is reported with ``status: "error"`` and a
+message, and the batch goes on.
+
+Residuals are over the sphere's pixels of the conversion image: RMS of the linear RGB
+difference, its largest absolute value, and the mean and 95th percentile of the per-pixel
+CIEDE2000 difference (:func:`strauss_fit.color.delta_e_2000`). Uncertainties
+are Laplace (Gauss–Newton) standard deviations, :math:`\sigma^2 (J^\top J)^{-1}` with
+:math:`\sigma^2` = RSS/(N − P): with a noise-free target the residual is the models'
+mismatch, so they say how loosely the *mismatch* pins each parameter, not a noise level.
+
+Entry points: :func:`phong_to_strauss` and :func:`strauss_to_phong` convert materials,
+:func:`convert_files` reads the inputs and writes the document the command line writes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..color import delta_e_2000
+from ..errors import StraussFitError
+from ..fit.identifiability import reference_noise_level
+from ..fit.options import DEFAULT_QUALITY, FitOptions, quality_preset
+from ..fit.problem import build_problem, render_at
+from ..fit.solvers import polish
+from ..fit.starts import START_MARGIN, starts
+from ..inference.laplace import problem_laplace
+from ..io.files import check_writable
+from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
+from ..io.targets import Target
+from ..models.material import Material
+from ..models.phong import MAX_EXPONENT, PhongMaterial
+from ..models.strauss import K_J, fresnel, shadow
+from ..precision import uses_float64
+from ..render.phong import render_phong
+from ..render.strauss import plan_render
+from ..scene.loading import Scene, load_scene
+from .phong_fit import (
+    PHONG_LAYOUT,
+    exponent_from_unit,
+    laplace_deviations,
+    material_from_vector,
+    phong_problem,
+    solve_batch,
+    unit_from_exponent,
+)
+
+#: Strauss parameters the conversion fits (t and n are carried over, see the module docstring).
+STRAUSS_FREE = ("color", "smoothness", "metalness")
+#: Materials solved per vectorised call (the last chunk is padded, so one compilation serves all).
+CHUNK = 8
+#: The default conversion scene, in ``data_synth/scenes``.
+DEFAULT_SCENE_NAME = "conversion_default.toml"
+#: Angle (α = γ) at which the closed-form Strauss → Phong guess evaluates j and F.
+GUESS_ANGLE_DEG = 30.0
+
+
+def default_scene_path() -> Path:
+    """``data_synth/scenes/conversion_default.toml`` (installed beside the package)."""
+    spec = importlib.util.find_spec("data_synth")
+    roots = list(spec.submodule_search_locations) if spec and spec.submodule_search_locations else []
+    roots.append(str(Path(__file__).resolve().parent.parent / "data_synth"))
+    for root in roots:
+        path = Path(root) / "scenes" / DEFAULT_SCENE_NAME
+        if path.is_file():
+            return path
+    raise StraussFitError(f"the default conversion scene {DEFAULT_SCENE_NAME} is missing from the installation")
+
+
+def conversion_scene(path: str | Path | None = None, size: int | None = None) -> Scene:
+    """The conversion scene (default or ``path``), at depth 1 and optionally ``size`` × ``size``
+    pixels (a non-square camera keeps its aspect ratio, ``size`` setting the width)."""
+    scene = load_scene(path or default_scene_path())
+    if size is not None:
+        if size < 4:
+            raise StraussFitError(f"the conversion image must be at least 4 pixels wide, got {size}")
+        height = max(1, round(size * scene.camera.height / scene.camera.width))
+        scene = scene.resized(size, height)
+    if scene.depth != 1:
+        scene = dataclasses.replace(scene, depth=1)
+    return scene
+
+
+# --- closed-form guesses ------------------------------------------------------------------
+
+
+def _triple(value: Any) -> np.ndarray:
+    return np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+
+
+def strauss_guess(phong: PhongMaterial) -> tuple[dict[str, Any], list[str]]:
+    r"""Closed-form Strauss parameters for a Phong material (the fit's first start).
+
+    With :math:`D = k_d C_d` and :math:`S = k_s C_{sp}` (RGB) and the exponent n:
+
+    - smoothness from the lobe width: Strauss's highlight is :math:`\cos^h\beta` with
+      :math:`h = 3/(1 - s)`, Phong's :math:`\cos^n\beta`, so :math:`s = 1 - 3/n`, clipped to
+      [0, 1) (n ≤ 3 gives s = 0: Strauss has no lobe wider than h = 3). For Blinn–Phong,
+      whose :math:`\cos^n(N\cdot H)` is close to :math:`\cos^{n/4}(R\cdot V)`, n/4 is used.
+      For a pure Phong lobe the guessed s reproduces the lobe's shape exactly. Without a
+      highlight (S = 0) s = 0, whatever n says.
+    - metalness from the tint of the highlight: Strauss's highlight colour at small
+      angles of incidence is :math:`C_s \approx (1 - m)\,\mathrm{white} + m\,C`, so with
+      :math:`\hat C = D/\max D` (the diffuse hue) and the tint :math:`T = S/\max S`,
+      :math:`m = (1 - \min T)/(1 - \min\hat C)`, clipped to [0, 1]; a white highlight gives
+      m = 0, and so does a grey diffuse colour (no hue to compare with). Without a diffuse
+      term (D = 0) a tinted highlight means a metal of that colour (m = 1, C = T), a
+      white one a black dielectric (m = 0, C = 0), and no highlight either Strauss's
+      darkest material (C = 0, m = 1, s = 0: its off-specular term never vanishes).
+    - colour from the diffuse term: Strauss's diffuse reflectance is
+      :math:`(1 - ms)(1 - s^3)\,C`, so :math:`C = D / ((1 - ms)(1 - s^3))`; where that
+      exceeds 1 it is scaled down to a largest channel of 1 (keeping the hue), with a note.
+
+    Phong's ks has no Strauss counterpart of its own: the highlight's strength follows
+    from s (:math:`r_n = s^3`) and m. Returns the guess and notes.
+    """
+    notes: list[str] = []
+    d = _triple(phong.kd) * np.asarray(phong.diffuse_color, dtype=np.float64)
+    s_rgb = _triple(phong.ks) * np.asarray(phong.specular_color, dtype=np.float64)
+    n = float(phong.exponent)
+    n_lobe = n / 4.0 if phong.blinn else n
+    d_max, s_max = float(d.max()), float(s_rgb.max())
+    if s_max > 0:
+        smoothness = float(np.clip(1.0 - 3.0 / n_lobe, 0.0, 1.0)) if n_lobe > 0 else 0.0
+        smoothness = min(smoothness, float(np.nextafter(1.0, 0.0)))
+    else:
+        smoothness = 0.0  # no highlight: the matte end (any s > 0 would add one)
+    tint = s_rgb / s_max if s_max > 0 else np.ones(3)
+    tinted = 1.0 - float(tint.min()) > 0.05
+    if d_max <= 1e-12:
+        if s_max > 0 and tinted:
+            metalness, color = 1.0, tint
+        elif s_max > 0:
+            metalness, color = 0.0, np.zeros(3)
+        else:  # black: Strauss's darkest material (its off-specular term k_j j F never vanishes)
+            metalness, color = 1.0, np.zeros(3)
+    else:
+        hue = d / d_max
+        chroma = 1.0 - float(hue.min())
+        metalness = float(np.clip((1.0 - float(tint.min())) / chroma, 0.0, 1.0)) if chroma > 0.05 and s_max > 0 else 0.0
+        scale = (1.0 - metalness * smoothness) * (1.0 - smoothness**3)
+        color = d / scale if scale > 1e-12 else hue
+        if color.max() > 1.0:
+            notes.append(
+                f"the diffuse term kd·Cd = {np.round(d, 4).tolist()} is brighter than Strauss allows at "
+                f"s = {smoothness:.3f}, m = {metalness:.3f}; the guessed colour is scaled to a largest channel of 1"
+            )
+            color = color / color.max()
+    guess = {"color": [float(c) for c in np.clip(color, 0.0, 1.0)], "smoothness": smoothness, "metalness": metalness}
+    return guess, notes
+
+
+def phong_guess(material: Material) -> tuple[np.ndarray, float]:
+    r"""Closed-form Phong parameters for an (opaque) Strauss material: the vector
+    (D, S, u) of :data:`strauss_fit.convert.phong_fit.PHONG_LAYOUT` and the ambient coefficient.
+
+    - n = h = 3/(1 − s) (clipped to [1, 10000]; s = 1 gives 10000);
+    - D = (1 − ms)(1 − s³) C, Strauss's diffuse reflectance;
+    - S = r_j C_s evaluated at α = γ = :data:`GUESS_ANGLE_DEG` (j and F there), with
+      :math:`r_j = \min(1, r_n + j(r_n + k_j))`, :math:`r_n = s^3`;
+    - ka = (1 − s³)·max C, so that Phong's ambient term :math:`k_a C_d` with
+      :math:`C_d = D/\max D` equals Strauss's :math:`r_d C` (exactly when the diffuse hue
+      is C's, which it always is).
+    """
+    c = np.asarray(material.color, dtype=np.float64)
+    s, m = float(material.smoothness), float(material.metalness)
+    h = 3.0 / (1.0 - s) if s < 1 else MAX_EXPONENT
+    d = (1.0 - m * s) * (1.0 - s**3) * c
+    x = 2.0 * math.radians(GUESS_ANGLE_DEG) / math.pi
+    f, g = float(fresnel(x)), float(shadow(x))
+    r_n = s**3
+    r_j = min(1.0, r_n + f * g * g * (r_n + K_J))
+    spec = r_j * (1.0 + m * (1.0 - f) * (c - 1.0))
+    vector = np.concatenate([np.clip(d, 0, 1), np.clip(spec, 0, 1), [unit_from_exponent(h)]])
+    return vector, float((1.0 - s**3) * c.max())
+
+
+# --- the batch converter -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Solver settings of a conversion (recorded in the output)."""
+
+    starts: int = 4
+    start_steps: int = 40
+    max_steps: int = 100
+    rtol: float = 1e-6
+    atol: float = 1e-8
+    chunk: int = CHUNK
+
+    @classmethod
+    def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> Settings:
+        """The solver settings of quality preset ``name``
+        (:data:`strauss_fit.fit.options.QUALITY_PRESETS`: ``starts``, ``max_steps``,
+        ``rtol``, ``atol``), with ``overrides`` (a value of None keeps the preset's)."""
+        values = quality_preset(name)
+        settings = {key: values[key] for key in ("starts", "max_steps", "rtol", "atol")}
+        settings.update({key: value for key, value in overrides.items() if value is not None})
+        return cls(**settings)
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+Progress = Callable[[int, int, str], None]
+
+
+def _residual_stats(model: np.ndarray, target: np.ndarray) -> dict[str, float]:
+    diff = model - target
+    delta = delta_e_2000(model, target)
+    return {
+        "rms": float(np.sqrt(np.mean(diff**2))),
+        "max_abs": float(np.max(np.abs(diff))),
+        "delta_e2000_mean": float(np.mean(delta)),
+        "delta_e2000_p95": float(np.percentile(delta, 95)),
+    }
+
+
+def _scale_of(pixels: np.ndarray) -> float:
+    """Residual scale as in a fit (:mod:`strauss_fit.fit.problem`): reference noise × √(values)."""
+    return reference_noise_level(pixels) * math.sqrt(pixels.size)
+
+
+def _error(entry: Entry, message: str) -> dict[str, Any]:
+    return {
+        "name": entry.name,
+        "source": entry.source,
+        "status": "error",
+        "message": message,
+        "notes": list(entry.notes),
+    }
+
+
+def _chunks(items: list, size: int):
+    for start in range(0, len(items), size):
+        yield items[start : start + size]
+
+
+def _pad(array: np.ndarray, size: int) -> np.ndarray:
+    if array.shape[0] == size:
+        return array
+    return np.concatenate([array, np.repeat(array[:1], size - array.shape[0], axis=0)])
+
+
+@dataclass
+class _Direction:
+    """How one direction of the conversion solves a chunk of materials with the generic
+    :meth:`Converter._solve_chunk`: the problem template, the solver's step limit, the
+    starts of an item, the extra per-material fields of the template (or None), how a
+    solved item is finished and what an item that renders black gets."""
+
+    template: Any
+    max_steps: int
+    starts: Callable[[tuple], np.ndarray]
+    extra: Callable[[list[tuple]], dict[str, np.ndarray] | None]
+    finish: Callable[..., dict[str, Any]]
+    unsolved: Callable[[tuple], dict[str, Any]]
+
+
+class Converter:
+    """Converts materials on one conversion scene (compiled once, reused for every batch)."""
+
+    @uses_float64
+    def __init__(self, scene: Scene | None = None, settings: Settings = Settings(), scene_label: str | None = None):
+        self.scene = scene if scene is not None else conversion_scene()
+        if self.scene.depth != 1:
+            self.scene = dataclasses.replace(self.scene, depth=1)
+        self.scene_label = scene_label or "built-in conversion scene"
+        self.settings = settings
+        self.options = FitOptions(
+            solver="lm",
+            starts=settings.starts,
+            max_steps=settings.max_steps,
+            start_steps=settings.start_steps,
+            rtol=settings.rtol,
+            atol=settings.atol,
+            free=STRAUSS_FREE,
+        )
+        base = Material(transparency=0.0)
+        height, width = self.scene.shape
+        dummy = Target(
+            np.ones((height, width, 3)), np.ones((height, width), dtype=bool), "<conversion>", "linear", 0, 0
+        )
+        plan = plan_render(self.scene, base, transparent=False)
+        self.strauss, prepared_full, self.index = build_problem(
+            self.scene, dummy, list(STRAUSS_FREE), base, plan, self.options
+        )
+        self.phong_template = phong_problem(self.scene, self.index)
+
+    # -- description ---------------------------------------------------------------------
+
+    def describe(self) -> dict[str, Any]:
+        """The scene and settings, for the output file."""
+        lights = []
+        directional = self.scene.lights.directional
+        if directional is not None:
+            for d, i, c in zip(
+                np.asarray(directional.direction), np.asarray(directional.intensity), np.asarray(directional.color)
+            ):
+                light = {
+                    "kind": "directional",
+                    "direction": np.round(d, 6).tolist(),
+                    "intensity": float(i),
+                    "color": c.tolist(),
+                }
+                if self.scene.camera.projection == "orthographic":  # V = +z everywhere
+                    light["angle_to_view_deg"] = round(math.degrees(math.acos(float(np.clip(d[2], -1, 1)))), 2)
+                lights.append(light)
+        if self.scene.lights.point is not None:
+            lights.append({"kind": "point", "count": int(self.scene.lights.point.intensity.shape[0])})
+        if self.scene.lights.ambient is not None:
+            lights.append({"kind": "ambient", "intensity": float(self.scene.lights.ambient)})
+        return {
+            "file": self.scene_label,
+            "width": self.scene.camera.width,
+            "height": self.scene.camera.height,
+            "projection": self.scene.camera.projection,
+            "depth": 1,
+            "pixels_used": int(self.index.size),
+            "lights": lights,
+        }
+
+    # -- targets -------------------------------------------------------------------------
+
+    @uses_float64
+    def phong_target(self, phong: PhongMaterial) -> np.ndarray:
+        """The Phong rendering (N, 3) at the used pixels."""
+        image, _ = render_phong(self.scene, phong)
+        return np.asarray(image).reshape(-1, 3)[self.index]
+
+    @uses_float64
+    def strauss_target(self, material: Material) -> np.ndarray:
+        """The Strauss rendering (N, 3) of the opaque material at the used pixels."""
+        x = self.strauss.layout.join(material.to_dict())
+        return np.asarray(render_at(self.strauss, jnp.asarray(x)))
+
+    def _lobe_note(self, exponent: float) -> str | None:
+        """A note when the highlight is narrower than the image's pixels resolve."""
+        if exponent <= 0:
+            return None
+        half_width = math.acos(0.5 ** (1.0 / exponent))  # where cos^n beta = 1/2
+        pitch = 2.0 * 2.0 / self.scene.camera.width  # beta moves twice as fast as the normal
+        if half_width < pitch:
+            return (
+                f"the highlight (n = {exponent:.4g}) is narrower than a pixel of the {self.scene.camera.width}-pixel "
+                "conversion image; its shape is poorly constrained (use a larger --size)"
+            )
+        return None
+
+    # -- Phong -> Strauss ----------------------------------------------------------------
+
+    @uses_float64
+    def phong_to_strauss(self, entries: list[Entry], progress: Progress | None = None) -> list[dict[str, Any]]:
+        """Convert every entry (Phong sources); results in input order."""
+        results: list[dict[str, Any] | None] = [None] * len(entries)
+        report = _Reporter(progress, len(entries))
+        prepared = []
+        for i, entry in enumerate(entries):
+            if entry.error:
+                results[i] = report(entry, _error(entry, entry.error))
+                continue
+            try:
+                guess, notes = strauss_guess(entry.material)
+                notes = [f"closed-form guess: {note}" for note in notes]
+                target = self.phong_target(entry.material)
+                if not np.all(np.isfinite(target)):
+                    raise StraussFitError("the Phong rendering is not finite")
+            except Exception as exc:  # noqa: BLE001 - one bad material never stops the batch
+                results[i] = report(entry, _error(entry, _message(exc)))
+                continue
+            prepared.append((i, entry, guess, notes, target))
+        direction = _Direction(
+            template=self.strauss,
+            max_steps=self.settings.start_steps,
+            starts=lambda item: starts(self.strauss.layout, item[2], self.settings.starts),
+            extra=lambda items: None,
+            finish=lambda item, *solved: self._finish_strauss(item[1], item[2], item[3], *solved),
+            unsolved=lambda item: self._black_strauss(item[1], item[2], item[3], item[4]),
+        )
+        for chunk in _chunks(prepared, self.settings.chunk):
+            for (i, entry, *_), outcome in zip(chunk, self._solve_chunk(chunk, direction)):
+                results[i] = report(entry, outcome)
+        return results  # type: ignore[return-value]
+
+    def _solve_chunk(self, chunk: list[tuple], direction: _Direction) -> list[dict[str, Any]]:
+        """Solve the starts of every material of ``chunk`` (items ``(i, entry, guess, ...,
+        target)``) in one vectorised call, then finish each; a failing chunk is retried
+        material by material, so that one bad material never stops the others."""
+        fittable = [k for k, item in enumerate(chunk) if float(np.max(item[4])) > 0]
+        solved: dict[int, tuple] = {}
+        if fittable:
+            try:
+                targets = np.stack([chunk[k][4] for k in fittable])
+                scales = np.array([_scale_of(chunk[k][4]) for k in fittable])
+                extra = direction.extra([chunk[k] for k in fittable])
+                thetas = np.stack([direction.starts(chunk[k]) for k in fittable])
+                size = self.settings.chunk
+                values, costs, steps, ok = (
+                    np.asarray(v)
+                    for v in solve_batch(
+                        direction.template,
+                        jnp.asarray(_pad(targets, size)),
+                        jnp.asarray(_pad(scales, size)),
+                        jnp.asarray(_pad(thetas, size)),
+                        self.settings.rtol,
+                        self.settings.atol,
+                        direction.max_steps,
+                        None if extra is None else {k: jnp.asarray(_pad(v, size)) for k, v in extra.items()},
+                    )
+                )
+                for row, k in enumerate(fittable):
+                    more = {} if extra is None else {name: v[row] for name, v in extra.items()}
+                    solved[k] = (targets[row], scales[row], more, values[row], costs[row], steps[row], ok[row])
+            except Exception as exc:  # noqa: BLE001
+                if len(chunk) > 1:  # isolate the material that breaks the vectorised solve
+                    return [result for item in chunk for result in self._solve_chunk([item], direction)]
+                return [_error(item[1], f"the solve failed: {_message(exc)}") for item in chunk]
+        out = []
+        for k, item in enumerate(chunk):
+            try:
+                out.append(direction.finish(item, *solved[k]) if k in solved else direction.unsolved(item))
+            except Exception as exc:  # noqa: BLE001
+                out.append(_error(item[1], _message(exc)))
+        return out
+
+    def _strauss_values(self, entry: Entry, fitted: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "color": [float(c) for c in np.asarray(fitted["color"])],
+            "smoothness": float(fitted["smoothness"]),
+            "metalness": float(fitted["metalness"]),
+            "transparency": float(np.clip(1.0 - entry.opacity, 0, 1)),
+            "ior": float(max(entry.ior, 1.0)),
+        }
+
+    def _common_notes(self, entry: Entry, values: dict[str, Any]) -> list[str]:
+        notes = []
+        phong = entry.material
+        if phong.blinn:
+            notes.append("Blinn-Phong source: the smoothness guess used n/4 (cos^n(N·H) ≈ cos^(n/4)(R·V))")
+        if entry.opacity < 1:
+            notes.append(
+                f"transparency t = 1 - d = {1 - entry.opacity:.4g} carried over, not fitted "
+                "(the fit matches the opaque appearance)"
+            )
+        ka = _triple(phong.ka) * np.asarray(phong.diffuse_color, dtype=np.float64)
+        r_d = (1 - values["smoothness"] ** 3) * np.asarray(values["color"])
+        if float(np.max(ka)) > 0 and float(np.max(np.abs(ka - r_d))) > 0.02:
+            notes.append(
+                f"ka is not a Strauss parameter: Phong's ambient term ka·Cd = {np.round(ka, 3).tolist()} "
+                f"becomes Strauss's ambient reflectance r_d·C = {np.round(r_d, 3).tolist()}"
+            )
+        lobe = self._lobe_note(float(phong.exponent) / (4.0 if phong.blinn else 1.0))
+        if lobe:
+            notes.append(lobe)
+        return notes
+
+    def _finish_strauss(
+        self,
+        entry: Entry,
+        guess: dict,
+        guess_notes: list[str],
+        target: np.ndarray,
+        scale: float,
+        extra: dict,
+        values: np.ndarray,
+        costs: np.ndarray,
+        steps: np.ndarray,
+        ok: np.ndarray,
+    ) -> dict[str, Any]:
+        problem = dataclasses.replace(self.strauss, target=jnp.asarray(target), residual_scale=jnp.asarray(scale))
+        finite = np.isfinite(costs)
+        if not finite.any():
+            raise StraussFitError("every start of the fit diverged to non-finite values")
+        best = int(np.argmin(np.where(finite, costs, np.inf)))
+        theta, cost, polish_steps, status, problem, information = polish(problem, values[best], self.options)
+        x = np.asarray(problem.physical(jnp.asarray(theta)))
+        if not np.all(np.isfinite(x)):
+            raise StraussFitError("the fit ended at non-finite parameters")
+        rss = float(cost) * scale**2
+        uncertainty, correlation, _ = problem_laplace(problem, x, rss, None, information)
+        model = np.asarray(render_at(problem, jnp.asarray(x)))
+        layout = problem.layout
+        fitted = self._strauss_values(entry, layout.split(x))
+        at_bound = [label for label, p in zip(layout.labels(), np.asarray(problem.pinned)) if p]
+        notes = list(entry.notes) + guess_notes + self._common_notes(entry, fitted)
+        if status != "successful":
+            notes.append(f"the solver ended with status '{status}'")
+        if at_bound:
+            notes.append(f"at a bound (Laplace deviation 0 there): {', '.join(at_bound)}")
+        return {
+            "name": entry.name,
+            "source": entry.source,
+            "status": "ok",
+            "input": {"phong": entry.material.to_dict(), "opacity": entry.opacity, "ior": entry.ior},
+            "guess": guess,
+            "strauss": fitted,
+            "uncertainty": uncertainty,
+            "correlation": correlation,
+            "residual": _residual_stats(model, target),
+            "solver": {
+                "status": status,
+                "steps": int(steps[best]) + polish_steps,
+                "best_start": best,
+                "starts": int(len(costs)),
+                "at_bound": at_bound,
+            },
+            "notes": notes,
+        }
+
+    def _black_strauss(self, entry: Entry, guess: dict, guess_notes: list[str], target: np.ndarray) -> dict[str, Any]:
+        fitted = self._strauss_values(entry, guess)
+        model = self.strauss_target(Material(**{**fitted, "transparency": 0.0}))
+        return {
+            "name": entry.name,
+            "source": entry.source,
+            "status": "ok",
+            "input": {"phong": entry.material.to_dict(), "opacity": entry.opacity, "ior": entry.ior},
+            "guess": guess,
+            "strauss": fitted,
+            "uncertainty": None,
+            "correlation": None,
+            "residual": _residual_stats(model, target),
+            "solver": {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
+            "notes": list(entry.notes)
+            + guess_notes
+            + ["the material renders black in the conversion scene: nothing to fit, the closed-form guess is returned"],
+        }
+
+    # -- Strauss -> Phong ----------------------------------------------------------------
+
+    @uses_float64
+    def strauss_to_phong(
+        self, entries: list[Entry], progress: Progress | None = None, *, blinn: bool = False
+    ) -> list[dict[str, Any]]:
+        """Convert every entry (Strauss sources) to Phong (Blinn–Phong with ``blinn``)."""
+        results: list[dict[str, Any] | None] = [None] * len(entries)
+        report = _Reporter(progress, len(entries))
+        template = dataclasses.replace(self.phong_template, blinn=blinn) if blinn else self.phong_template
+        prepared = []
+        for i, entry in enumerate(entries):
+            if entry.error:
+                results[i] = report(entry, _error(entry, entry.error))
+                continue
+            try:
+                opaque = Material(**{**entry.material.to_dict(), "transparency": 0.0})
+                guess, ka = phong_guess(opaque)
+                if blinn:
+                    guess[6] = unit_from_exponent(4.0 * float(exponent_from_unit(guess[6])))
+                target = self.strauss_target(opaque)
+                if not np.all(np.isfinite(target)):
+                    raise StraussFitError("the Strauss rendering is not finite")
+            except Exception as exc:  # noqa: BLE001
+                results[i] = report(entry, _error(entry, _message(exc)))
+                continue
+            prepared.append((i, entry, guess, ka, target))
+        direction = _Direction(
+            template=template,
+            max_steps=self.settings.max_steps,
+            starts=lambda item: self._phong_starts(item[2]),
+            extra=lambda items: {"ambient_ka": np.array([item[3] for item in items])},
+            finish=lambda item, target, scale, extra, *solved: self._finish_phong(
+                item[1], item[2], template, target, scale, extra["ambient_ka"], *solved
+            ),
+            unsolved=lambda item: self._phong_result(
+                item[1],
+                item[2],
+                item[3],
+                template,
+                item[2],
+                item[4],
+                None,
+                None,
+                {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
+                [
+                    "the material renders black in the conversion scene: nothing to fit, "
+                    "the closed-form guess is returned"
+                ],
+            ),
+        )
+        for chunk in _chunks(prepared, self.settings.chunk):
+            for (i, entry, *_), outcome in zip(chunk, self._solve_chunk(chunk, direction)):
+                results[i] = report(entry, outcome)
+        return results  # type: ignore[return-value]
+
+    def _phong_starts(self, guess: np.ndarray) -> np.ndarray:
+        """The guess, then the exponent ×4 and ÷4, then the highlight halved and the
+        exponent ×16 (first :attr:`Settings.starts` of them)."""
+        step = math.log(4.0) / math.log(MAX_EXPONENT)
+        rows = [guess]
+        for du, spec_factor in ((step, 1.0), (-step, 1.0), (2 * step, 0.5), (-2 * step, 2.0), (3 * step, 1.0)):
+            row = guess.copy()
+            row[6] = float(np.clip(row[6] + du, 0.0, 1.0))
+            row[3:6] = np.clip(row[3:6] * spec_factor, 0.0, 1.0)
+            rows.append(row)
+        rows = rows[: max(self.settings.starts, 1)]
+        return PHONG_LAYOUT.to_unconstrained(np.stack(rows), margin=START_MARGIN)
+
+    def _finish_phong(
+        self,
+        entry: Entry,
+        guess: np.ndarray,
+        template,
+        target: np.ndarray,
+        scale: float,
+        ka: float,
+        values: np.ndarray,
+        costs: np.ndarray,
+        steps: np.ndarray,
+        ok: np.ndarray,
+    ) -> dict[str, Any]:
+        finite = np.isfinite(costs)
+        if not finite.any():
+            raise StraussFitError("every start of the fit diverged to non-finite values")
+        best = int(np.argmin(np.where(finite, costs, np.inf)))
+        problem = dataclasses.replace(
+            template, target=jnp.asarray(target), residual_scale=jnp.asarray(scale), ambient_ka=jnp.asarray(ka)
+        )
+        x = np.asarray(PHONG_LAYOUT.to_physical(jnp.asarray(values[best])))
+        if not np.all(np.isfinite(x)):
+            raise StraussFitError("the fit ended at non-finite parameters")
+        rss = float(costs[best]) * scale**2
+        sd, corr = laplace_deviations(problem, x, rss)
+        at_bound = [label for label, v in zip(PHONG_LAYOUT.labels(), x) if v < 1e-6 or v > 1 - 1e-6]
+        status = "successful" if bool(ok[best]) else "max_steps_reached"
+        notes = []
+        if status != "successful":
+            notes.append(f"the solver ended with status '{status}'")
+        if at_bound:
+            notes.append(f"at a bound (its Laplace deviation is not a symmetric interval there): {', '.join(at_bound)}")
+        solver = {
+            "status": status,
+            "steps": int(steps[best]),
+            "best_start": best,
+            "starts": int(len(costs)),
+            "at_bound": at_bound,
+        }
+        return self._phong_result(entry, guess, ka, template, x, target, sd, corr, solver, notes)
+
+    def _phong_result(
+        self,
+        entry: Entry,
+        guess: np.ndarray,
+        ka: float,
+        template,
+        x: np.ndarray,
+        target: np.ndarray,
+        sd: np.ndarray | None,
+        corr: np.ndarray | None,
+        solver: dict,
+        notes: list[str],
+    ) -> dict[str, Any]:
+        problem = dataclasses.replace(template, target=jnp.asarray(target), ambient_ka=jnp.asarray(ka))
+        model = np.asarray(render_at(problem, jnp.asarray(x)))
+        phong = _phong_dict(x, ka, template.blinn)
+        uncertainty = None
+        correlation = None
+        if sd is not None:
+            n = float(exponent_from_unit(x[6]))
+            uncertainty = {
+                "diffuse": sd[0:3].tolist(),
+                "specular": sd[3:6].tolist(),
+                "exponent": float(n * math.log(MAX_EXPONENT) * sd[6]),
+            }
+            correlation = {"labels": PHONG_LAYOUT.labels(), "matrix": np.round(corr, 6).tolist()}
+        t = float(entry.material.transparency)
+        all_notes = list(entry.notes) + notes
+        if t > 0:
+            all_notes.append(
+                f"opacity d = 1 - t = {1 - t:.4g} carried over, not fitted (the fit matches the opaque appearance)"
+            )
+        all_notes.append(f"ka = (1 - s^3)·max(C) = {ka:.4g} so that Phong's ambient term equals Strauss's")
+        lobe = self._lobe_note(phong["exponent"])
+        if lobe:
+            all_notes.append(lobe)
+        return {
+            "name": entry.name,
+            "source": entry.source,
+            "status": "ok",
+            "input": {"strauss": entry.material.to_dict()},
+            "guess": _phong_dict(guess, ka, template.blinn),
+            "phong": phong,
+            "opacity": float(1.0 - t),
+            "ior": float(entry.material.ior),
+            "uncertainty": uncertainty,
+            "correlation": correlation,
+            "residual": _residual_stats(model, target),
+            "solver": solver,
+            "notes": all_notes,
+        }
+
+
+def _phong_dict(x: np.ndarray, ka: float, blinn: bool) -> dict[str, Any]:
+    material = material_from_vector(jnp.asarray(x), ka, blinn)
+    out = {
+        name: (float(v) if np.ndim(v) == 0 else [float(c) for c in np.asarray(v)])
+        for name, v in (
+            ("ka", material.ka),
+            ("kd", material.kd),
+            ("ks", material.ks),
+            ("exponent", material.exponent),
+            ("diffuse_color", material.diffuse_color),
+            ("specular_color", material.specular_color),
+        )
+    }
+    out["exponent"] = float(min(out["exponent"], MAX_EXPONENT))
+    out["blinn"] = bool(blinn)
+    return out
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, StraussFitError):
+        return str(exc)
+    text = str(exc).strip().splitlines()
+    return f"unexpected {type(exc).__name__}: {text[0] if text else 'no message'}"
+
+
+class _Reporter:
+    """Counts finished materials and passes a one-line summary of each to ``progress``."""
+
+    def __init__(self, progress: Progress | None, total: int):
+        self.progress, self.total, self.done = progress, total, 0
+
+    def __call__(self, entry: Entry, result: dict[str, Any]) -> dict[str, Any]:
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done, self.total, f"{entry.name}: {_summary(result)}")
+        return result
+
+
+def _summary(result: dict[str, Any]) -> str:
+    if result["status"] != "ok":
+        return f"error: {result['message']}"
+    residual = result["residual"]
+    return f"ok, RMS {residual['rms']:.3g}, ΔE2000 mean {residual['delta_e2000_mean']:.3g}"
+
+
+# --- entry points ------------------------------------------------------------------------
+
+
+def _entries(materials: Any, kind: type) -> list[Entry]:
+    """Materials (one, or a sequence of materials or :class:`Entry` objects) as entries."""
+    items = [materials] if isinstance(materials, (kind, Entry)) else list(materials)
+    entries = []
+    for number, item in enumerate(items, start=1):
+        if isinstance(item, Entry):
+            entries.append(item)
+        elif kind is Material:
+            entries.append(
+                Entry(f"material-{number}", "python", item, opacity=1.0 - float(item.transparency), ior=float(item.ior))
+            )
+        else:
+            entries.append(Entry(f"material-{number}", "python", item))
+    return entries
+
+
+@uses_float64
+def phong_to_strauss(
+    materials: PhongMaterial | Entry | Sequence[PhongMaterial | Entry],
+    *,
+    scene: Scene | str | Path | None = None,
+    settings: Settings = Settings(),
+    progress: Progress | None = None,
+) -> list[dict[str, Any]]:
+    """Convert Phong materials to Strauss parameters by fitting sphere renders (see the
+    module docstring): one result dict per material (``status``, ``strauss``,
+    ``uncertainty``, ``residual``, ``notes``, ...), in input order. ``scene`` is the
+    conversion scene (a :class:`~strauss_fit.scene.loading.Scene`, a scene file, or None
+    for the default)."""
+    converter = Converter(scene if isinstance(scene, Scene) or scene is None else conversion_scene(scene), settings)
+    return converter.phong_to_strauss(_entries(materials, PhongMaterial), progress)
+
+
+@uses_float64
+def strauss_to_phong(
+    materials: Material | Entry | Sequence[Material | Entry],
+    *,
+    scene: Scene | str | Path | None = None,
+    settings: Settings = Settings(),
+    blinn: bool = False,
+    progress: Progress | None = None,
+) -> list[dict[str, Any]]:
+    """Convert Strauss materials to Phong (Blinn–Phong with ``blinn``) by fitting sphere
+    renders: one result dict per material (``status``, ``phong``, ``opacity``, ``ior``,
+    ``uncertainty``, ``residual``, ``notes``, ...), in input order."""
+    converter = Converter(scene if isinstance(scene, Scene) or scene is None else conversion_scene(scene), settings)
+    return converter.strauss_to_phong(_entries(materials, Material), progress, blinn=blinn)
+
+
+DIRECTIONS = ("phong2strauss", "strauss2phong")
+
+
+@uses_float64
+def convert_files(
+    direction: str,
+    inputs: list[str],
+    output: str | Path,
+    *,
+    scene: str | Path | None = None,
+    size: int | None = None,
+    settings: Settings = Settings(),
+    blinn: bool = False,
+    force: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Read the materials of ``inputs`` (inline ``KEY=VALUE`` tokens, JSON, a ``.json``,
+    ``.csv`` or ``.mtl`` file: :mod:`strauss_fit.io.material_tables`), convert them in
+    ``direction`` (``phong2strauss`` or ``strauss2phong``) on the conversion scene
+    (``scene``, at ``size`` pixels), write the results to ``output`` (``.json``, ``.csv``,
+    or ``.mtl`` for Strauss → Phong) and return the document written (for JSON; the
+    other formats hold its ``materials``). ``log`` receives progress lines."""
+    if direction not in DIRECTIONS:
+        raise StraussFitError(f"unknown conversion {direction!r}; expected one of {', '.join(DIRECTIONS)}")
+    log = log or (lambda message: None)
+    output_format(output, direction)
+    check_writable(output, force)
+    started = time.perf_counter()
+    reader = read_phong_input if direction == "phong2strauss" else read_strauss_input
+    entries, input_notes, description = reader(inputs)
+    for note in input_notes:
+        log(f"{direction}: note: {note}")
+    conversion = conversion_scene(scene, size)
+    log(
+        f"{direction}: {len(entries)} material(s) from {description}; preparing the conversion scene "
+        f"({conversion.camera.width}x{conversion.camera.height})"
+    )
+    converter = Converter(
+        conversion, settings, scene_label=str(scene) if scene else f"data_synth/scenes/{DEFAULT_SCENE_NAME}"
+    )
+
+    def progress(done: int, total: int, message: str) -> None:
+        log(f"{direction}: [{done}/{total}] {message}")
+
+    if direction == "phong2strauss":
+        results = converter.phong_to_strauss(entries, progress)
+    else:
+        results = converter.strauss_to_phong(entries, progress, blinn=blinn)
+    failed = [r for r in results if r["status"] != "ok"]
+    document = {
+        "format": f"strauss-fit {direction}",
+        "version": 1,
+        "input": description,
+        "input_notes": input_notes,
+        "scene": converter.describe(),
+        "settings": settings.as_dict(),
+        "summary": {"materials": len(results), "converted": len(results) - len(failed), "errors": len(failed)},
+        "wall_time_s": time.perf_counter() - started,
+        "materials": results,
+    }
+    write_results(output, document, direction, force=force)
+    return document

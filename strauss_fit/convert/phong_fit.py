@@ -1,0 +1,230 @@
+r"""Least-squares fitting of Phong parameters to sphere images (the Strauss → Phong direction).
+
+Only products of Phong's coefficients and colours reach the image: the diffuse term is
+:math:`k_d C_d` and the highlight :math:`k_s C_{sp}`, so :math:`k_d` and :math:`C_d` (and
+:math:`k_s`, :math:`C_{sp}`) cannot be told apart. The fit therefore works on the
+identifiable set
+
+- :math:`D = k_d C_d` (RGB, each in [0, 1]),
+- :math:`S = k_s C_{sp}` (RGB, each in [0, 1]),
+- :math:`u = \log n / \log 10000` in [0, 1], i.e. the exponent :math:`n = 10000^u \in [1, 10000]`
+  on a log scale (a step in u changes the highlight's width by the same factor anywhere),
+
+each through the same smooth sine transform as the Strauss fit
+(:class:`strauss_fit.fit.parameters.Layout`, :math:`x = (1 + \sin\theta)/2`), and reports
+:math:`k_d = \max_c D_c`, :math:`C_d = D / k_d` (white when D = 0), likewise for
+:math:`k_s`, :math:`C_{sp}`. The ambient coefficient is not fitted: it is given
+(``ambient_ka``, a scalar), and the ambient term is :math:`k_a I_a C_d`.
+
+:func:`solve_batch` is a vectorised Levenberg–Marquardt solve (optimistix) of many
+materials × many starts of any problem whose ``target`` and ``residual_scale`` can be
+swapped — it serves both directions of the conversion (:mod:`strauss_fit.convert.converter`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax import Array
+
+from ..fit.parameters import Layout
+from ..inference import laplace
+from ..models.phong import MAX_EXPONENT, PhongMaterial, phong_shade
+from ..scene.camera import intersect_unit_sphere, primary_rays
+from ..scene.lights import sample_lights
+from ..scene.loading import Scene
+
+#: The fitted vector: D (rgb), S (rgb), u (log exponent), all in [0, 1].
+PHONG_LAYOUT = Layout(("diffuse_r", "diffuse_g", "diffuse_b", "specular_r", "specular_g", "specular_b", "log_exponent"))
+LOG_MAX_EXPONENT = math.log(MAX_EXPONENT)
+
+
+def exponent_from_unit(u: Any) -> Any:
+    """:math:`n = 10000^u`."""
+    return jnp.exp(LOG_MAX_EXPONENT * jnp.asarray(u))
+
+
+def unit_from_exponent(n: float) -> float:
+    """:math:`u = \\log n / \\log 10000`, with n clipped to [1, 10000]."""
+    return float(np.log(np.clip(n, 1.0, MAX_EXPONENT)) / LOG_MAX_EXPONENT)
+
+
+class PhongGeometry(eqx.Module):
+    """The material-independent part of a Phong rendering at N pixels: normals, view
+    vectors, and per light (K of them) the direction, attenuated intensity and colour."""
+
+    normal: Array
+    to_eye: Array
+    to_light: Array | None
+    irradiance: Array | None
+    light_color: Array | None
+    ambient: Array | None
+
+
+def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
+    """:class:`PhongGeometry` of ``scene`` (float64) at the flat pixel ``index``."""
+    scene = scene.astype(jnp.float64)
+    rays = primary_rays(scene.camera, jnp.float64)
+    hits = intersect_unit_sphere(rays)
+    index = jnp.asarray(index)
+
+    def take(x):
+        return x.reshape((-1,) + x.shape[2:])[index]
+
+    samples = sample_lights(scene.lights, hits.point)
+    to_light = irradiance = color = None
+    if samples is not None:
+        batch = hits.point.shape[:-1]
+        # directional-only scenes give (K, 3) and (K,): broadcast to every pixel first
+        to_light = take(jnp.broadcast_to(samples.to_light, batch + samples.to_light.shape[-2:]))
+        irradiance = take(jnp.broadcast_to(samples.irradiance, batch + samples.irradiance.shape[-1:]))
+        color = samples.color  # (K, 3)
+    return PhongGeometry(
+        normal=take(hits.point),
+        to_eye=take(-rays.direction),
+        to_light=to_light,
+        irradiance=irradiance,
+        light_color=color,
+        ambient=scene.lights.ambient,
+    )
+
+
+def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
+    """Phong radiance (N, 3) at the pixels of ``geometry`` (as :func:`strauss_fit.render.phong.render_phong`)."""
+    radiance = jnp.zeros(geometry.normal.shape, dtype=geometry.normal.dtype)
+    if geometry.to_light is not None:
+        per_light = phong_shade(
+            material, geometry.normal[:, None, :], geometry.to_light, geometry.to_eye[:, None, :], geometry.light_color
+        )
+        radiance = radiance + jnp.sum(per_light * geometry.irradiance[..., None], axis=-2)
+    if geometry.ambient is not None:
+        ka = material.ka if material.ka.ndim else material.ka[None]
+        radiance = radiance + geometry.ambient * ka * material.diffuse_color
+    return radiance
+
+
+def material_from_vector(x: Array, ambient_ka: Any = 0.0, blinn: bool = False) -> PhongMaterial:
+    """The Phong material of a physical vector in :data:`PHONG_LAYOUT` order (traceable):
+    kd = max D, Cd = D / kd; ks = max S, Cs = S / ks (white where the maximum is 0)."""
+    x = jnp.asarray(x)
+    d, s, u = x[..., 0:3], x[..., 3:6], x[..., 6]
+    kd = jnp.max(d, axis=-1)
+    ks = jnp.max(s, axis=-1)
+    cd = jnp.where(kd[..., None] > 0, d / jnp.where(kd > 0, kd, 1.0)[..., None], 1.0)
+    cs = jnp.where(ks[..., None] > 0, s / jnp.where(ks > 0, ks, 1.0)[..., None], 1.0)
+    material = object.__new__(PhongMaterial)
+    for name, value in (
+        ("ka", jnp.asarray(ambient_ka, dtype=x.dtype)),
+        ("kd", kd),
+        ("ks", ks),
+        ("exponent", exponent_from_unit(u)),
+        ("diffuse_color", cd),
+        ("specular_color", cs),
+    ):
+        object.__setattr__(material, name, value)
+    object.__setattr__(material, "blinn", bool(blinn))
+    return material
+
+
+def vector_from_material(material: PhongMaterial) -> np.ndarray:
+    """The physical vector (D, S, u) of a concrete Phong material (products clipped to [0, 1])."""
+    kd = np.broadcast_to(np.asarray(material.kd, dtype=np.float64), (3,))
+    ks = np.broadcast_to(np.asarray(material.ks, dtype=np.float64), (3,))
+    d = np.clip(kd * np.asarray(material.diffuse_color, dtype=np.float64), 0.0, 1.0)
+    s = np.clip(ks * np.asarray(material.specular_color, dtype=np.float64), 0.0, 1.0)
+    return np.concatenate([d, s, [unit_from_exponent(float(material.exponent))]])
+
+
+class PhongProblem(eqx.Module):
+    """A Phong fit: geometry and target at the used pixels, the ambient coefficient, and
+    the scale residuals are divided by (reference noise × √N, as in :mod:`strauss_fit.fit.problem`)."""
+
+    geometry: PhongGeometry
+    target: Array
+    residual_scale: Array
+    ambient_ka: Array
+    blinn: bool = eqx.field(static=True, default=False)
+    layout: Layout = eqx.field(static=True, default=PHONG_LAYOUT)
+
+    def physical(self, theta: Array) -> Array:
+        return self.layout.to_physical(theta)
+
+    def render_physical(self, x: Array) -> Array:
+        """Model radiance (N, 3) for the physical vector ``x``."""
+        return shade_geometry(self.geometry, material_from_vector(x, self.ambient_ka, self.blinn))
+
+    def residual_physical(self, x: Array) -> Array:
+        return (self.render_physical(x) - self.target).ravel()
+
+    def residual(self, theta: Array, _args: Any = None) -> Array:
+        return self.residual_physical(self.physical(theta)) / self.residual_scale
+
+
+def phong_problem(scene: Scene, index: np.ndarray, *, blinn: bool = False) -> PhongProblem:
+    """A :class:`PhongProblem` template (target zero) for the pixels ``index`` of ``scene``."""
+    geometry = phong_geometry(scene, index)
+    return PhongProblem(
+        geometry=geometry,
+        target=jnp.zeros((len(index), 3)),
+        residual_scale=jnp.asarray(1.0),
+        ambient_ka=jnp.asarray(0.0),
+        blinn=blinn,
+    )
+
+
+@eqx.filter_jit
+def solve_batch(
+    problem: Any,
+    targets: Array,
+    scales: Array,
+    thetas: Array,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    extra: Any = None,
+):
+    """Levenberg–Marquardt from every start of every material, vectorised.
+
+    ``problem`` is a template (a :class:`PhongProblem` or a Strauss
+    :class:`strauss_fit.fit.problem.Problem`) whose ``target`` (B, N, 3) and ``residual_scale``
+    (B,) are replaced per material, and ``extra`` (a dict of field name → (B, ...) arrays,
+    e.g. ``ambient_ka``) likewise; ``thetas`` is (B, S, P). Returns θ (B, S, P), the
+    normalised cost Σr² (B, S), the step counts (B, S) and whether each solve succeeded.
+    """
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    extra = extra or {}
+
+    def per_material(target, scale, starts, more):
+        local = dataclasses.replace(problem, target=target, residual_scale=scale, **more)
+
+        def one(theta0):
+            solution = optx.least_squares(local.residual, solver, theta0, max_steps=max_steps, throw=False)
+            r = local.residual(solution.value)
+            return (
+                solution.value,
+                jnp.sum(r * r),
+                solution.stats["num_steps"],
+                solution.result == optx.RESULTS.successful,
+            )
+
+        return jax.vmap(one)(starts)
+
+    return jax.vmap(per_material)(targets, scales, thetas, extra)
+
+
+def laplace_deviations(problem: PhongProblem, x: np.ndarray, rss: float) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviations and correlation matrix of the physical parameters from the
+    Gauss–Newton (Laplace) approximation :math:`\\Sigma = \\sigma^2 (J^\\top J)^{-1}`,
+    :math:`\\sigma^2 = \\mathrm{RSS}/(N - P)` (:mod:`strauss_fit.inference.laplace`), as
+    for a Strauss fit."""
+    j = np.asarray(laplace.jacobian(problem, jnp.asarray(x)))
+    n, p = j.shape
+    covariance = laplace.covariance(laplace.information(j), laplace.residual_variance(rss, n, p))
+    return laplace.deviations(covariance), laplace.correlation(covariance)

@@ -1,0 +1,134 @@
+"""What a fit found (:class:`FitResult`), and its JSON form.
+
+:meth:`FitResult.to_json` writes the result as ``strauss-fit fit`` saves it (the contract
+of ``shared/formats.md``: the material's values at the top level, then ``free``, ``held``,
+``uncertainty``, ``correlation``, ``residual``, ``solver``, ...); :meth:`FitResult.from_json`
+is the one reader of that format, used wherever a fit result is read back (the sampler,
+the posterior, the Laplace summary, the report).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import StraussFitError
+from ..models.material import PARAMETER_NAMES, Material
+
+if TYPE_CHECKING:
+    from .problem import Problem
+
+#: Top-level keys of a fit result's JSON that are FitResult fields (besides the material's).
+_FIELDS = {
+    "free": "free",
+    "held": "held",
+    "uncertainty": "uncertainty",
+    "correlation": "correlation",
+    "residual": "residual",
+    "solver": "solver",
+    "starts": "starts",
+    "start_spread": "start_spread",
+    "lights": "lights",
+    "pixels_used": "pixels_used",
+    "wall_time_s": "wall_time_s",
+    "timing": "compile_and_solve",
+    "notes": "notes",
+    "settings": "settings",
+}
+
+
+class FitResultError(StraussFitError):
+    """A JSON document is not a strauss-fit fit result."""
+
+
+@dataclass
+class FitResult:
+    """What a fit found; :meth:`to_json` follows ``shared/formats.md``."""
+
+    material: Material
+    free: list[str]
+    held: dict[str, dict[str, Any]] = field(default_factory=dict)
+    lights: dict[str, float] = field(default_factory=dict)
+    uncertainty: dict[str, Any] = field(default_factory=dict)
+    correlation: dict[str, Any] = field(default_factory=dict)
+    residual: dict[str, float] = field(default_factory=dict)
+    solver: dict[str, Any] = field(default_factory=dict)
+    starts: list[dict[str, Any]] = field(default_factory=list)
+    start_spread: dict[str, float] = field(default_factory=dict)
+    wall_time_s: float | None = None
+    compile_and_solve: dict[str, float] = field(default_factory=dict)
+    pixels_used: int | None = None
+    notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    fitted_image: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    #: The solved problem (entries pinned at bounds included) and the optimum ``x``
+    #: (physical values in ``problem.layout`` order), for sampling and reports. None for a
+    #: result read back with :meth:`from_json`.
+    problem: Problem | None = None
+    x: np.ndarray | None = None
+    #: Other top-level keys of the JSON (``target``, ``scene``, ``mask``, ``encoding``
+    #: recorded by the command line), written back by :meth:`to_json` after the rest.
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def at_bound(self) -> list[str]:
+        """Labels of the entries the fit pinned on a bound."""
+        return list(self.solver.get("at_bound", []))
+
+    def value(self, name: str) -> Any:
+        """The fitted or held value of a material parameter or a light intensity."""
+        if name in PARAMETER_NAMES:
+            return self.material.to_dict()[name]
+        return self.lights[name]
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = self.material.to_dict()
+        out.update(
+            {
+                "free": self.free,
+                "held": self.held,
+                "uncertainty": self.uncertainty,
+                "correlation": self.correlation,
+                "residual": self.residual,
+                "solver": self.solver,
+                "starts": self.starts,
+                "start_spread": self.start_spread,
+                "lights": self.lights,
+                "pixels_used": self.pixels_used,
+                "wall_time_s": self.wall_time_s,
+                "timing": self.compile_and_solve,
+                "notes": self.notes,
+                "settings": self.settings,
+            }
+        )
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_json(cls, data: Any) -> FitResult:
+        """Read back a result written by :meth:`to_json` (``strauss-fit fit``'s JSON).
+
+        ``free`` and the material's values are required; the other fields default to
+        empty. Keys that are not fields are kept in :attr:`extra`. Raises
+        :class:`FitResultError` (missing or malformed keys) or
+        :class:`~strauss_fit.errors.MaterialError` (values out of range)."""
+        if isinstance(data, FitResult):
+            return data
+        if not isinstance(data, dict):
+            raise FitResultError("the fit result is not a strauss-fit fit result (not a JSON object)")
+        try:
+            free = [str(n) for n in data["free"]]
+            material_values = {k: data[k] for k in PARAMETER_NAMES}
+            lights = {str(k): float(v) for k, v in (data.get("lights") or {}).items()}
+            fields = {attribute: data[key] for key, attribute in _FIELDS.items() if key in data}
+            for name in ("held", "uncertainty", "correlation", "residual", "solver", "start_spread", "settings"):
+                if not isinstance(fields.get(name, {}), dict):
+                    raise TypeError(repr(name))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise FitResultError(f"the fit result is not a strauss-fit fit result (missing or bad {exc})") from None
+        fields.update(free=free, lights=lights)
+        extra = {k: v for k, v in data.items() if k not in _FIELDS and k not in PARAMETER_NAMES}
+        return cls(material=Material.from_dict(material_values), extra=extra, **fields)

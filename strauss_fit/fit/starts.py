@@ -1,0 +1,68 @@
+"""Where a fit's solves start: the closed-form guess, a fixed grid, and a scan over n.
+
+The guess (:mod:`strauss_fit.fit.guess`) comes first, then points of :data:`START_GRID`
+(colour always from the guess), each kept :data:`START_MARGIN` inside the bounds, where the
+transforms of :mod:`strauss_fit.fit.parameters` are flat. When the index of refraction is
+fitted, a patterned background seen through the sphere makes the cost oscillate in n, so
+the best local minima of a scan over :data:`IOR_SCAN` (:func:`scan_ior`) each get their
+own copy of the starts.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from .parameters import Layout
+from .problem import Problem, costs
+
+#: Fixed starting points (smoothness, metalness, transparency) tried besides the guess.
+START_GRID = ((0.3, 0.1, 0.2), (0.8, 0.1, 0.6), (0.6, 0.9, 0.4), (0.2, 0.6, 0.8), (0.9, 0.5, 0.1), (0.5, 0.3, 0.5))
+#: Unit-interval starts are kept this far inside the bounds (the transform is flat there).
+START_MARGIN = 0.02
+#: Indices of refraction scanned for starting points when n is fitted.
+IOR_SCAN = np.linspace(1.0, 3.0, 81)
+
+
+def starts(
+    layout: Layout,
+    guess: dict[str, Any],
+    count: int,
+    ior_candidates: list[float] | None = None,
+    exact_first: bool = False,
+) -> np.ndarray:
+    """The unconstrained starting points (rows): the guess first, then points of
+    :data:`START_GRID` (colour always from the guess), ``count`` in all. With
+    ``ior_candidates`` (from :func:`scan_ior`), each candidate index gets its own copy of
+    those starts. Starts are kept :data:`START_MARGIN` inside the bounds, except the first
+    with ``exact_first``: a refit starts from the optimum before it, where the held values
+    were taken, and must be able to stay there (a mirror at s = 0.99995 is not one at
+    s = 0.98)."""
+    rows = []
+    for ior in ior_candidates or [guess.get("ior")]:
+        base = dict(guess, ior=ior)
+        rows.append(layout.join(base))
+        for s, m, t in START_GRID[: max(count - 1, 0)]:
+            rows.append(layout.join(dict(base, smoothness=s, metalness=m, transparency=t)))
+    thetas = layout.to_unconstrained(np.stack(rows), margin=START_MARGIN)
+    if exact_first:
+        thetas[0] = layout.to_unconstrained(rows[0])
+    return thetas
+
+
+def scan_ior(problem: Problem, guess: dict[str, Any], keep: int = 3) -> list[float]:
+    """The ``keep`` best local minima of the cost over :data:`IOR_SCAN`, the other
+    parameters at the guess. Why: a patterned background seen through the sphere makes the
+    cost oscillate in n, so a local solver must start near the right basin."""
+    layout = problem.layout
+    # n only shows through transmitted light: scan it at several transparencies (when t is
+    # fitted) and keep, per n, the best of them.
+    t_values = (0.25, 0.5, 0.75, 1.0) if "transparency" in layout.names else (guess["transparency"],)
+    xs = np.stack([layout.join(dict(guess, ior=float(n), transparency=t)) for n in IOR_SCAN for t in t_values])
+    values = np.asarray(costs(problem, jnp.asarray(xs))).reshape(IOR_SCAN.size, len(t_values))
+    values = np.min(np.where(np.isfinite(values), values, np.inf), axis=1)
+    interior = np.r_[True, values[1:] <= values[:-1]] & np.r_[values[:-1] <= values[1:], True]
+    minima = sorted(np.flatnonzero(interior), key=lambda i: values[i])[:keep]
+    return [float(IOR_SCAN[i]) for i in minima]

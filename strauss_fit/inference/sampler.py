@@ -1,0 +1,779 @@
+r"""Posterior sampling with emcee's affine-invariant ensemble sampler.
+
+What runs: :class:`emcee.EnsembleSampler` with ``vectorize=True`` over the log-posterior
+of :mod:`strauss_fit.inference.posterior` (one jitted, ``vmap``-ed JAX call per half-ensemble
+update), walkers started around the least-squares optimum θ̂.
+
+Start. Walkers are drawn from the Laplace (Gauss–Newton) Gaussian :math:`N(\hat\theta,\Sigma)`
+(each standard deviation kept between 1e-6 and 1/4 of its prior width, so degenerate
+directions neither collapse nor explode) and folded back into the prior box by reflection
+at its faces. Entries the fit pinned at a bound start just inside it, since the posterior
+there is one-sided.
+
+Stopping (checked every ``check_every`` steps). With :math:`\hat\tau_i` emcee's estimate of
+the integrated autocorrelation time of parameter i over the whole chain (Sokal's
+windowing, c = 5), the run stops when the chain is at least ``min_tau_multiple`` (50)
+times :math:`\max_i\hat\tau_i` long *and* :math:`\max_i\hat\tau_i` changed by less than
+:data:`TAU_STABILITY` since the previous check (short chains underestimate τ), or at
+``max_steps`` (the whole chain's length, earlier runs included), or on Ctrl-C.
+
+Diagnostics (:func:`diagnose`): the burn-in discarded is :math:`\lceil 2\max_i\hat\tau_i\rceil`
+steps (at most half the chain); the effective sample size of parameter i is
+:math:`\mathrm{ESS}_i = W (S - b) / \hat\tau_i` (W walkers, S steps, b burn-in); the
+acceptance fraction is per walker over the whole chain. The chain is *trustworthy* when
+all of these hold (else the failed ones are listed):
+
+1. S ≥ ``min_tau_multiple`` · max τ̂ (the τ estimate and everything after it are reliable);
+2. the mean acceptance fraction lies in [0.1, 0.9] and no walker is below 0.02 (a stuck
+   walker sits in a spurious mode or at a corner of the prior);
+3. every parameter has ESS ≥ 100;
+4. every stored log-probability is finite.
+
+Storage: emcee's own HDF5 layout (group ``mcmc``: ``chain`` (S, W, P), ``log_prob`` (S, W),
+``accepted`` (W,), the random state) — load it with
+``emcee.backends.HDFBackend(path, read_only=True)`` or h5py — plus a group ``strauss_fit``
+holding what is needed to resume and report (labels, prior, σ, the fit, the target's
+digest). Steps are buffered in memory and written at least every
+:data:`FLUSH_SECONDS` seconds and at every check (emcee's backend opens the file for every
+step, which costs more than a step itself); Ctrl-C writes every step sampled so far before
+the interrupt propagates. Resuming restores the last walkers, log-probabilities and the
+random state, so an interrupted-and-resumed chain equals an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import emcee
+import h5py
+import numpy as np
+
+from ..errors import StraussFitError
+from ..fit.api import fit as run_fit
+from ..fit.options import DEFAULT_QUALITY, FitOptions, quality_preset
+from ..fit.result import FitResult
+from ..io.files import check_writable, read_json, write_json
+from ..io.targets import load_target, match_scene
+from ..precision import uses_float64
+from ..scene.loading import load_scene
+from . import laplace
+from .posterior import (
+    LogPosterior,
+    Prior,
+    default_prior,
+    estimate_sigma,
+    parse_priors,
+    problem_from_fit,
+    target_digest,
+)
+from .summaries import summarise_chain
+
+#: Default check interval (steps) of the stopping rule.
+CHECK_EVERY = 100
+#: Relative change of max τ̂ between checks below which the estimate counts as stable.
+TAU_STABILITY = 0.05
+#: Buffered steps are written to the file at least this often (seconds).
+FLUSH_SECONDS = 2.0
+DEFAULT_MIN_TAU_MULTIPLE = 50.0
+#: Trustworthiness thresholds (see the module docstring).
+MIN_ESS = 100.0
+ACCEPTANCE_RANGE = (0.1, 0.9)
+STUCK_WALKER = 0.02
+CHAIN_GROUP = "mcmc"
+META_GROUP = "strauss_fit"
+FORMAT = "strauss-fit chain"
+FORMAT_VERSION = 1
+
+
+class ChainError(StraussFitError):
+    """A chain file is missing, unreadable, foreign, or does not match the request."""
+
+
+def default_walkers(ndim: int) -> int:
+    """max(32, 4·P), even (emcee needs at least 2·P walkers; more helps with correlations)."""
+    n = max(32, 4 * ndim)
+    return n + n % 2
+
+
+# --- buffered HDF5 backend ---------------------------------------------------------------
+
+
+class BufferedHDFBackend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend, same file layout, but steps are kept in memory until
+    :meth:`flush` writes them in one go."""
+
+    def __init__(self, filename: str | Path, **kwargs: Any):
+        super().__init__(str(filename), name=CHAIN_GROUP, **kwargs)
+        self._coords: list[np.ndarray] = []
+        self._log_prob: list[np.ndarray] = []
+        self._accepted: np.ndarray | None = None
+        self._random_state: Any = None
+
+    def save_step(self, state, accepted):  # noqa: D102 (emcee's API)
+        self._coords.append(np.array(state.coords, dtype=np.float64))
+        self._log_prob.append(np.array(state.log_prob, dtype=np.float64))
+        self._accepted = accepted.astype(np.int64) if self._accepted is None else self._accepted + accepted
+        self._random_state = state.random_state
+
+    def pending(self) -> int:
+        return len(self._coords)
+
+    def grow(self, ngrow, blobs):  # noqa: D102
+        self.flush()
+        super().grow(ngrow, blobs)
+
+    def flush(self, trim: bool = False) -> None:
+        """Write the buffered steps; with ``trim``, also drop the unused rows emcee
+        reserved, so that plain h5py readers see exactly the sampled steps."""
+        if not self._coords and not trim:
+            return
+        with self.open("a") as f:
+            if self.name not in f:  # nothing was ever started in this file
+                return
+            g = f[self.name]
+            start = int(g.attrs["iteration"])
+            k = len(self._coords)
+            if k:
+                if g["chain"].shape[0] < start + k:
+                    g["chain"].resize(start + k, axis=0)
+                    g["log_prob"].resize(start + k, axis=0)
+                g["chain"][start : start + k] = np.stack(self._coords)
+                g["log_prob"][start : start + k] = np.stack(self._log_prob)
+                g["accepted"][:] += self._accepted
+                for i, v in enumerate(self._random_state):
+                    g.attrs[f"random_state_{i}"] = v
+                g.attrs["iteration"] = start + k
+            if trim:
+                g["chain"].resize(start + k, axis=0)
+                g["log_prob"].resize(start + k, axis=0)
+        self._coords, self._log_prob, self._accepted = [], [], None
+
+
+# --- diagnostics ---------------------------------------------------------------------------
+
+
+@dataclass
+class Diagnostics:
+    """Convergence diagnostics of a chain (see the module docstring for the rules)."""
+
+    labels: list[str]
+    steps: int
+    walkers: int
+    tau: list[float]
+    burn_in: int
+    ess: list[float]
+    acceptance_mean: float
+    acceptance_min: float
+    acceptance_max: float
+    tau_multiple: float
+    min_tau_multiple: float
+    converged: bool
+    trustworthy: bool
+    reasons: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def autocorrelation_times(chain: np.ndarray) -> np.ndarray:
+    """τ̂ per parameter of a chain (S, W, P) — emcee's estimator, no length check."""
+    tau = emcee.autocorr.integrated_time(chain, c=5, tol=0, quiet=True)
+    return np.maximum(np.asarray(tau, dtype=np.float64), 1.0)
+
+
+def burn_in(tau: np.ndarray, steps: int) -> int:
+    return int(min(math.ceil(2 * float(np.max(tau))), steps // 2))
+
+
+def diagnose(
+    chain: np.ndarray,
+    log_prob: np.ndarray,
+    accepted: np.ndarray,
+    labels: list[str],
+    min_tau_multiple: float = DEFAULT_MIN_TAU_MULTIPLE,
+) -> Diagnostics:
+    """Diagnostics of a chain (S, W, P) with log-probabilities (S, W) and acceptance counts (W,)."""
+    steps, walkers, _ = chain.shape
+    tau = autocorrelation_times(chain)
+    burn = burn_in(tau, steps)
+    ess = walkers * (steps - burn) / tau
+    acceptance = accepted / max(steps, 1)
+    multiple = steps / float(np.max(tau))
+    reasons = []
+    converged = multiple >= min_tau_multiple
+    if not converged:
+        reasons.append(
+            f"the chain is {multiple:.0f} autocorrelation times long; at least "
+            f"{min_tau_multiple:.0f} are needed (run longer: --resume with a larger --max-steps)"
+        )
+    low, high = ACCEPTANCE_RANGE
+    if not low <= float(np.mean(acceptance)) <= high:
+        reasons.append(f"the mean acceptance fraction {np.mean(acceptance):.2f} is outside [{low}, {high}]")
+    stuck = int(np.sum(acceptance < STUCK_WALKER))
+    if stuck:
+        reasons.append(f"{stuck} walker(s) accepted fewer than {STUCK_WALKER:.0%} of their moves (stuck)")
+    if float(np.min(ess)) < MIN_ESS:
+        worst = labels[int(np.argmin(ess))]
+        reasons.append(f"{worst} has only {np.min(ess):.0f} effective samples (fewer than {MIN_ESS:.0f})")
+    if not np.all(np.isfinite(log_prob)):
+        reasons.append("some stored log-probabilities are not finite")
+    return Diagnostics(
+        labels=list(labels),
+        steps=int(steps),
+        walkers=int(walkers),
+        tau=tau.tolist(),
+        burn_in=burn,
+        ess=ess.tolist(),
+        acceptance_mean=float(np.mean(acceptance)),
+        acceptance_min=float(np.min(acceptance)),
+        acceptance_max=float(np.max(acceptance)),
+        tau_multiple=float(multiple),
+        min_tau_multiple=float(min_tau_multiple),
+        converged=bool(converged),
+        trustworthy=not reasons,
+        reasons=reasons,
+    )
+
+
+# --- starting points -----------------------------------------------------------------------
+
+
+def initial_walkers(
+    x_hat: np.ndarray,
+    covariance: np.ndarray,
+    prior: Prior,
+    walkers: int,
+    rng: np.random.Generator,
+    log_posterior: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
+    """Walkers (W, P) drawn from N(x̂, Σ) as the module docstring says, strictly inside the
+    prior box, redrawn (up to 100 times) where ``log_posterior`` is not finite."""
+    x_hat = np.asarray(x_hat, dtype=np.float64)
+    width = prior.upper - prior.lower
+    sd = laplace.deviations(covariance)
+    corr = laplace.correlation(covariance, fallback=np.eye(len(sd)))
+    sd = np.clip(np.nan_to_num(sd, nan=0.0, posinf=0.0), 1e-6 * width, 0.25 * width)
+    cov = corr * np.outer(sd, sd) + np.diag((1e-9 * width) ** 2)
+    try:
+        factor = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:  # a correlation of ±1: fall back to the diagonal
+        factor = np.diag(sd)
+    centre = np.clip(x_hat, prior.lower, prior.upper)
+    inset = 1e-6 * width
+
+    def draw(n: int) -> np.ndarray:
+        x = centre + rng.standard_normal((n, len(centre))) @ factor.T
+        for _ in range(4):  # reflect at the faces (a draw may cross twice if the box is narrow)
+            x = np.where(x < prior.lower, 2 * prior.lower - x, x)
+            x = np.where(x > prior.upper, 2 * prior.upper - x, x)
+        return np.clip(x, prior.lower + inset, prior.upper - inset)
+
+    x = draw(walkers)
+    if log_posterior is not None:
+        for _ in range(100):
+            bad = ~np.isfinite(log_posterior(x))
+            if not bad.any():
+                break
+            x[bad] = draw(int(bad.sum()))
+        else:
+            raise ChainError("cannot start the walkers: the log-probability is not finite around the fit's optimum")
+    return x
+
+
+# --- the chain file --------------------------------------------------------------------------
+
+
+def _check_file(path: Path) -> None:
+    if not path.exists():
+        raise ChainError(f"chain file not found: {path}")
+    if path.is_dir():
+        raise ChainError(f"chain path is a directory: {path}")
+    try:
+        ok = h5py.is_hdf5(str(path))
+    except OSError as exc:
+        raise ChainError(f"cannot read chain file {path}: {exc}") from None
+    if not ok:
+        raise ChainError(f"cannot read chain file {path}: not an HDF5 file (corrupt, or not a chain)")
+
+
+def read_metadata(path: str | Path) -> dict[str, Any]:
+    """The ``strauss_fit`` group's metadata of a chain file (one-line errors for a missing,
+    corrupt or foreign file)."""
+    path = Path(path)
+    _check_file(path)
+    try:
+        with h5py.File(path, "r") as f:
+            if META_GROUP not in f or f[META_GROUP].attrs.get("format") != FORMAT:
+                raise ChainError(f"{path} is an HDF5 file but not a strauss-fit chain (no '{META_GROUP}' group)")
+            version = int(f[META_GROUP].attrs.get("format_version", -1))
+            if version != FORMAT_VERSION:
+                raise ChainError(
+                    f"{path} is a strauss-fit chain of format version {version}; this version reads {FORMAT_VERSION}"
+                )
+            meta = json.loads(f[META_GROUP].attrs["metadata"])
+            if CHAIN_GROUP not in f:
+                raise ChainError(f"chain file {path} has no '{CHAIN_GROUP}' group: it holds no samples")
+    except ChainError:
+        raise
+    except OSError as exc:  # h5py: "Unable to synchronously open file (bad superblock version number)"
+        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ChainError(f"cannot read chain file {path}: corrupt or truncated HDF5 file ({detail})") from None
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ChainError(
+            f"cannot read chain file {path}: its strauss-fit metadata is damaged ({type(exc).__name__})"
+        ) from None
+    return meta
+
+
+def write_metadata(path: str | Path, meta: dict[str, Any]) -> None:
+    """Create or replace the ``strauss_fit`` group (the emcee group is left alone)."""
+    with h5py.File(path, "a") as f:
+        if META_GROUP in f:
+            del f[META_GROUP]
+        g = f.create_group(META_GROUP)
+        g.attrs["format"] = FORMAT
+        g.attrs["format_version"] = FORMAT_VERSION
+        g.attrs["metadata"] = json.dumps(meta, allow_nan=False)
+
+
+@dataclass
+class Chain:
+    """A stored chain: ``chain`` (S, W, P), ``log_prob`` (S, W), ``accepted`` (W,), and
+    the metadata written by :func:`run_sampler`."""
+
+    path: str
+    chain: np.ndarray
+    log_prob: np.ndarray
+    accepted: np.ndarray
+    meta: dict[str, Any]
+
+    @property
+    def labels(self) -> list[str]:
+        return list(self.meta["labels"])
+
+    def diagnostics(self, min_tau_multiple: float | None = None) -> Diagnostics:
+        k = (
+            min_tau_multiple
+            if min_tau_multiple is not None
+            else self.meta.get("min_tau_multiple", DEFAULT_MIN_TAU_MULTIPLE)
+        )
+        return diagnose(self.chain, self.log_prob, self.accepted, self.labels, k)
+
+    def samples(self, discard: int | None = None) -> np.ndarray:
+        """The flattened samples (n, P) after the burn-in (:func:`burn_in` unless given)."""
+        if discard is None:
+            discard = burn_in(autocorrelation_times(self.chain), self.chain.shape[0])
+        return self.chain[discard:].reshape(-1, self.chain.shape[-1])
+
+
+def load_chain(path: str | Path) -> Chain:
+    """Read a chain file written by :func:`run_sampler` (one-line errors otherwise)."""
+    meta = read_metadata(path)
+    try:
+        backend = emcee.backends.HDFBackend(str(path), name=CHAIN_GROUP, read_only=True)
+        iteration = backend.iteration
+        if iteration <= 0:
+            raise ChainError(f"chain file {path} holds no steps yet")
+        chain = backend.get_chain()
+        log_prob = backend.get_log_prob()
+        accepted = np.asarray(backend.accepted)
+    except ChainError:
+        raise
+    except (OSError, KeyError, ValueError, AttributeError) as exc:
+        raise ChainError(
+            f"cannot read the samples in {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+        ) from None
+    if chain.shape[-1] != len(meta.get("labels", [])):
+        raise ChainError(
+            f"chain file {path} is inconsistent: {chain.shape[-1]} parameters but {len(meta.get('labels', []))} labels"
+        )
+    return Chain(str(path), np.asarray(chain, dtype=np.float64), np.asarray(log_prob, dtype=np.float64), accepted, meta)
+
+
+# --- running ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SampleSettings:
+    """How long to sample, and with how many walkers (None: :func:`default_walkers`;
+    :func:`run_sampler` takes the number of its starting points). The defaults are the
+    ``balanced`` quality preset; :meth:`preset` gives the others."""
+
+    max_steps: int = 10000
+    min_tau_multiple: float = DEFAULT_MIN_TAU_MULTIPLE
+    check_every: int = CHECK_EVERY
+    seed: int = 0
+    walkers: int | None = None
+
+    @classmethod
+    def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> SampleSettings:
+        """The sampling settings of quality preset ``name``
+        (:data:`strauss_fit.fit.options.QUALITY_PRESETS`: ``walkers``,
+        ``min_tau_multiple``, ``sample_max_steps``), with ``overrides`` (a value of None
+        keeps the preset's or the default)."""
+        values = quality_preset(name)
+        settings = {
+            "max_steps": values["sample_max_steps"],
+            "min_tau_multiple": values["min_tau_multiple"],
+            "walkers": values["walkers"],
+        }
+        settings.update({key: value for key, value in overrides.items() if value is not None})
+        return cls(**settings)
+
+
+@dataclass
+class Progress:
+    """Passed to the progress callback after every check."""
+
+    steps: int
+    max_steps: int
+    new_steps: int
+    tau_max: float
+    needed_steps: int
+    acceptance: float
+    steps_per_s: float
+
+
+@dataclass
+class SampleRun:
+    """What one call of :func:`run_sampler` did."""
+
+    path: str | None
+    diagnostics: Diagnostics
+    stopped: str  # "converged", "max_steps"
+    new_steps: int
+    wall_s: float
+    sampling_s: float
+    steps_per_s: float
+    chain: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    log_prob: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+
+
+@contextmanager
+def deferred_interrupt() -> Iterator[Callable[[], bool]]:
+    """Within the block, a first Ctrl-C only sets a flag (the caller stops at the next safe
+    point, after the current step is stored); a second one interrupts at once. Yields a
+    function telling whether Ctrl-C was pressed. A no-op outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    pressed = [False]
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum, frame):
+        if pressed[0]:
+            raise KeyboardInterrupt
+        pressed[0] = True
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: pressed[0]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@uses_float64
+def run_sampler(
+    log_posterior: LogPosterior,
+    path: str | Path | None,
+    *,
+    start: np.ndarray | None = None,
+    settings: SampleSettings = SampleSettings(),
+    metadata: dict[str, Any] | None = None,
+    resume: bool = False,
+    progress: Callable[[Progress], None] | None = None,
+) -> SampleRun:
+    """Sample until the stopping rule of the module docstring holds.
+
+    New chain: ``start`` (W, P) are the walkers' starting points and ``metadata`` (labels,
+    prior, σ, ...) is written to the file's ``strauss_fit`` group; an existing file must
+    have been removed by the caller. ``resume``: continue the chain in ``path`` from its
+    last state (``start`` is ignored). ``path=None`` keeps the chain in memory (tests,
+    benchmarks). A KeyboardInterrupt is re-raised after every step so far is written.
+    """
+    started = time.perf_counter()
+    ndim = log_posterior.prior.lower.size
+    if path is None:
+        backend: emcee.backends.Backend = emcee.backends.Backend()
+    else:
+        backend = BufferedHDFBackend(path)
+    if resume:
+        try:
+            steps_stored = 0 if path is None or not backend.initialized else int(backend.iteration)
+            walkers, file_ndim = backend.shape if steps_stored else (0, 0)
+        except (OSError, KeyError, ValueError) as exc:
+            raise ChainError(f"cannot resume from {path}: its samples are damaged ({type(exc).__name__})") from None
+        if steps_stored <= 0:
+            raise ChainError(f"cannot resume: {path} holds no steps")
+        if file_ndim != ndim:
+            raise ChainError(f"cannot resume: {path} has {file_ndim} parameters but this fit has {ndim}")
+    else:
+        if start is None:
+            raise ValueError("a new chain needs starting points")
+        walkers = start.shape[0]
+        if walkers < 2 * ndim or walkers % 2:
+            raise ChainError(
+                f"the number of walkers must be even and at least twice the number of "
+                f"parameters ({2 * ndim}); got {walkers}"
+            )
+        if path is not None:
+            write_metadata(
+                path,
+                dict(
+                    metadata or {}, labels=list(log_posterior.prior.labels), min_tau_multiple=settings.min_tau_multiple
+                ),
+            )
+    sampler = emcee.EnsembleSampler(walkers, ndim, log_posterior, vectorize=True, backend=backend)
+    if resume:
+        state = backend.get_last_sample()
+    else:
+        state = emcee.State(start, random_state=np.random.RandomState(settings.seed).get_state())
+    done = backend.iteration
+    tau_previous: float | None = None
+    stopped = "max_steps"
+    sampling = 0.0
+    new_steps = 0
+    check = max(int(settings.check_every), 1)
+    try:
+        with deferred_interrupt() as interrupted:
+            while done < settings.max_steps:
+                chunk = min(check - done % check, settings.max_steps - done)
+                t0 = time.perf_counter()
+                last_flush = t0
+                # the state after the last step starts the next chunk
+                for state in sampler.sample(  # noqa: B007, B020
+                    state, iterations=chunk, store=True, skip_initial_state_check=True
+                ):
+                    done += 1
+                    new_steps += 1
+                    if interrupted():
+                        raise KeyboardInterrupt
+                    if path is not None and time.perf_counter() - last_flush > FLUSH_SECONDS:
+                        backend.flush()
+                        last_flush = time.perf_counter()
+                sampling += time.perf_counter() - t0
+                if path is not None:
+                    backend.flush()
+                tau = autocorrelation_times(backend.get_chain())
+                tau_max = float(np.max(tau))
+                stable = tau_previous is not None and abs(tau_max - tau_previous) < TAU_STABILITY * tau_max
+                tau_previous = tau_max
+                if progress is not None:
+                    progress(
+                        Progress(
+                            done,
+                            settings.max_steps,
+                            new_steps,
+                            tau_max,
+                            int(math.ceil(settings.min_tau_multiple * tau_max)),
+                            float(np.mean(backend.accepted / max(done, 1))),
+                            new_steps / sampling if sampling > 0 else 0.0,
+                        )
+                    )
+                if done >= settings.min_tau_multiple * tau_max and stable:
+                    stopped = "converged"
+                    break
+    finally:
+        if path is not None:
+            backend.flush(trim=True)
+    chain, log_prob = backend.get_chain(), backend.get_log_prob()
+    if path is not None:
+        meta = read_metadata(path)
+        meta["min_tau_multiple"] = settings.min_tau_multiple
+        write_metadata(path, meta)
+    diagnostics = diagnose(
+        chain, log_prob, np.asarray(backend.accepted), list(log_posterior.prior.labels), settings.min_tau_multiple
+    )
+    return SampleRun(
+        path=None if path is None else str(path),
+        diagnostics=diagnostics,
+        stopped=stopped,
+        new_steps=new_steps,
+        wall_s=time.perf_counter() - started,
+        sampling_s=sampling,
+        steps_per_s=new_steps / sampling if sampling > 0 else 0.0,
+        chain=chain,
+        log_prob=log_prob,
+    )
+
+
+# --- the whole workflow ------------------------------------------------------------------------
+
+
+@dataclass
+class SampleResult:
+    """What :func:`sample` did: the chain file, the summary written beside it (the
+    document of :func:`strauss_fit.inference.summaries.summarise_chain` with this run's
+    timings under ``run``) and the run itself."""
+
+    path: Path
+    summary_path: Path
+    summary: dict[str, Any]
+    run: SampleRun
+
+    @property
+    def trustworthy(self) -> bool:
+        return bool(self.summary["diagnostics"]["trustworthy"])
+
+
+class SamplingInterrupted(KeyboardInterrupt):
+    """Ctrl-C while :func:`sample` was sampling: ``path`` keeps the ``steps`` stored so far."""
+
+    def __init__(self, path: Path, steps: int):
+        super().__init__(f"{path} keeps all {steps} steps sampled so far")
+        self.path = path
+        self.steps = steps
+
+
+def stored_steps(path: str | Path) -> int:
+    """How many steps the chain file ``path`` holds (0 if it holds none or cannot be read)."""
+    try:
+        return len(load_chain(path).chain)
+    except StraussFitError:
+        return 0
+
+
+@uses_float64
+def sample(
+    target: str | Path,
+    scene: str | Path,
+    output: str | Path,
+    *,
+    mask: str | Path | None = None,
+    encoding: str = "auto",
+    fit: str | Path | FitResult | dict[str, Any] | None = None,
+    fit_options: FitOptions | None = None,
+    sigma: float | None = None,
+    priors: dict[str, tuple[float, float]] | list[str] | None = None,
+    settings: SampleSettings = SampleSettings(),
+    quality: str = DEFAULT_QUALITY,
+    resume: bool = False,
+    force: bool = False,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[Progress], None] | None = None,
+) -> SampleResult:
+    """Sample the posterior of the Strauss parameters of ``scene`` given the image
+    ``target`` into the chain file ``output``, and write its summary beside it
+    (``output`` with the suffix ``.json``).
+
+    ``target``, ``scene`` and ``mask`` are file paths, recorded in the chain so that a
+    report or ``resume`` can reload them. The walkers start around the least-squares
+    optimum of ``fit`` (a fit result, or the path of one's JSON) or, without it, of a fit
+    made first with ``fit_options`` (default: the ``quality`` preset). The noise level is
+    ``sigma``, or estimated from the fit's residual; the prior is the default box of
+    :func:`strauss_fit.inference.posterior.default_prior` narrowed by ``priors`` (a dict
+    ``{name: (low, high)}`` or ``NAME=LOW,HIGH`` strings). ``settings`` (see
+    :meth:`SampleSettings.preset`) says how long to sample and with how many walkers.
+
+    ``resume`` continues the chain in ``output`` (its fit, σ, prior and walkers are kept);
+    otherwise an existing ``output`` is refused unless ``force``. ``log`` receives short
+    status lines and ``progress`` a :class:`Progress` after every check. Ctrl-C while
+    sampling raises :class:`SamplingInterrupted` (a KeyboardInterrupt) after every step so
+    far is written.
+    """
+    log = log or (lambda message: None)
+    out = Path(output)
+    summary_path = out.with_suffix(".json")
+    if summary_path == out:
+        raise ChainError(f"the chain file needs an extension other than .json (the summary goes to {summary_path})")
+    meta: dict[str, Any] = {}
+    if resume:
+        meta = read_metadata(out)
+        check_writable(summary_path, True)
+    else:
+        check_writable(out, force)
+        check_writable(summary_path, force)
+    if priors is not None and not isinstance(priors, dict):
+        priors = parse_priors(list(priors))
+
+    loaded_scene = load_scene(scene)
+    loaded_target = load_target(target, mask, encoding)
+    loaded_scene, message = match_scene(loaded_scene, loaded_target)
+    if message:
+        log(message)
+
+    if resume:
+        problem, x_hat = problem_from_fit(loaded_scene, loaded_target, meta["fit"])
+        if target_digest(problem) != meta.get("target_sha256"):
+            raise ChainError(f"{out} was sampled for another target (the usable pixels of {target} differ)")
+        if problem.layout.labels() != meta["labels"]:
+            raise ChainError(f"{out} samples {', '.join(meta['labels'])}, not {', '.join(problem.layout.labels())}")
+        sigma = float(meta["sigma"])
+        prior = Prior(
+            tuple(meta["labels"]),
+            np.array([meta["prior"][k][0] for k in meta["labels"]]),
+            np.array([meta["prior"][k][1] for k in meta["labels"]]),
+        )
+        start = None
+        log_posterior = LogPosterior(problem, prior, sigma)
+        log(f"resuming {out} at step {len(load_chain(out).chain)}")
+    else:
+        if fit is None:
+            result = run_fit(loaded_scene, loaded_target, fit_options or FitOptions.preset(quality), progress=log)
+            if result.solver["status"] != "successful":
+                log(f"the fit ended with status '{result.solver['status']}'; sampling from where it stopped")
+            fit = result
+        if isinstance(fit, FitResult) and fit.problem is not None:
+            fit_json = fit.to_json()
+            fit_json["target"] = str(target)
+            fit_json["scene"] = str(scene)
+            problem, x_hat = fit.problem, fit.x
+        else:
+            fit_json = read_json(fit, "fit result") if isinstance(fit, (str, Path)) else fit
+            if isinstance(fit_json, FitResult):
+                fit_json = fit_json.to_json()
+            problem, x_hat = problem_from_fit(loaded_scene, loaded_target, fit_json)
+        sigma_source = "given (--sigma)" if sigma is not None else "estimated from the fit's residual, sqrt(RSS/(N-P))"
+        sigma = sigma if sigma is not None else estimate_sigma(problem, x_hat)
+        prior = default_prior(problem.layout, x_hat, priors)
+        ndim = problem.layout.size
+        walkers = settings.walkers or default_walkers(ndim)
+        if walkers < 2 * ndim:
+            raise ChainError(f"--walkers must be at least twice the number of parameters ({2 * ndim}), got {walkers}")
+        log_posterior = LogPosterior(problem, prior, sigma)
+        covariance = laplace.laplace_covariance(problem, x_hat, sigma)
+        log("compiling the log-probability and placing the walkers")
+        start = initial_walkers(x_hat, covariance, prior, walkers, np.random.default_rng(settings.seed), log_posterior)
+        meta = {
+            "fit": fit_json,
+            "target": str(target),
+            "scene": str(scene),
+            "mask": None if mask is None else str(mask),
+            "encoding": encoding,
+            "target_sha256": target_digest(problem),
+            "sigma": sigma,
+            "sigma_source": sigma_source,
+            "prior": prior.as_dict(),
+            "x_hat": [float(v) for v in x_hat],
+            "seed": settings.seed,
+            "laplace_covariance": covariance.tolist(),
+            "pixels_used": int(problem.target.shape[0]),
+            "quality": quality,
+        }
+        if out.exists():
+            out.unlink()  # force, checked above; only now that every input is valid
+    try:
+        run = run_sampler(
+            log_posterior, out, start=start, settings=settings, metadata=meta, resume=resume, progress=progress
+        )
+    except KeyboardInterrupt:
+        raise SamplingInterrupted(out, stored_steps(out)) from None
+    summary = summarise_chain(load_chain(out))
+    summary["run"] = {
+        "stopped": run.stopped,
+        "new_steps": run.new_steps,
+        "wall_s": run.wall_s,
+        "sampling_s": run.sampling_s,
+        "steps_per_s": run.steps_per_s,
+    }
+    write_json(summary_path, summary, force=True)
+    return SampleResult(out, summary_path, summary, run)

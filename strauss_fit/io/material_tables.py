@@ -1,0 +1,579 @@
+"""Reading material batches for the conversions and writing their results.
+
+Inputs (:func:`read_phong_input`, :func:`read_strauss_input`):
+
+- **inline**: one material on the command line, as ``KEY=VALUE`` tokens (``kd=0.6
+  ks=0.3 n=40 Cd=0.8,0.2,0.1``; RGB values as ``r,g,b``) or as a JSON object
+  (``'{"kd": 0.6, ...}'``);
+- **JSON** (``.json``): one material object, a list of them, or ``{"materials": [...]}``
+  (so the output of one direction can be fed to the other: entries with a ``"phong"`` or
+  ``"strauss"`` object use it, failed entries stay failed). A ``strauss-fit fit`` result
+  is read as one Strauss material;
+- **CSV** (``.csv``): a header row, one material per row (columns in
+  :data:`PHONG_CSV_INPUT` / :data:`STRAUSS_CSV_INPUT`; an RGB value is three columns
+  ``NAME_r``, ``NAME_g``, ``NAME_b``, or one column holding ``r g b``); empty cells take the
+  defaults; the result columns written by the conversions are ignored, unknown ones are
+  an error;
+- **Wavefront** ``.mtl`` (Phong only): :mod:`strauss_fit.io.mtl`.
+
+A material that cannot be read becomes an :class:`Entry` with an
+error (reported in the output, the others converted); a file that cannot be read at all
+is a one-line :class:`~strauss_fit.errors.StraussFitError`.
+
+Outputs (:func:`write_results`): JSON (everything), CSV (one row per material, columns
+in :func:`csv_columns`) or, for Strauss → Phong, a ``.mtl`` library.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import MaterialError, StraussFitError
+from ..models.material import Material
+from ..models.phong import PhongMaterial
+from .files import write_json, write_text
+from .mtl import format_mtl, format_mtl_material, read_mtl
+
+
+@dataclass
+class Entry:
+    """One material to convert: the source material (a :class:`PhongMaterial` for
+    Phong → Strauss, a :class:`Material` for Strauss → Phong), its opacity and index of
+    refraction (for a Strauss source: opacity = 1 − t), where it came from, notes, or
+    the error that makes it unusable."""
+
+    name: str
+    source: str
+    material: Any = None
+    opacity: float = 1.0
+    ior: float = 1.5
+    notes: list[str] = field(default_factory=list)
+    error: str | None = None
+
+
+PHONG_ALIASES = {
+    "n": "exponent",
+    "ns": "exponent",
+    "shininess": "exponent",
+    "cd": "diffuse_color",
+    "diffuse": "diffuse_color",
+    "cs": "specular_color",
+    "specular": "specular_color",
+    "d": "opacity",
+    "ni": "ior",
+}
+STRAUSS_ALIASES = {
+    "c": "color",
+    "colour": "color",
+    "s": "smoothness",
+    "m": "metalness",
+    "t": "transparency",
+    "n": "ior",
+}
+PHONG_KEYS = ("ka", "kd", "ks", "exponent", "diffuse_color", "specular_color", "blinn")
+STRAUSS_KEYS = ("color", "smoothness", "metalness", "transparency", "ior")
+RGB_KEYS = {"diffuse_color", "specular_color", "color"}
+MAYBE_RGB_KEYS = {"ka", "kd", "ks"}
+#: CSV input columns (an RGB key X may also be given as X_r, X_g, X_b).
+PHONG_CSV_INPUT = ("name",) + PHONG_KEYS + ("opacity", "ior")
+STRAUSS_CSV_INPUT = ("name",) + STRAUSS_KEYS
+#: Columns the conversions write that are not inputs (ignored when reading a CSV back).
+RESULT_COLUMNS = {
+    "status",
+    "message",
+    "rms",
+    "max_abs",
+    "delta_e2000_mean",
+    "delta_e2000_p95",
+    "notes",
+    "source",
+    "solver_status",
+}
+
+
+# --- parsing values ---------------------------------------------------------------------------
+
+
+def _number(text: Any, what: str) -> float:
+    if isinstance(text, bool):
+        raise MaterialError(f"{what} must be a number, got {text!r}")
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise MaterialError(f"{what} must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise MaterialError(f"{what} must be finite, got {text!r}")
+    return value
+
+
+def _value(key: str, raw: Any, what: str) -> Any:
+    """A parsed value: a number, a list of 3 numbers (from 'r,g,b', 'r g b' or a list) or a bool."""
+    if key == "blinn":
+        if isinstance(raw, bool):
+            return raw
+        text = str(raw).strip().lower()
+        if text in ("true", "1", "yes"):
+            return True
+        if text in ("false", "0", "no", ""):
+            return False
+        raise MaterialError(f"{what} must be true or false, got {raw!r}")
+    if isinstance(raw, (list, tuple)):
+        parts = list(raw)
+    elif isinstance(raw, str):
+        parts = [p for p in raw.replace(",", " ").split() if p]
+    else:
+        parts = [raw]
+    numbers = [_number(p, what) for p in parts]
+    if key in RGB_KEYS:
+        if len(numbers) == 1:
+            numbers = numbers * 3
+        if len(numbers) != 3:
+            raise MaterialError(f"{what} must be 3 numbers (r,g,b) or 1 (grey), got {raw!r}")
+        return numbers
+    if key in MAYBE_RGB_KEYS:
+        if len(numbers) == 1:
+            return numbers[0]
+        if len(numbers) != 3:
+            raise MaterialError(f"{what} must be 1 number or 3 (r,g,b), got {raw!r}")
+        return numbers
+    if len(numbers) != 1:
+        raise MaterialError(f"{what} must be one number, got {raw!r}")
+    return numbers[0]
+
+
+def _canonical(key: str, aliases: dict[str, str]) -> str:
+    lowered = key.strip().lower()
+    return aliases.get(lowered, lowered)
+
+
+def phong_entry(values: dict[str, Any], name: str, source: str) -> Entry:
+    """An :class:`Entry` from a mapping of Phong keys (aliases allowed) plus ``opacity``
+    and ``ior``; problems make an entry with an error."""
+    entry = Entry(name=name, source=source)
+    try:
+        params: dict[str, Any] = {}
+        for raw_key, raw in values.items():
+            key = _canonical(raw_key, PHONG_ALIASES)
+            if key == "name":
+                continue
+            if key not in PHONG_KEYS + ("opacity", "ior"):
+                raise MaterialError(
+                    f"unknown Phong key {raw_key!r}; expected {', '.join(PHONG_KEYS)}, opacity, ior "
+                    "(aliases: n/Ns for exponent, Cd, Cs, d for opacity, Ni for ior)"
+                )
+            if key in params:
+                raise MaterialError(f"{raw_key!r} given twice")
+            params[key] = _value(key, raw, f"phong {key}")
+        opacity = params.pop("opacity", 1.0)
+        ior = params.pop("ior", 1.5)
+        if not 0 <= opacity <= 1:
+            raise MaterialError(f"opacity = {opacity:g} is outside its range [0, 1]")
+        if ior < 1:
+            raise MaterialError(f"ior = {ior:g} is below 1 (Strauss needs n >= 1)")
+        entry.material = PhongMaterial(**params)
+        entry.opacity, entry.ior = float(opacity), float(ior)
+    except MaterialError as exc:
+        entry.error = str(exc)
+    return entry
+
+
+def strauss_entry(values: dict[str, Any], name: str, source: str) -> Entry:
+    """An :class:`Entry` from a mapping of Strauss keys (aliases allowed)."""
+    entry = Entry(name=name, source=source)
+    try:
+        params: dict[str, Any] = {}
+        for raw_key, raw in values.items():
+            key = _canonical(raw_key, STRAUSS_ALIASES)
+            if key == "name":
+                continue
+            if key not in STRAUSS_KEYS:
+                raise MaterialError(
+                    f"unknown Strauss key {raw_key!r}; expected {', '.join(STRAUSS_KEYS)} (aliases: C, s, m, t, n)"
+                )
+            if key in params:
+                raise MaterialError(f"{raw_key!r} given twice")
+            params[key] = _value(key, raw, f"material {key}")
+        material = Material(**params)
+        entry.material = material
+        entry.opacity = 1.0 - float(material.transparency)
+        entry.ior = float(material.ior)
+    except MaterialError as exc:
+        entry.error = str(exc)
+    return entry
+
+
+# --- inline ---------------------------------------------------------------------------------
+
+
+def parse_inline(tokens: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` tokens (a token may hold several, separated by spaces or ';') or a
+    JSON object, as a mapping of raw values."""
+    text = " ".join(tokens).strip()
+    if text.startswith("{"):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise StraussFitError(f"the material on the command line is not valid JSON: {exc}") from None
+        if not isinstance(data, dict):
+            raise StraussFitError("the material on the command line must be a JSON object")
+        return data
+    values: dict[str, Any] = {}
+    for token in text.replace(";", " ").split():
+        key, sep, value = token.partition("=")
+        if not sep or not key:
+            raise StraussFitError(
+                f"expected KEY=VALUE on the command line, got {token!r} (or give a .json, .csv or .mtl file)"
+            )
+        if key in values:
+            raise StraussFitError(f"{key!r} given twice on the command line")
+        values[key] = value
+    if not values:
+        raise StraussFitError("no material given")
+    return values
+
+
+def _is_file_argument(tokens: list[str]) -> bool:
+    return len(tokens) == 1 and "=" not in tokens[0] and not tokens[0].lstrip().startswith("{")
+
+
+# --- JSON -------------------------------------------------------------------------------------
+
+
+def _json_items(path: Path) -> list[Any]:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise StraussFitError(f"cannot read {path}: {exc}") from None
+    if isinstance(data, dict) and isinstance(data.get("materials"), list):
+        return data["materials"]
+    if isinstance(data, list):
+        return data
+    if isinstance(data, dict):
+        return [data]
+    raise StraussFitError(f'{path}: expected a material object, a list of them, or {{"materials": [...]}}')
+
+
+FIT_RESULT_KEYS = {"free", "held", "residual"}
+
+
+def _from_json(path: Path, kind: str) -> list[Entry]:
+    entries = []
+    make = phong_entry if kind == "phong" else strauss_entry
+    for number, item in enumerate(_json_items(path), start=1):
+        source = f"{path} #{number}"
+        if not isinstance(item, dict):
+            entries.append(
+                Entry(name=f"material-{number}", source=source, error=f"entry {number} is not a JSON object")
+            )
+            continue
+        name = str(item.get("name", f"material-{number}"))
+        if item.get("status") == "error":
+            entries.append(
+                Entry(
+                    name=name,
+                    source=source,
+                    error=f"the previous conversion failed: {item.get('message', 'no message')}",
+                )
+            )
+            continue
+        if isinstance(item.get(kind), dict):  # the output of the other direction
+            values = dict(item[kind])
+            if kind == "phong":
+                values.update({k: item[k] for k in ("opacity", "ior") if k in item})
+            entries.append(make(values, name, source))
+        elif kind == "strauss" and FIT_RESULT_KEYS <= set(item):  # a `strauss-fit fit` result
+            entries.append(make({k: item[k] for k in STRAUSS_KEYS if k in item}, name, source))
+        else:
+            entries.append(make({k: v for k, v in item.items() if k != "name"}, name, source))
+    return entries
+
+
+# --- CSV --------------------------------------------------------------------------------------
+
+
+def _from_csv(path: Path, kind: str) -> list[Entry]:
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StraussFitError(f"cannot read {path}: {exc}") from None
+    reader = csv.reader(io.StringIO(text))
+    rows = [row for row in reader if any(cell.strip() for cell in row)]
+    if not rows:
+        raise StraussFitError(f"{path}: the CSV file is empty (expected a header row and one row per material)")
+    header = [h.strip() for h in rows[0]]
+    aliases = PHONG_ALIASES if kind == "phong" else STRAUSS_ALIASES
+    keys = PHONG_KEYS + ("opacity", "ior") if kind == "phong" else STRAUSS_KEYS
+    columns: dict[str, list[tuple[int, int | None]]] = {}
+    for index, column in enumerate(header):
+        lowered = column.lower()
+        if lowered == "name" or lowered in RESULT_COLUMNS or lowered.startswith(("sd_", "guess_", "input_")):
+            continue
+        base, channel = lowered, None
+        if lowered[-2:] in ("_r", "_g", "_b"):
+            base, channel = lowered[:-2], "rgb".index(lowered[-1])
+        key = aliases.get(base, base)
+        if key not in keys or (channel is not None and key not in RGB_KEYS | MAYBE_RGB_KEYS):
+            raise StraussFitError(
+                f"{path}: unknown column {column!r}; expected name, {', '.join(keys)} "
+                "(RGB values as NAME_r, NAME_g, NAME_b or one column 'r g b')"
+            )
+        columns.setdefault(key, []).append((index, channel))
+    lowered_header = [h.lower() for h in header]
+    name_index = lowered_header.index("name") if "name" in lowered_header else None
+    status_index = lowered_header.index("status") if "status" in lowered_header else None
+    entries = []
+    make = phong_entry if kind == "phong" else strauss_entry
+    for number, row in enumerate(rows[1:], start=2):
+        source = f"{path} line {number}"
+        name = (
+            row[name_index].strip()
+            if name_index is not None and name_index < len(row) and row[name_index].strip()
+            else f"material-{number - 1}"
+        )
+        if status_index is not None and status_index < len(row) and row[status_index].strip() == "error":
+            entries.append(Entry(name=name, source=source, error="the previous conversion failed (status error)"))
+            continue
+        if len(row) > len(header):
+            entries.append(
+                Entry(
+                    name=name,
+                    source=source,
+                    error=f"line {number} has {len(row)} cells but the header has {len(header)}",
+                )
+            )
+            continue
+        values: dict[str, Any] = {}
+        problem = None
+        for key, places in columns.items():
+            cells = {channel: (row[i].strip() if i < len(row) else "") for i, channel in places}
+            if None in cells:
+                if cells[None]:
+                    values[key] = cells[None]
+                continue
+            channels = [cells.get(c, "") for c in range(3)]
+            if all(not c for c in channels):
+                continue
+            if not all(channels):
+                problem = f"{key} needs all of {key}_r, {key}_g, {key}_b (or none)"
+                break
+            values[key] = channels
+        if problem:
+            entries.append(Entry(name=name, source=source, error=f"line {number}: {problem}"))
+            continue
+        entry = make(values, name, source)
+        if entry.error:
+            entry.error = f"line {number}: {entry.error}"
+        entries.append(entry)
+    return entries
+
+
+# --- entry points -----------------------------------------------------------------------------
+
+
+def _read(tokens: list[str], kind: str) -> tuple[list[Entry], list[str], str]:
+    """Entries, file-level notes and a description of the input."""
+    if not tokens:
+        raise StraussFitError("no input given")
+    if _is_file_argument(tokens):
+        path = Path(tokens[0])
+        if not path.exists():
+            raise StraussFitError(
+                f"input not found: {path} (give a .json, .csv"
+                f"{', .mtl' if kind == 'phong' else ''} file or KEY=VALUE pairs)"
+            )
+        if path.is_dir():
+            raise StraussFitError(f"input is a directory: {path}")
+        suffix = path.suffix.lower()
+        if suffix == ".json":
+            entries, notes = _from_json(path, kind), []
+        elif suffix == ".csv":
+            entries, notes = _from_csv(path, kind), []
+        elif suffix == ".mtl" and kind == "phong":
+            library = read_mtl(path)
+            notes = list(library.notes)
+            entries = []
+            for material in library.materials:
+                source = f"{path} line {material.line}"
+                entries.append(
+                    Entry(
+                        name=material.name,
+                        source=source,
+                        material=material.phong,
+                        opacity=material.opacity,
+                        ior=material.ior,
+                        notes=list(material.notes),
+                        error=material.error,
+                    )
+                )
+        else:
+            expected = ".json, .csv or .mtl" if kind == "phong" else ".json or .csv"
+            raise StraussFitError(
+                f"cannot read {path}: unknown input format {suffix or '(no extension)'}; expected {expected}"
+            )
+        if not entries:
+            raise StraussFitError(f"{path} holds no material")
+        return entries, notes, str(path)
+    values = parse_inline(tokens)
+    name = str(values.pop("name", "material"))
+    make = phong_entry if kind == "phong" else strauss_entry
+    entry = make(values, name, "command line")
+    if entry.error:  # a single material given by hand: say what is wrong, once
+        raise MaterialError(entry.error)
+    return [entry], [], "command line"
+
+
+def read_phong_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
+    """Phong materials from the command line, a JSON, CSV or ``.mtl`` file."""
+    return _read(tokens, "phong")
+
+
+def read_strauss_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
+    """Strauss materials from the command line, a JSON or CSV file."""
+    return _read(tokens, "strauss")
+
+
+# --- outputs ----------------------------------------------------------------------------------
+
+OUTPUT_FORMATS = {".json": "json", ".csv": "csv", ".mtl": "mtl"}
+
+
+def output_format(path: str | Path, direction: str) -> str:
+    """``json``, ``csv`` or (Strauss → Phong only) ``mtl``, from the extension."""
+    suffix = Path(path).suffix.lower()
+    fmt = OUTPUT_FORMATS.get(suffix)
+    if fmt is None or (fmt == "mtl" and direction != "strauss2phong"):
+        allowed = ".json, .csv or .mtl" if direction == "strauss2phong" else ".json or .csv"
+        raise StraussFitError(
+            f"cannot write {path}: unknown output format {suffix or '(no extension)'}; expected {allowed}"
+        )
+    return fmt
+
+
+def _rgb_columns(name: str) -> list[str]:
+    return [f"{name}_{c}" for c in "rgb"]
+
+
+def csv_columns(direction: str) -> list[str]:
+    """The CSV header of a conversion's output."""
+    head = ["name", "source", "status", "message"]
+    tail = ["rms", "max_abs", "delta_e2000_mean", "delta_e2000_p95", "solver_status", "notes"]
+    if direction == "phong2strauss":
+        return (
+            head
+            + _rgb_columns("color")
+            + ["smoothness", "metalness", "transparency", "ior"]
+            + _rgb_columns("sd_color")
+            + ["sd_smoothness", "sd_metalness"]
+            + tail
+        )
+    return (
+        head
+        + ["ka", "kd", "ks", "exponent"]
+        + _rgb_columns("diffuse_color")
+        + _rgb_columns("specular_color")
+        + ["blinn", "opacity", "ior"]
+        + _rgb_columns("sd_diffuse")
+        + _rgb_columns("sd_specular")
+        + ["sd_exponent"]
+        + tail
+    )
+
+
+def _csv_row(result: dict[str, Any], direction: str) -> dict[str, Any]:
+    row: dict[str, Any] = {
+        "name": result["name"],
+        "source": result.get("source", ""),
+        "status": result["status"],
+        "message": result.get("message", ""),
+        "notes": " | ".join(result.get("notes", [])),
+    }
+    if result["status"] != "ok":
+        return row
+    residual = result["residual"]
+    row.update({k: f"{residual[k]:.6g}" for k in ("rms", "max_abs", "delta_e2000_mean", "delta_e2000_p95")})
+    row["solver_status"] = result["solver"]["status"]
+    uncertainty = result.get("uncertainty") or {}
+    if direction == "phong2strauss":
+        values = result["strauss"]
+        for c, v in zip("rgb", values["color"]):
+            row[f"color_{c}"] = f"{v:.6g}"
+        for key in ("smoothness", "metalness", "transparency", "ior"):
+            row[key] = f"{values[key]:.6g}"
+        if uncertainty:
+            for c, v in zip("rgb", uncertainty["color"]):
+                row[f"sd_color_{c}"] = f"{v:.3g}"
+            row["sd_smoothness"] = f"{uncertainty['smoothness']:.3g}"
+            row["sd_metalness"] = f"{uncertainty['metalness']:.3g}"
+    else:
+        values = result["phong"]
+        for key in ("ka", "kd", "ks", "exponent"):
+            row[key] = f"{values[key]:.6g}"
+        for key in ("diffuse_color", "specular_color"):
+            for c, v in zip("rgb", values[key]):
+                row[f"{key}_{c}"] = f"{v:.6g}"
+        row["blinn"] = "true" if values["blinn"] else "false"
+        row["opacity"] = f"{result['opacity']:.6g}"
+        row["ior"] = f"{result['ior']:.6g}"
+        if uncertainty:
+            for key in ("diffuse", "specular"):
+                for c, v in zip("rgb", uncertainty[key]):
+                    row[f"sd_{key}_{c}"] = f"{v:.3g}"
+            row["sd_exponent"] = f"{uncertainty['exponent']:.3g}"
+    return row
+
+
+def format_csv(results: list[dict[str, Any]], direction: str) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=csv_columns(direction), lineterminator="\n")
+    writer.writeheader()
+    for result in results:
+        writer.writerow(_csv_row(result, direction))
+    return buffer.getvalue()
+
+
+def _mtl_name(name: str, used: set[str]) -> str:
+    base = "_".join(name.split()) or "material"
+    candidate, k = base, 2
+    while candidate in used:
+        candidate, k = f"{base}_{k}", k + 1
+    used.add(candidate)
+    return candidate
+
+
+def format_results_mtl(results: list[dict[str, Any]]) -> str:
+    """A ``.mtl`` library of the converted Phong materials; failed ones become comments."""
+    blocks, used = [], set()
+    for result in results:
+        if result["status"] != "ok":
+            blocks.append(f"# {result['name']}: not converted: {result.get('message', '')}\n")
+            continue
+        residual = result["residual"]
+        comment = (
+            f"from Strauss {json.dumps(result['input']['strauss'])}\n"
+            f"residual: RMS {residual['rms']:.3g}, CIEDE2000 mean {residual['delta_e2000_mean']:.3g}"
+        )
+        blocks.append(
+            format_mtl_material(
+                _mtl_name(result["name"], used), result["phong"], result["opacity"], result["ior"], comment
+            )
+        )
+    return format_mtl(
+        blocks, "written by strauss-fit strauss2phong (see README.md (Phong ↔ Strauss conversion and the study))"
+    )
+
+
+def write_results(path: str | Path, document: dict[str, Any], direction: str, *, force: bool = False) -> Path:
+    """Write a conversion's document in the format the extension names (atomic, no
+    overwrite without ``force``)."""
+    fmt = output_format(path, direction)
+    if fmt == "json":
+        return write_json(path, document, force=force)
+    if fmt == "csv":
+        return write_text(path, format_csv(document["materials"], direction), force=force)
+    return write_text(path, format_results_mtl(document["materials"]), force=force)

@@ -1,0 +1,133 @@
+"""The Strauss material: colour C, smoothness s, metalness m, transparency t, ior n."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..errors import MaterialError
+from ..precision import uses_float64
+
+#: Ranges of the scalar parameters, (low, high); ``None`` means unbounded.
+PARAMETER_RANGES: dict[str, tuple[float, float | None]] = {
+    "smoothness": (0.0, 1.0),
+    "metalness": (0.0, 1.0),
+    "transparency": (0.0, 1.0),
+    "ior": (1.0, None),
+}
+COLOR_RANGE = (0.0, 1.0)
+#: Names of all material parameters, in the order used by fits and reports.
+PARAMETER_NAMES = ("color", "smoothness", "metalness", "transparency", "ior")
+
+
+def _is_concrete(x: Any) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _check_scalar(name: str, value: Any) -> None:
+    if not _is_concrete(value):
+        return
+    arr = np.asarray(value, dtype=float)
+    low, high = PARAMETER_RANGES[name]
+    span = f"[{low:g}, {'inf' if high is None else f'{high:g}'}]"
+    if not np.all(np.isfinite(arr)):
+        raise MaterialError(f"material {name} must be a finite number in {span}, got {value!r}")
+    if np.any(arr < low) or (high is not None and np.any(arr > high)):
+        raise MaterialError(f"material {name} = {np.asarray(value).tolist()} is outside its range {span}")
+
+
+def _check_color(value: Any) -> None:
+    if not _is_concrete(value):
+        return
+    arr = np.asarray(value, dtype=float)
+    if arr.shape[-1:] != (3,):
+        raise MaterialError(f"material color must be an RGB triple, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < COLOR_RANGE[0]) or np.any(arr > COLOR_RANGE[1]):
+        raise MaterialError(f"material color = {arr.tolist()} is outside its range [0, 1] per channel")
+
+
+def _as_float(value: Any, dtype: Any) -> Array:
+    """A floating-point array (integers such as ``(1, 1, 1)`` become the default float)."""
+    arr = jnp.asarray(value, dtype=dtype)
+    if not jnp.issubdtype(arr.dtype, jnp.floating):
+        arr = arr.astype(jnp.result_type(float))
+    return arr
+
+
+class Material(eqx.Module):
+    """A Strauss material, a JAX pytree usable inside ``jit``, ``grad`` and ``vmap``.
+
+    ``color`` is linear RGB in [0, 1]^3; ``smoothness``, ``metalness`` and ``transparency``
+    lie in [0, 1]; ``ior`` (the index of refraction n) is at least 1. Concrete values are
+    validated on construction (a :class:`~strauss_fit.errors.MaterialError` names the field
+    and its range); traced values, e.g. inside a fit, are not checked. Leaves may carry
+    leading batch axes (colour ``(..., 3)``, scalars ``(...)``) for ``vmap``.
+    """
+
+    color: Array
+    smoothness: Array
+    metalness: Array
+    transparency: Array
+    ior: Array
+
+    @uses_float64
+    def __init__(
+        self,
+        color: Any = (1.0, 1.0, 1.0),
+        smoothness: Any = 0.5,
+        metalness: Any = 0.0,
+        transparency: Any = 0.0,
+        ior: Any = 1.5,
+        *,
+        dtype: Any = None,
+    ):
+        _check_color(color)
+        _check_scalar("smoothness", smoothness)
+        _check_scalar("metalness", metalness)
+        _check_scalar("transparency", transparency)
+        _check_scalar("ior", ior)
+        self.color = _as_float(color, dtype)
+        self.smoothness = _as_float(smoothness, dtype)
+        self.metalness = _as_float(metalness, dtype)
+        self.transparency = _as_float(transparency, dtype)
+        self.ior = _as_float(ior, dtype)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], *, dtype: Any = None) -> Material:
+        """Build from a mapping such as a scene file's ``[material]`` table or a fit result.
+
+        Unknown keys are an error; missing keys take the constructor defaults.
+        """
+        unknown = sorted(set(values) - set(PARAMETER_NAMES))
+        if unknown:
+            raise MaterialError(f"unknown material key(s) {', '.join(unknown)}; expected {', '.join(PARAMETER_NAMES)}")
+        for key, value in values.items():
+            if key == "color":
+                if (
+                    not isinstance(value, (list, tuple))
+                    or len(value) != 3
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+                ):
+                    raise MaterialError(f"material color must be a list of 3 numbers, got {value!r}")
+            elif not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise MaterialError(f"material {key} must be a number, got {value!r}")
+        return cls(**values, dtype=dtype)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain Python values (lists and floats), e.g. for JSON."""
+        out: dict[str, Any] = {"color": [float(c) for c in np.asarray(self.color)]}
+        for name in PARAMETER_NAMES[1:]:
+            value = float(np.asarray(getattr(self, name)))
+            out[name] = value if math.isfinite(value) else None
+        return out
+
+    @uses_float64
+    def astype(self, dtype: Any) -> Material:
+        """The same material with every leaf cast to ``dtype``."""
+        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype=dtype), self)

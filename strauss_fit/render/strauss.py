@@ -1,0 +1,332 @@
+r"""Rendering the sphere with the Strauss model: local lighting plus the global model.
+
+Rendering runs in two stages so that a fit can do the first once per scene:
+
+1. :func:`prepare` traces the primary rays and computes everything that does not depend
+   on the material: hit mask, normals, view vectors, the angular terms of every light
+   (:func:`strauss_fit.models.strauss.angular_terms`), the background seen by missed rays and, when
+   reflection is traced, the background seen along the mirror direction.
+2. :func:`shade_prepared` adds the material: the local model at every hit and, where the
+   :class:`RenderPlan` asks for it, the global model.
+
+:func:`render` composes them.
+
+Global model (recursive ray tracing, Strauss's "global illumination model"). At a hit seen
+from outside, with :math:`\gamma` the angle of view:
+
+- the *reflected* ray, along :math:`R_V = 2N(N\cdot V) - V`, is weighted by the specular
+  reflectivity for light arriving from the mirror direction, :math:`r_j` with α = γ
+  (cos β = 1), and coloured by :math:`C_s` (light colour white). The sphere is convex, so it
+  sees the background;
+- the *transmitted* ray is weighted by :math:`z = t(1 - r_s)/(1 - r_n)` (nothing where
+  t = 0), bent by Snell's law with :math:`n_{12} = 1/n`,
+  :math:`T = [n_{12}(N\cdot V) - \cos\alpha_2] N - n_{12} V`, and tinted by the colour C
+  (a coloured-glass filter: without the tint a fully transparent material would show no
+  colour at all and C could not be recovered from it). The tint applies once per passage
+  through the body, at entry.
+
+Inside the sphere a ray meets the surface again at its exit point, where the same
+weights apply with the inward normal: the refracted part (:math:`n_{12} = n`) leaves and
+sees the background; the reflected part (weight :math:`r_j`, colour :math:`C_s`) stays
+inside. Beyond the critical angle, :math:`\sin\alpha > 1/n`, there is no refracted ray
+(total internal reflection): the share z that would have left is reflected too. Direct
+light is evaluated only at the hit seen from outside (lamps seen through the glass,
+i.e. caustics, are not modelled).
+
+``depth`` counts surface interactions, the first hit included: ``depth = 1`` is the local
+model alone. A ray still inside the sphere after the last allowed interaction is given the
+background radiance along its direction, as if the sphere ended there; nothing is dropped
+silently.
+
+Only what the scene needs is computed (:func:`plan_render`): no light term for a kind of
+light the scene lacks, no reflected ray when the background is black, and no transmitted
+ray for an opaque material. An opaque material over a black background costs exactly the
+local model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..models.material import Material
+from ..models.strauss import (
+    DEFAULT_TABLE_SIZE,
+    MODES,
+    AngularTerms,
+    Mode,
+    ShadeWeights,
+    angular_terms,
+    combine_rgb,
+    diffuse_reflectivity,
+    fresnel,
+    normalised_angle,
+    shade_weights,
+    shadow,
+    specular_base,
+    specular_color,
+    specular_peak,
+)
+from ..numerics import dot, safe_divide, safe_normalize, safe_sqrt
+from ..precision import uses_float64
+from ..scene.background import Background, background_radiance
+from ..scene.camera import Rays, intersect_unit_sphere, primary_rays
+from ..scene.lights import sample_lights
+from ..scene.loading import Scene
+
+
+class RenderPlan(NamedTuple):
+    """Which parts of the global model are traced (decided before compiling)."""
+
+    reflect: bool
+    transmit: bool
+
+
+def _is_zero(x: Any) -> bool:
+    """True only for a concrete array that is all zeros (traced values may be non-zero)."""
+    if isinstance(x, jax.core.Tracer):
+        return False
+    return not np.any(np.asarray(x))
+
+
+def plan_render(scene: Scene, material: Material | None = None, *, transparent: bool | None = None) -> RenderPlan:
+    """Decide what the global model must trace for this scene and material.
+
+    Reflection is traced when ``scene.depth > 1`` and the background is not black.
+    Transmission is traced when ``scene.depth > 1`` and the material may be transparent:
+    ``transparent`` if given (fits pass whether t is free), else whether ``material``'s
+    transparency is non-zero (a traced value counts as possibly non-zero).
+    """
+    if scene.depth <= 1:
+        return RenderPlan(False, False)
+    background = scene.background
+    black = background.kind == "color" and _is_zero(background.color)
+    if transparent is None:
+        transparent = material is None or not _is_zero(material.transparency)
+    return RenderPlan(reflect=not black, transmit=bool(transparent))
+
+
+class Prepared(eqx.Module):
+    """The material-independent part of a rendering (see :func:`prepare`)."""
+
+    hit: Array
+    point: Array
+    normal: Array
+    to_eye: Array
+    direction: Array
+    miss_radiance: Array
+    direct: AngularTerms | None
+    irradiance: Array | None
+    light_color: Array | None
+    ambient: Array | None
+    mirror_j: Array | None
+    mirror_fresnel: Array | None
+    reflected_radiance: Array | None
+
+
+def _mirror_terms(cos_view: Array) -> tuple[Array, Array]:
+    """j and F for the mirror direction (α = γ), from cos γ."""
+    x = normalised_angle(cos_view)
+    f = fresnel(x)
+    g = shadow(x)
+    return f * g * g, f
+
+
+def prepare(
+    scene: Scene, plan: RenderPlan, mode: Mode = "exact", table_size: int = DEFAULT_TABLE_SIZE, dtype: Any = None
+) -> Prepared:
+    """Trace primary rays and compute every material-independent quantity."""
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+    dtype = dtype or jnp.result_type(float)
+    rays = primary_rays(scene.camera, dtype)
+    hits = intersect_unit_sphere(rays)
+    normal = hits.point
+    to_eye = -rays.direction
+    miss_radiance = background_radiance(scene.background, rays)
+    samples = sample_lights(scene.lights, hits.point)
+    direct = irradiance = light_color = None
+    if samples is not None:
+        direct = angular_terms(normal[..., None, :], samples.to_light, to_eye[..., None, :], mode, table_size)
+        irradiance = jnp.broadcast_to(samples.irradiance, direct.lit.shape)  # per pixel, for take_pixels
+        light_color = samples.color
+    mirror_j = mirror_fresnel = reflected = None
+    if plan.reflect or plan.transmit:
+        cos_view = jnp.clip(dot(normal, to_eye), 0.0, 1.0)
+        mirror_j, mirror_fresnel = _mirror_terms(cos_view)
+    if plan.reflect:
+        mirror = 2 * dot(normal, to_eye)[..., None] * normal - to_eye
+        reflected = background_radiance(scene.background, Rays(hits.point, mirror))
+    return Prepared(
+        hit=hits.hit,
+        point=hits.point,
+        normal=normal,
+        to_eye=to_eye,
+        direction=rays.direction,
+        miss_radiance=miss_radiance,
+        direct=direct,
+        irradiance=irradiance,
+        light_color=light_color,
+        ambient=scene.lights.ambient,
+        mirror_j=mirror_j,
+        mirror_fresnel=mirror_fresnel,
+        reflected_radiance=reflected,
+    )
+
+
+_PER_PIXEL_FIELDS = (
+    "hit",
+    "point",
+    "normal",
+    "to_eye",
+    "direction",
+    "miss_radiance",
+    "irradiance",
+    "mirror_j",
+    "mirror_fresnel",
+    "reflected_radiance",
+)
+
+
+def take_pixels(prepared: Prepared, index: Any) -> Prepared:
+    """The :class:`Prepared` terms of the pixels at flat ``index`` (leading axes (H, W)
+    become one axis of ``len(index)``), e.g. the usable pixels of a fit."""
+    index = jnp.asarray(index)
+
+    def take(x):
+        return None if x is None else x.reshape((-1,) + x.shape[2:])[index]
+
+    replacements = {name: take(getattr(prepared, name)) for name in _PER_PIXEL_FIELDS}
+    if prepared.direct is not None:
+        replacements["direct"] = AngularTerms(*(take(f) for f in prepared.direct))
+    return dataclasses.replace(prepared, **replacements)
+
+
+def local_radiance(material: Material, prepared: Prepared) -> Array:
+    """The local model at every pixel: ambient plus every light, (H, W, 3)."""
+    radiance = jnp.zeros(prepared.normal.shape, dtype=prepared.normal.dtype)
+    if prepared.direct is not None:
+        weights = shade_weights(material, prepared.direct)  # scalars (..., K)
+        weights = ShadeWeights(*(w * prepared.irradiance for w in weights))
+        # K is static and small: adding the lights one by one avoids materialising
+        # (..., K, 3) arrays and a reduction over K
+        for k in range(prepared.light_color.shape[0]):
+            radiance = radiance + combine_rgb(
+                ShadeWeights(*(w[..., k] for w in weights)), material.color, prepared.light_color[k]
+            )
+    if prepared.ambient is not None:
+        radiance = radiance + prepared.ambient * diffuse_reflectivity(material) * material.color
+    return radiance
+
+
+def transmission_weight(material: Material, r_s: Array) -> Array:
+    """:math:`z = t (1 - r_s)/(1 - r_n)`, and 0 where t = 0 (no division there)."""
+    t = material.transparency
+    return jnp.where(t > 0, safe_divide(t * (1 - r_s), 1 - specular_base(material)), 0.0)
+
+
+def refract(direction: Array, normal: Array, relative_ior: Array) -> tuple[Array, Array]:
+    r"""Snell refraction of a ray travelling along ``direction`` through a surface whose
+    unit ``normal`` faces the incoming ray, with :math:`n_{12} = n_1/n_2`.
+
+    With L = −direction: :math:`\cos\alpha_2 = \sqrt{1 - n_{12}^2 (1 - (N\cdot L)^2)}` and
+    :math:`T = [n_{12} (N\cdot L) - \cos\alpha_2] N - n_{12} L`. Returns ``(T, total)``
+    where ``total`` marks total internal reflection (the radicand is negative; T is then 0).
+    """
+    to_source = -direction
+    cos_in = dot(normal, to_source)
+    radicand = 1 - relative_ior**2 * (1 - cos_in**2)
+    total = radicand < 0
+    cos_out = safe_sqrt(radicand)
+    t = (relative_ior * cos_in - cos_out)[..., None] * normal - relative_ior[..., None] * to_source
+    return jnp.where(total[..., None], 0.0, t), total
+
+
+def interior_radiance(
+    material: Material, background: Background, origin: Array, direction: Array, interactions: int
+) -> Array:
+    """Radiance carried back along a ray travelling inside the sphere, allowing
+    ``interactions`` more surface interactions (the exit point included).
+
+    Internal API (the global model's inner loop, used by :func:`shade_prepared`; public
+    for tests)."""
+    shape = direction.shape
+    gathered = jnp.zeros(shape, dtype=direction.dtype)
+    throughput = jnp.ones(shape, dtype=direction.dtype)
+    white = jnp.ones(3, dtype=direction.dtype)
+    relative_ior = jnp.broadcast_to(material.ior, shape[:-1]).astype(direction.dtype)
+    for _ in range(interactions):
+        exit_point = intersect_unit_sphere(Rays(origin, direction), from_inside=True).point
+        inward = -exit_point
+        cos_in = jnp.clip(dot(inward, -direction), 0.0, 1.0)
+        j, f = _mirror_terms(cos_in)
+        r_mirror = specular_peak(material, j)
+        z = transmission_weight(material, r_mirror)
+        refracted, total = refract(direction, inward, relative_ior)
+        outside = background_radiance(background, Rays(exit_point, safe_normalize(refracted)))
+        gathered = gathered + throughput * jnp.where(total, 0.0, z)[..., None] * outside
+        reflect_weight = r_mirror + jnp.where(total, z, 0.0)
+        throughput = throughput * reflect_weight[..., None] * specular_color(material, f, white)
+        direction = direction - 2 * dot(direction, inward)[..., None] * inward
+        origin = exit_point
+    # Whatever is still inside after the last interaction sees the background directly.
+    return gathered + throughput * background_radiance(background, Rays(origin, direction))
+
+
+def shade_prepared(material: Material, prepared: Prepared, scene: Scene, plan: RenderPlan) -> Array:
+    """Add the material to a :class:`Prepared` rendering: the image, (H, W, 3)."""
+    radiance = local_radiance(material, prepared)
+    white = jnp.ones(3, dtype=radiance.dtype)
+    if plan.reflect or plan.transmit:
+        r_mirror = specular_peak(material, prepared.mirror_j)
+    if plan.reflect:
+        c_s = specular_color(material, prepared.mirror_fresnel, white)
+        radiance = radiance + r_mirror[..., None] * c_s * prepared.reflected_radiance
+    if plan.transmit:
+        z = transmission_weight(material, r_mirror)
+        relative_ior = jnp.broadcast_to(1.0 / material.ior, z.shape).astype(radiance.dtype)
+        inside, _ = refract(prepared.direction, prepared.normal, relative_ior)  # never total from outside
+        carried = interior_radiance(material, scene.background, prepared.point, safe_normalize(inside), scene.depth - 1)
+        radiance = radiance + z[..., None] * material.color * carried
+    return jnp.where(prepared.hit[..., None], radiance, prepared.miss_radiance)
+
+
+@eqx.filter_jit
+def render_jit(scene: Scene, material: Material, plan: RenderPlan, mode: str, table_size: int, dtype: Any):
+    """The jitted core of :func:`render` (all arguments resolved). Internal API, public for
+    compile-time measurements (``render_jit.lower(...)``); call it inside
+    :func:`strauss_fit.precision.float64`."""
+    scene = scene.astype(dtype)  # inside the jit: eager casts cost more than a small render
+    material = material.astype(dtype)
+    prepared = prepare(scene, plan, mode, table_size, dtype)
+    return shade_prepared(material, prepared, scene, plan), prepared.hit
+
+
+@uses_float64
+def render(
+    scene: Scene,
+    material: Material | None = None,
+    *,
+    mode: Mode = "exact",
+    table_size: int = DEFAULT_TABLE_SIZE,
+    dtype: Any = None,
+    plan: RenderPlan | None = None,
+) -> tuple[Array, Array]:
+    """Render the sphere: a linear RGB image (height, width, 3) and the sphere mask.
+
+    ``material`` defaults to the scene file's. ``dtype`` (``jnp.float32`` or
+    ``jnp.float64``; default float64) sets the precision of the whole computation.
+    Differentiable in the material and in the light intensities (``scene.lights``).
+    ``plan`` overrides :func:`plan_render`. ``mode`` and ``table_size`` select the
+    evaluator (see :func:`strauss_fit.models.strauss.shade`).
+    """
+    material = scene.material if material is None else material
+    dtype = jnp.dtype(dtype or jnp.float64)
+    plan = plan or plan_render(scene, material)
+    return render_jit(scene, material, plan, mode, int(table_size), dtype)

@@ -1,0 +1,137 @@
+"""The one HTML and Markdown document builder of every report.
+
+A :class:`Document` collects headings, paragraphs, bullet lists, tables and images, and
+renders them as Markdown (images linked from a folder, or beside the page) and as one
+self-contained HTML page (images embedded as base64 PNG, no scripts, no network). The fit
+report (:mod:`strauss_fit.reporting.fit_report`) and the study report
+(:mod:`strauss_fit.reporting.study_report`) both build theirs with it.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+
+@dataclass
+class _Block:
+    kind: str  # "heading", "para", "bullets", "table", "image"
+    text: str = ""
+    level: int = 2
+    css: str | None = None
+    items: list[str] = field(default_factory=list)
+    header: list[str] = field(default_factory=list)
+    rows: list[list[str]] = field(default_factory=list)
+    name: str = ""
+    caption: bool = False
+    escape_header: bool = True
+
+
+class Document:
+    """A report's content, rendered by :meth:`markdown` and :meth:`html`.
+
+    ``assets``: the folder (relative to the Markdown file) its images are linked from;
+    empty for images beside it. :attr:`images` holds the PNGs by file name.
+    """
+
+    def __init__(self, assets: str = ""):
+        self.assets = assets
+        self.blocks: list[_Block] = []
+        self.images: dict[str, bytes] = {}
+
+    def heading(self, text: str, level: int = 2) -> None:
+        self.blocks.append(_Block("heading", text, level=level))
+
+    def para(self, text: str, css: str | None = None) -> None:
+        """A paragraph; ``css`` is an HTML class (``ok``, ``bad``, ``warn`` in the fit report's style)."""
+        self.blocks.append(_Block("para", text, css=css))
+
+    def bullets(self, items: Sequence[str], css: str | None = None) -> None:
+        """A bullet list (nothing for no items)."""
+        if items:
+            self.blocks.append(_Block("bullets", css=css, items=list(items)))
+
+    def table(self, header: Sequence[str], rows: Sequence[Sequence[object]], *, escape_header: bool = True) -> None:
+        """A table; in the Markdown a ``|`` in a cell is escaped, in the header only with
+        ``escape_header``."""
+        self.blocks.append(
+            _Block(
+                "table",
+                header=[str(h) for h in header],
+                rows=[[str(c) for c in row] for row in rows],
+                escape_header=escape_header,
+            )
+        )
+
+    def image(self, name: str, png: bytes | None, alt: str, *, caption: bool = False) -> None:
+        """A PNG named ``name`` with its description ``alt``. ``caption``: the Markdown
+        also prints ``alt`` below the image and links it even when ``png`` is None (a
+        figure written beside the page by other means); otherwise a missing PNG is left
+        out. HTML shows only the PNGs given."""
+        if png is None and not caption:
+            return
+        if png is not None:
+            self.images[name] = png
+        self.blocks.append(_Block("image", alt, name=name, caption=caption))
+
+    # --- rendering ----------------------------------------------------------------------
+
+    def markdown(self) -> str:
+        """The Markdown text: blocks separated by blank lines, ending with a newline."""
+        return "\n\n".join(self._markdown_block(block) for block in self.blocks) + "\n"
+
+    def _markdown_block(self, block: _Block) -> str:
+        if block.kind == "heading":
+            return "#" * block.level + " " + block.text
+        if block.kind == "para":
+            return block.text
+        if block.kind == "bullets":
+            return "\n".join(f"- {item}" for item in block.items)
+        if block.kind == "table":
+
+            def cell(text: str) -> str:
+                return text.replace("|", "\\|")
+
+            header = [cell(h) if block.escape_header else h for h in block.header]
+            lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(block.header)]
+            lines += ["| " + " | ".join(cell(c) for c in row) + " |" for row in block.rows]
+            return "\n".join(lines)
+        path = f"{self.assets}/{block.name}" if self.assets else block.name
+        link = f"![{block.text}]({path})"
+        return f"{link}\n\n*{block.text}*" if block.caption else link
+
+    def html(self, title: str, style: str, *, spaced: bool = False) -> str:
+        """The self-contained HTML page titled ``title`` with the CSS ``style``; ``spaced``
+        puts the body's elements on lines of their own after the doctype."""
+        body = [part for part in (self._html_block(block) for block in self.blocks) if part is not None]
+        gap = "\n" if spaced else ""
+        return (
+            f'<!DOCTYPE html>{gap}<html lang="en"><head><meta charset="utf-8">'
+            f"<title>{html.escape(title)}</title><style>{style}</style></head><body>{gap}"
+            + "\n".join(body)
+            + f"{gap}</body></html>\n"
+        )
+
+    def _html_block(self, block: _Block) -> str | None:
+        e = html.escape
+        css = f' class="{block.css}"' if block.css else ""
+        if block.kind == "heading":
+            return f"<h{block.level}>{e(block.text)}</h{block.level}>"
+        if block.kind == "para":
+            return f"<p{css}>{e(block.text)}</p>"
+        if block.kind == "bullets":
+            return f"<ul{css}>" + "".join(f"<li>{e(item)}</li>" for item in block.items) + "</ul>"
+        if block.kind == "table":
+            head = "".join(f"<th>{e(h)}</th>" for h in block.header)
+            rows = "".join("<tr>" + "".join(f"<td>{e(c)}</td>" for c in row) + "</tr>" for row in block.rows)
+            return f"<table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>"
+        png = self.images.get(block.name)
+        if png is None:
+            return None
+        data = base64.b64encode(png).decode("ascii")
+        return (
+            f'<figure><img alt="{e(block.text)}" src="data:image/png;base64,{data}">'
+            f"<figcaption>{e(block.text)}</figcaption></figure>"
+        )

@@ -1,0 +1,579 @@
+"""The uncertainty report: one self-contained HTML page (images embedded as base64 PNG, no
+scripts, no network) and the same content as Markdown with the PNGs in a folder beside it.
+
+Contents: warnings first (degeneracies, an untrustworthy chain, the fit's notes); the
+target, fit and residual images; the parameter table (least-squares value, Laplace ±,
+posterior median and 16/84 and 2.5/97.5 percentiles, prior); parameters held and why; the
+Laplace-versus-posterior comparison (:func:`strauss_fit.inference.summaries.compare`); the
+correlation matrix; a corner plot; trace plots and sampler diagnostics. Without a chain the
+intervals are the Laplace (Gaussian) ones and say so.
+
+The page is built with :class:`strauss_fit.reporting.document.Document` and the plots with
+:mod:`strauss_fit.reporting.figures` (matplotlib's object API and the Agg canvas: building a
+report never touches pyplot's global state or needs a display). :func:`report_from_files`
+is the whole workflow of ``strauss-fit report``: it finds and loads the inputs a fit result
+or chain recorded, builds the report and writes it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..color import srgb_encode
+from ..errors import StraussFitError
+from ..fit.result import FitResult
+from ..inference import laplace as _laplace
+from ..inference.sampler import Chain, load_chain
+from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings
+from ..io.files import check_writable, read_json, write_bytes
+from ..io.targets import Target, load_target, match_scene
+from ..models.strauss import DEFAULT_TABLE_SIZE
+from ..precision import uses_float64
+from ..scene.loading import Scene, load_scene
+from .document import Document
+from .figures import new_figure, png_bytes
+
+#: At most this many samples go into the corner plot and the comparison statistics.
+MAX_PLOT_SAMPLES = 20000
+#: At most this many walkers are drawn in the trace plots.
+MAX_TRACE_WALKERS = 48
+
+
+class ReportError(StraussFitError):
+    """A report cannot be built from the inputs given."""
+
+
+@dataclass
+class Report:
+    """A built report: the HTML page, the Markdown text (image links relative to
+    ``assets``), the PNGs by file name, and the numbers behind them."""
+
+    html: str
+    markdown: str
+    images: dict[str, bytes]
+    assets: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+# --- images -------------------------------------------------------------------------------
+
+
+def _display(image: np.ndarray, exposure: float) -> np.ndarray:
+    """Linear radiance to displayable sRGB in [0, 1] (exposure, clip, encode)."""
+    return srgb_encode(np.asarray(image) * exposure)
+
+
+def images_figure(target: np.ndarray, fitted: np.ndarray, used: np.ndarray, sigma: float | None) -> bytes:
+    """Target | fit | residual (fit − target, mean over RGB, at the pixels used)."""
+    values = target[used]
+    exposure = 1.0 / max(float(np.percentile(values, 99)) if values.size else 1.0, 1e-12)
+    residual = np.where(used, (fitted - target).mean(axis=-1), np.nan)
+    finite = np.abs(residual[used]) if used.any() else np.zeros(1)
+    limit = max(float(np.percentile(finite, 99.5)), 1e-12)
+    fig = new_figure(figsize=(11, 3.8))
+    axes = fig.subplots(1, 3)
+    axes[0].imshow(_display(target, exposure), interpolation="nearest")
+    axes[0].set_title("target")
+    axes[1].imshow(_display(fitted, exposure), interpolation="nearest")
+    axes[1].set_title("fit")
+    import matplotlib
+
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.85")
+    shown = axes[2].imshow(residual, cmap=cmap, vmin=-limit, vmax=limit, interpolation="nearest")
+    rms = float(np.sqrt(np.nanmean((fitted - target)[used] ** 2))) if used.any() else 0.0
+    axes[2].set_title(f"fit − target (RMS {rms:.2g}" + (f", σ {sigma:.2g})" if sigma else ")"))
+    fig.colorbar(shown, ax=axes[2], fraction=0.046, pad=0.04)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    return png_bytes(fig)
+
+
+def correlation_figure(labels: Sequence[str], corr: np.ndarray, title: str) -> bytes:
+    k = len(labels)
+    fig = new_figure(figsize=(1.0 + 0.75 * k, 0.6 + 0.7 * k))
+    ax = fig.subplots()
+    shown = ax.imshow(corr, cmap="RdBu_r", vmin=-1, vmax=1)
+    ax.set_xticks(range(k), labels, rotation=45, ha="right")
+    ax.set_yticks(range(k), labels)
+    if k <= 12:
+        for i in range(k):
+            for j in range(k):
+                ax.text(
+                    j,
+                    i,
+                    f"{corr[i, j]:+.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="white" if abs(corr[i, j]) > 0.6 else "black",
+                )
+    ax.set_title(title)
+    fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.04)
+    return png_bytes(fig)
+
+
+def corner_figure(samples: np.ndarray, labels: Sequence[str], truths: np.ndarray | None, title: str) -> bytes | None:
+    """corner's plot of ``samples``; columns without spread (a pinned entry) are left out."""
+    import corner
+
+    spread = np.ptp(samples, axis=0) > 0
+    if spread.sum() < 1:
+        return None
+    samples = samples[:, spread]
+    labels = [label for label, keep in zip(labels, spread) if keep]
+    k = len(labels)
+    fig = new_figure(figsize=(max(2.2 * k, 4), max(2.2 * k, 4)))
+    corner.corner(
+        samples,
+        labels=labels,
+        quantiles=[0.16, 0.5, 0.84],
+        show_titles=True,
+        title_fmt=".3g",
+        truths=None if truths is None else np.asarray(truths)[spread],
+        truth_color="C1",
+        fig=fig,
+        plot_datapoints=samples.shape[0] <= 5000,
+    )
+    fig.suptitle(title, y=1.02)
+    return png_bytes(fig)
+
+
+def trace_figure(chain: np.ndarray, log_prob: np.ndarray, labels: Sequence[str], burn: int) -> bytes:
+    """Every parameter (and the log-probability) against step, one line per walker."""
+    steps, walkers, k = chain.shape
+    shown = np.linspace(0, walkers - 1, min(walkers, MAX_TRACE_WALKERS)).astype(int)
+    stride = max(1, steps // 4000)  # at most ~4000 points per line
+    fig = new_figure(figsize=(10, 1.5 * (k + 1)))
+    axes = fig.subplots(k + 1, 1, sharex=True)
+    x = np.arange(0, steps, stride)
+    for row, ax in enumerate(axes):
+        values = chain[::stride, shown, row] if row < k else log_prob[::stride, shown]
+        ax.plot(x, values, color="k", alpha=0.25, lw=0.5)
+        ax.set_ylabel(labels[row] if row < k else "log p", fontsize=9)
+        if burn:
+            ax.axvspan(0, burn, color="C1", alpha=0.15, lw=0)
+    axes[-1].set_xlabel("step (shaded: burn-in, discarded)")
+    return png_bytes(fig)
+
+
+# --- the report ------------------------------------------------------------------------------
+
+
+def _fmt(value: float | None, digits: int = 4) -> str:
+    if value is None or not np.isfinite(value):
+        return "–"
+    return f"{value:.{digits}g}"
+
+
+_STYLE = (
+    "\n"
+    "body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;max-width:1100px;margin:2em auto;"
+    "padding:0 1em;color:#222}\n"
+    "table{border-collapse:collapse;margin:0.8em 0;font-size:0.9em}th,td{border:1px solid #ccc;padding:3px 8px;"
+    "text-align:right}\n"
+    "th{background:#f2f2f2}td:first-child,th:first-child{text-align:left}figure{margin:1em 0}img{max-width:100%}\n"
+    "figcaption{color:#555;font-size:0.85em}.warn li{color:#8a3b00}.ok{color:#1a6b1a}"
+    ".bad{color:#a00000;font-weight:bold}\n"
+    "code{background:#f4f4f4;padding:0 3px}\n"
+)
+
+
+@uses_float64
+def build_report(
+    fit: FitResult | dict[str, Any],
+    target_pixels: np.ndarray,
+    fitted: np.ndarray,
+    used: np.ndarray,
+    *,
+    chain: Chain | None = None,
+    title: str | None = None,
+    assets: str = "report_files",
+    sources: dict[str, str] | None = None,
+) -> Report:
+    """Assemble the report from a fit result (a :class:`~strauss_fit.fit.result.FitResult`
+    or its JSON), the target and fitted images (H, W, 3), the mask of pixels the fit used
+    (H, W), and optionally a chain."""
+    fit = FitResult.from_json(fit)
+    laplace = Laplace.from_fit(fit)
+    labels = laplace.labels
+    sources = sources or {}
+    doc = Document(assets)
+    data: dict[str, Any] = {"labels": labels}
+
+    posterior = summary = samples = diagnostics = None
+    lower = upper = None
+    if chain is not None:
+        if chain.labels != labels:
+            raise ReportError(
+                f"the chain {chain.path} samples {', '.join(chain.labels)} but the fit frees "
+                f"{', '.join(labels)}: they belong to different fits"
+            )
+        posterior = chain_posterior(chain, laplace, MAX_PLOT_SAMPLES)
+        diagnostics, samples, summary = posterior.diagnostics, posterior.samples, posterior.summary
+        lower, upper = posterior.lower, posterior.upper
+        data.update(posterior=summary, diagnostics=diagnostics.as_dict())
+
+    sigma = chain.meta.get("sigma") if chain is not None else None
+    heading = title or f"strauss-fit uncertainty report: {sources.get('target', 'target')}"
+    doc.heading(heading, 1)
+    stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    from .. import __version__
+
+    facts = [
+        f"target {sources.get('target', '?')}",
+        f"scene {sources.get('scene', '?')}",
+        f"{'?' if fit.pixels_used is None else fit.pixels_used} pixels used",
+        f"fitted: {', '.join(fit.free)}",
+    ]
+    if chain is not None:
+        facts.append(f"chain {chain.path}")
+    doc.para("; ".join(facts) + f". Generated by strauss-fit {__version__} on {stamp}.")
+
+    # warnings first: they are what a reader must not miss
+    covariance = posterior.covariance if posterior is not None and len(labels) > 1 else laplace.covariance
+    covariance = np.atleast_2d(covariance)
+    warnings = degeneracy_warnings(
+        labels,
+        covariance,
+        fit.held,
+        source="posterior" if samples is not None else "Laplace estimate",
+        values=laplace.x_hat,
+    )
+    if diagnostics is not None and not diagnostics.trustworthy:
+        warnings.insert(0, "The chain is not trustworthy yet: " + "; ".join(diagnostics.reasons) + ".")
+    warnings += [f"fit: {note}" for note in fit.notes]
+    data["warnings"] = warnings
+    doc.heading("Warnings")
+    if warnings:
+        doc.bullets(warnings, "warn")
+    else:
+        doc.para("None: every fitted parameter is constrained on its own and the diagnostics pass.", "ok")
+
+    doc.heading("Target, fit and residual")
+    doc.image(
+        "images.png",
+        images_figure(target_pixels, fitted, used, sigma),
+        "target | least-squares fit | residual (fit − target, mean over R, G, B; grey: pixels not used)",
+    )
+    res = fit.residual
+    doc.para(
+        f"Residual RMS {_fmt(res.get('rms'), 3)} (linear), CIEDE2000 mean {_fmt(res.get('delta_e2000_mean'), 3)}, "
+        f"95th percentile {_fmt(res.get('delta_e2000_p95'), 3)}."
+        + (f" Noise σ = {sigma:.3g} ({chain.meta.get('sigma_source', '')})." if sigma else "")
+    )
+
+    doc.heading("Parameters")
+    if summary is not None:
+        header = ["parameter", "fit", "Laplace ±", "median", "16 %", "84 %", "2.5 %", "97.5 %", "prior"]
+    else:
+        header = [
+            "parameter",
+            "fit",
+            "Laplace ±",
+            "16 % (Laplace)",
+            "84 % (Laplace)",
+            "2.5 % (Laplace)",
+            "97.5 % (Laplace)",
+        ]
+    rows = []
+    for k, label in enumerate(labels):
+        row = [label, _fmt(laplace.x_hat[k]), _fmt(laplace.sd[k], 2) if laplace.sd[k] > 0 else "at bound"]
+        if summary is not None:
+            p = summary["parameters"][label]
+            row += [
+                _fmt(p["median"]),
+                _fmt(p["p16"]),
+                _fmt(p["p84"]),
+                _fmt(p["p2.5"]),
+                _fmt(p["p97.5"]),
+                f"[{_fmt(lower[k], 3)}, {_fmt(upper[k], 3)}]",
+            ]
+        else:
+            x, s = laplace.x_hat[k], laplace.sd[k]
+            row += [_fmt(x - s), _fmt(x + s), _fmt(x - 1.96 * s), _fmt(x + 1.96 * s)]
+        rows.append(row)
+    doc.table(header, rows)
+    if summary is None:
+        doc.para(
+            "No chain was given: the intervals are the Laplace (Gauss–Newton) ones, x̂ ± σ and x̂ ± 1.96σ, "
+            "which assume the model is linear over the uncertainty and ignore the bounds. "
+            "Run 'strauss-fit sample' for the posterior."
+        )
+    held = fit.held
+    if held:
+        doc.heading("Held parameters", 3)
+        doc.table(
+            ["parameter", "value", "why"],
+            [[name, _value_text(info.get("value")), info.get("reason", "")] for name, info in held.items()],
+        )
+
+    if summary is not None:
+        doc.heading("Laplace estimate against the posterior")
+        rows_cmp, notes = posterior.rows, posterior.notes
+        data["comparison"] = {"rows": [r.as_dict() for r in rows_cmp], "notes": notes}
+        doc.table(
+            [
+                "parameter",
+                "fit",
+                "Laplace ±",
+                "posterior median",
+                "posterior ± (half 16–84 %)",
+                "width ratio",
+                "shift (σ)",
+                "skew",
+                "disagreement",
+            ],
+            [
+                [
+                    r.label,
+                    _fmt(r.x_hat),
+                    _fmt(r.laplace_sd, 2),
+                    _fmt(r.median),
+                    _fmt(r.posterior_sd, 2),
+                    _fmt(r.width_ratio, 3),
+                    f"{r.shift:+.2f}",
+                    f"{r.skew:+.2f}",
+                    ", ".join(r.issues) or "none",
+                ]
+                for r in rows_cmp
+            ],
+        )
+        if notes:
+            doc.bullets(notes, "warn")
+        else:
+            doc.para(
+                "They agree: widths within 20–25 %, medians within half a standard deviation of the optimum, "
+                "no skew, no bound, no curved ridge. The Laplace estimate alone would have done.",
+                "ok",
+            )
+
+    doc.heading("Correlations")
+    corr = np.asarray(summary["correlation"]) if summary is not None else _laplace.correlation(laplace.covariance)
+    source = "posterior samples" if summary is not None else "Laplace estimate"
+    doc.image(
+        "correlation.png",
+        correlation_figure(labels, corr, f"correlation ({source})"),
+        f"correlation matrix from the {source}",
+    )
+    doc.table([""] + labels, [[label] + [f"{v:+.2f}" for v in corr[i]] for i, label in enumerate(labels)])
+
+    doc.heading("Corner plot")
+    if samples is not None:
+        png = corner_figure(samples, labels, laplace.x_hat, "posterior (orange: least-squares fit)")
+        doc.image(
+            "corner.png",
+            png,
+            "posterior samples after burn-in; dashed: 16, 50 and 84 % quantiles; orange: least-squares optimum",
+        )
+    else:
+        draws = _laplace_draws(laplace)
+        if draws is not None:
+            doc.image(
+                "corner.png",
+                corner_figure(draws, labels, laplace.x_hat, "Laplace approximation (Gaussian)"),
+                "draws from the Laplace approximation N(x̂, Σ), not a posterior sample",
+            )
+
+    if chain is not None and diagnostics is not None:
+        doc.heading("Sampler diagnostics")
+        doc.image(
+            "trace.png",
+            trace_figure(chain.chain, chain.log_prob, labels, diagnostics.burn_in),
+            "trace of every walker; shaded: burn-in (2 × the largest autocorrelation time), discarded",
+        )
+        verdict = "trustworthy" if diagnostics.trustworthy else "NOT trustworthy"
+        doc.para(
+            f"{diagnostics.steps} steps × {diagnostics.walkers} walkers; burn-in {diagnostics.burn_in} steps; "
+            f"the chain is {diagnostics.tau_multiple:.0f} autocorrelation times long "
+            f"(needed: {diagnostics.min_tau_multiple:.0f}); acceptance fraction {diagnostics.acceptance_mean:.2f} "
+            f"(walkers {diagnostics.acceptance_min:.2f}–{diagnostics.acceptance_max:.2f}). Verdict: {verdict}.",
+            "ok" if diagnostics.trustworthy else "bad",
+        )
+        doc.table(
+            ["parameter", "τ (steps)", "effective samples"],
+            [[label, f"{t:.1f}", f"{e:.0f}"] for label, t, e in zip(labels, diagnostics.tau, diagnostics.ess)],
+        )
+
+    doc.heading("How to read this report", 3)
+    doc.bullets(
+        [
+            "Laplace ±: the Gauss–Newton standard deviation σ·sqrt((JᵀJ)⁻¹) at the least-squares optimum; exact for a "
+            "linear model far from the bounds.",
+            "median and percentiles: of the emcee posterior samples after burn-in; 16–84 % is the central 68 % "
+            "interval, 2.5–97.5 % the central 95 %.",
+            "τ: the integrated autocorrelation time, in steps: about how many steps a walker takes to forget where it "
+            "was. Effective samples = walkers × (steps − burn-in) / τ.",
+            "Acceptance fraction: the share of proposed moves accepted; emcee works well between about 0.2 and 0.5.",
+            "Correlation near ±1: the two quantities trade off, and the image constrains only a combination of them.",
+        ]
+    )
+    return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
+
+
+def _value_text(value: Any) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(f"{float(v):.4g}" for v in value) + ")"
+    return _fmt(value) if value is not None else "–"
+
+
+def _laplace_draws(laplace: Laplace, count: int = 4000) -> np.ndarray | None:
+    cov = laplace.covariance
+    if not np.all(np.isfinite(cov)) or not np.any(laplace.sd > 0):
+        return None
+    try:
+        return np.random.default_rng(0).multivariate_normal(laplace.x_hat, cov, size=count, method="eigh")
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+
+
+# --- writing ---------------------------------------------------------------------------------
+
+
+def report_paths(html_path: str | Path) -> tuple[Path, Path, Path]:
+    """REPORT.html → (REPORT.html, REPORT.md, REPORT_files/)."""
+    html_path = Path(html_path)
+    return html_path, html_path.with_suffix(".md"), html_path.parent / f"{html_path.stem}_files"
+
+
+def check_report_outputs(
+    html_path: str | Path,
+    force: bool,
+    image_names: Sequence[str] = ("images.png", "correlation.png", "corner.png", "trace.png"),
+) -> None:
+    """Refuse (before any work) to overwrite an existing report without ``force``."""
+    page, markdown, folder = report_paths(html_path)
+    check_writable(page, force)
+    check_writable(markdown, force)
+    if folder.exists() and not folder.is_dir():
+        raise ReportError(f"{folder} exists and is not a folder")
+    if folder.is_dir():
+        for name in image_names:
+            check_writable(folder / name, force)
+
+
+def write_report(report: Report, html_path: str | Path, *, force: bool = False) -> list[Path]:
+    """Write the PNGs into REPORT_files/, then REPORT.md, then REPORT.html (each atomic)."""
+    page, markdown, folder = report_paths(html_path)
+    check_report_outputs(page, force, list(report.images))
+    folder.mkdir(exist_ok=True)
+    written = []
+    for name, png in report.images.items():
+        write_bytes(folder / name, png, force=force)
+        written.append(folder / name)
+    write_bytes(markdown, report.markdown.encode("utf-8"), force=force)
+    write_bytes(page, report.html.encode("utf-8"), force=force)
+    return [page, markdown] + written
+
+
+# --- inputs ----------------------------------------------------------------------------------
+
+
+@uses_float64
+def render_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted image (H, W, 3) of a fit result — the scene rendered with the result's
+    material and light intensities — and the mask of the pixels the fit used (on the
+    sphere and usable in ``target``). ``scene`` must match the target's size."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from ..fit.parameters import lights_with
+    from ..render.strauss import render
+
+    fit = FitResult.from_json(fit)
+    lights = {k: jnp.asarray(float(v)) for k, v in fit.lights.items()}
+    scene = eqx.tree_at(lambda s: s.lights, scene, lights_with(scene.lights, lights))
+    settings = fit.settings
+    image, hit = render(
+        scene,
+        fit.material,
+        mode=settings.get("mode", "exact"),
+        table_size=int(settings.get("table_size", DEFAULT_TABLE_SIZE)),
+        dtype=jnp.float64,
+    )
+    return np.asarray(image), np.asarray(hit) & target.usable
+
+
+def _recorded(path: str | None, base: Path | None) -> str | None:
+    """A path recorded in a result: as written if it exists from here, else relative to
+    the folder of the file that recorded it."""
+    if path is None:
+        return None
+    if Path(path).exists() or base is None or Path(path).is_absolute():
+        return path
+    candidate = base / path
+    return str(candidate) if candidate.exists() else path
+
+
+@uses_float64
+def report_from_files(
+    output: str | Path,
+    *,
+    fit: str | Path | None = None,
+    chain: str | Path | None = None,
+    target: str | Path | None = None,
+    scene: str | Path | None = None,
+    mask: str | Path | None = None,
+    encoding: str | None = None,
+    title: str | None = None,
+    force: bool = False,
+) -> tuple[Report, list[Path]]:
+    """Build the report of a fit result (``fit``, the path of its JSON), a chain
+    (``chain``, of ``strauss-fit sample``) or both, and write it to ``output`` (.html;
+    the Markdown and the PNG folder beside it). The target, scene, mask and encoding
+    default to those the fit result or the chain recorded (a recorded relative path is
+    tried from here, then from the recording file's folder). Returns the report and the
+    files written."""
+    if not fit and not chain:
+        raise StraussFitError("give a fit result (--fit RESULT.json), a chain (--chain CHAIN.h5), or both")
+    if Path(output).suffix.lower() not in (".html", ".htm"):
+        raise StraussFitError(f"the report is HTML: give -o a .html name, got {output}")
+    check_report_outputs(output, force)
+    loaded_chain = load_chain(chain) if chain else None
+    meta = loaded_chain.meta if loaded_chain is not None else {}
+    chain_base = Path(chain).parent if chain else None
+    if fit:
+        result = read_json(fit, "fit result")
+        fit_base = Path(fit).parent
+        if not isinstance(result, dict) or "free" not in result:
+            raise StraussFitError(f"{fit} is not a strauss-fit fit result (no 'free' list)")
+    else:
+        result, fit_base = meta["fit"], chain_base
+    result = FitResult.from_json(result)
+    recorded = result.extra
+    target_path = target or _recorded(meta.get("target"), chain_base) or _recorded(recorded.get("target"), fit_base)
+    scene_path = scene or _recorded(meta.get("scene"), chain_base) or _recorded(recorded.get("scene"), fit_base)
+    if not target_path:
+        raise StraussFitError("the fit result does not record its target: give --target")
+    if not scene_path:
+        raise StraussFitError("the fit result does not record its scene: give --scene")
+    # the fit result records its mask and encoding only if 'fit' wrote them (older results do not)
+    mask = mask or _recorded(meta.get("mask"), chain_base) or _recorded(recorded.get("mask"), fit_base)
+    encoding = encoding or meta.get("encoding") or recorded.get("encoding") or "auto"
+    loaded_scene = load_scene(scene_path)
+    loaded_target = load_target(target_path, mask, encoding)
+    loaded_scene, _ = match_scene(loaded_scene, loaded_target)
+    fitted, used = render_fit(loaded_scene, loaded_target, result)
+    if result.pixels_used is not None and int(used.sum()) != int(result.pixels_used):
+        raise StraussFitError(
+            f"the fit used {result.pixels_used} pixels but {target_path} has {int(used.sum())} "
+            "usable sphere pixels: give the target (and --mask) the fit was made with"
+        )
+    out = Path(output)
+    report = build_report(
+        result,
+        loaded_target.pixels,
+        fitted,
+        used,
+        chain=loaded_chain,
+        title=title,
+        assets=f"{out.stem}_files",
+        sources={"target": str(target_path), "scene": str(scene_path)},
+    )
+    return report, write_report(report, out, force=force)

@@ -1,0 +1,331 @@
+"""Scenes: camera, lights, background and material, and the TOML scene file.
+
+The file format is documented in README.md ("Scene file"); its minimal contract is fixed in
+``shared/formats.md``. Loading is strict: unknown sections or keys, wrong types, values out
+of range and a scene without any light are reported as one-line
+:class:`~strauss_fit.errors.SceneError` messages that name the file, the place and the
+problem.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import MaterialError, SceneError, StraussFitError
+from ..models.material import Material
+from ..precision import uses_float64
+from .background import BACKGROUND_KINDS, Background
+from .camera import Camera
+from .lights import DirectionalLights, Lights, PointLights
+
+#: Default recursion depth of the global model (see :func:`strauss_fit.render.strauss.render`).
+DEFAULT_DEPTH = 4
+MAX_IMAGE_SIDE = 8192
+
+_SECTIONS = {"camera", "material", "light", "background", "render"}
+_CAMERA_KEYS = {"projection", "width", "height", "position", "look_at", "fov_deg", "up"}
+_LIGHT_KEYS = {
+    "directional": {"kind", "direction", "intensity", "color"},
+    "point": {"kind", "position", "intensity", "color", "attenuation"},
+    "ambient": {"kind", "intensity"},
+}
+_BACKGROUND_KEYS = {
+    "color": {"kind", "color"},
+    "checkerboard": {"kind", "color", "point", "normal", "square_size", "colors", "sharpness"},
+    "environment": {"kind", "image", "scale"},
+}
+_RENDER_KEYS = {"depth"}
+
+
+class Scene(eqx.Module):
+    """Everything but the material being fitted: camera, lights, background, and the
+    scene file's material (the truth when rendering, the starting point when fitting).
+
+    ``depth`` is the recursion depth of the global model: the number of surface
+    interactions a ray may undergo, counting the first hit (1 = local model only).
+    """
+
+    camera: Camera
+    lights: Lights
+    background: Background = eqx.field(default_factory=Background)
+    material: Material = eqx.field(default_factory=Material)
+    depth: int = eqx.field(static=True, default=DEFAULT_DEPTH)
+
+    @uses_float64
+    def astype(self, dtype: Any) -> Scene:
+        """The same scene with every floating-point array cast to ``dtype``."""
+
+        def cast(x):
+            if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.floating):
+                return x.astype(dtype)
+            return x
+
+        return jax.tree_util.tree_map(cast, self)
+
+    def resized(self, width: int, height: int) -> Scene:
+        """The same scene rendered at another image size."""
+        return eqx.tree_at(lambda s: s.camera, self, self.camera.resized(width, height))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape (height, width)."""
+        return self.camera.height, self.camera.width
+
+
+# --- parsing ----------------------------------------------------------------------------
+
+
+class _Where:
+    """Formats the location of a value for error messages."""
+
+    def __init__(self, source: str, section: str):
+        self.source, self.section = source, section
+
+    def error(self, message: str) -> SceneError:
+        return SceneError(f"{self.source}: {self.section}: {message}")
+
+    def keys(self, table: Any, allowed: set[str]) -> dict[str, Any]:
+        if not isinstance(table, dict):
+            raise self.error("must be a table")
+        unknown = sorted(set(table) - allowed)
+        if unknown:
+            raise self.error(
+                f"unknown key(s) {', '.join(repr(k) for k in unknown)}; allowed: {', '.join(sorted(allowed))}"
+            )
+        return table
+
+    def number(
+        self,
+        table: dict,
+        key: str,
+        default: float | None = None,
+        *,
+        low: float | None = None,
+        high: float | None = None,
+        open_low: bool = False,
+    ) -> float:
+        if key not in table:
+            if default is None:
+                raise self.error(f"missing required key {key!r}")
+            return default
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.error(f"{key} must be a finite number, got {value!r}")
+        if low is not None and (value < low or (open_low and value == low)):
+            raise self.error(f"{key} = {value} must be {'>' if open_low else '>='} {low}")
+        if high is not None and value > high:
+            raise self.error(f"{key} = {value} must be <= {high}")
+        return float(value)
+
+    def integer(self, table: dict, key: str, default: int | None = None, *, low: int, high: int) -> int:
+        if key not in table:
+            if default is None:
+                raise self.error(f"missing required key {key!r}")
+            return default
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(f"{key} must be an integer, got {value!r}")
+        if not low <= value <= high:
+            raise self.error(f"{key} = {value} must be in [{low}, {high}]")
+        return value
+
+    def vector(
+        self,
+        table: dict,
+        key: str,
+        default: list[float] | None = None,
+        *,
+        length: int = 3,
+        low: float | None = None,
+        high: float | None = None,
+        nonzero: bool = False,
+    ) -> list[float]:
+        if key not in table:
+            if default is None:
+                raise self.error(f"missing required key {key!r}")
+            return list(default)
+        value = table[key]
+        if (
+            not isinstance(value, list)
+            or len(value) != length
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+        ):
+            raise self.error(f"{key} must be a list of {length} finite numbers, got {value!r}")
+        if low is not None and min(value) < low or high is not None and max(value) > high:
+            raise self.error(f"{key} = {value} must lie in [{low}, {high}] per component")
+        if nonzero and not any(value):
+            raise self.error(f"{key} must not be the zero vector")
+        return [float(v) for v in value]
+
+
+def _parse_camera(table: Any, source: str) -> Camera:
+    w = _Where(source, "[camera]")
+    table = w.keys(table, _CAMERA_KEYS)
+    projection = table.get("projection", "orthographic")
+    if projection not in ("orthographic", "perspective"):
+        raise w.error(f"projection must be 'orthographic' or 'perspective', got {projection!r}")
+    width = w.integer(table, "width", low=1, high=MAX_IMAGE_SIDE)
+    height = w.integer(table, "height", low=1, high=MAX_IMAGE_SIDE)
+    if projection == "orthographic":
+        extra = sorted(set(table) & {"position", "look_at", "fov_deg", "up"})
+        if extra:
+            raise w.error(f"{', '.join(extra)} only apply to projection = 'perspective'")
+        return Camera("orthographic", width, height)
+    position = w.vector(table, "position", [0.0, 0.0, 4.0])
+    look_at = w.vector(table, "look_at", [0.0, 0.0, 0.0])
+    up = w.vector(table, "up", [0.0, 1.0, 0.0], nonzero=True)
+    fov = w.number(table, "fov_deg", 30.0, low=0.0, high=179.0, open_low=True)
+    if float(np.dot(position, position)) <= 1.0:
+        raise w.error(f"position {position} is inside the unit sphere")
+    forward = np.subtract(look_at, position)
+    if not forward.any():
+        raise w.error("look_at must differ from position")
+    if np.linalg.norm(np.cross(forward, up)) < 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
+        raise w.error("up must not be parallel to the viewing direction")
+    return Camera(
+        "perspective", width, height, jnp.asarray(position), jnp.asarray(look_at), jnp.asarray(up), jnp.asarray(fov)
+    )
+
+
+def _parse_lights(items: Any, source: str) -> Lights:
+    if not isinstance(items, list):
+        raise SceneError(f"{source}: lights must be given as [[light]] tables")
+    directional: list[tuple] = []
+    point: list[tuple] = []
+    ambient: list[float] = []
+    for number, table in enumerate(items, start=1):
+        w = _Where(source, f"[[light]] #{number}")
+        if not isinstance(table, dict):
+            raise w.error("must be a table")
+        kind = table.get("kind")
+        if kind not in _LIGHT_KEYS:
+            raise w.error(f"kind must be one of {', '.join(_LIGHT_KEYS)}, got {kind!r}")
+        w.keys(table, _LIGHT_KEYS[kind])
+        intensity = w.number(table, "intensity", low=0.0)
+        if kind == "ambient":
+            ambient.append(intensity)
+            continue
+        color = w.vector(table, "color", [1.0, 1.0, 1.0], low=0.0)
+        if kind == "directional":
+            direction = np.asarray(w.vector(table, "direction", nonzero=True))
+            directional.append((direction / np.linalg.norm(direction), intensity, color))
+        else:
+            position = w.vector(table, "position")
+            if float(np.dot(position, position)) <= 1.0:
+                raise w.error(f"position {position} is inside the unit sphere")
+            attenuation = w.vector(table, "attenuation", [1.0, 0.0, 0.0], low=0.0)
+            if not any(attenuation):
+                raise w.error("attenuation (c0, c1, c2) must not be all zero")
+            point.append((position, intensity, color, attenuation))
+    if not items:
+        raise SceneError(f"{source}: the scene has no light; add at least one [[light]] table")
+    return Lights(
+        directional=DirectionalLights(
+            direction=jnp.asarray(np.array([d[0] for d in directional])),
+            intensity=jnp.asarray([d[1] for d in directional]),
+            color=jnp.asarray([d[2] for d in directional]),
+        )
+        if directional
+        else None,
+        point=PointLights(
+            position=jnp.asarray([p[0] for p in point]),
+            intensity=jnp.asarray([p[1] for p in point]),
+            color=jnp.asarray([p[2] for p in point]),
+            attenuation=jnp.asarray([p[3] for p in point]),
+        )
+        if point
+        else None,
+        ambient=jnp.asarray(sum(ambient)) if ambient else None,
+    )
+
+
+def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
+    w = _Where(source, "[background]")
+    if not isinstance(table, dict):
+        raise w.error("must be a table")
+    kind = table.get("kind", "color")
+    if kind not in BACKGROUND_KINDS:
+        raise w.error(f"kind must be one of {', '.join(BACKGROUND_KINDS)}, got {kind!r}")
+    w.keys(table, _BACKGROUND_KEYS[kind])
+    color = jnp.asarray(w.vector(table, "color", [0.0, 0.0, 0.0], low=0.0))
+    if kind == "color":
+        return Background("color", color)
+    if kind == "checkerboard":
+        colors = table.get("colors", [[0.9, 0.9, 0.9], [0.1, 0.1, 0.1]])
+        if not isinstance(colors, list) or len(colors) != 2:
+            raise w.error(f"colors must be a list of two RGB colours, got {colors!r}")
+        pair = [w.vector({"colors": c}, "colors", low=0.0) for c in colors]
+        return Background(
+            "checkerboard",
+            color,
+            point=jnp.asarray(w.vector(table, "point", [0.0, 0.0, -2.0])),
+            normal=jnp.asarray(w.vector(table, "normal", [0.0, 0.0, 1.0], nonzero=True)),
+            square_size=jnp.asarray(w.number(table, "square_size", 0.5, low=0.0, open_low=True)),
+            colors=jnp.asarray(pair),
+            sharpness=jnp.asarray(w.number(table, "sharpness", 20.0, low=0.0, open_low=True)),
+        )
+    if "image" not in table or not isinstance(table["image"], str):
+        raise w.error('an environment background needs image = "PATH" (latitude-longitude)')
+    from ..io.images import read_image  # local import: it pulls in OpenImageIO
+
+    path = Path(table["image"])
+    if not path.is_absolute():
+        path = base_dir / path
+    scale = w.number(table, "scale", 1.0, low=0.0)
+    try:
+        image = read_image(path, encoding="auto").pixels
+    except StraussFitError as exc:
+        raise w.error(str(exc)) from None
+    return Background("environment", color, image=jnp.asarray(image * scale))
+
+
+@uses_float64
+def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | str = ".") -> Scene:
+    """Build a :class:`Scene` from a parsed TOML mapping (see README.md, "Scene file")."""
+    unknown = sorted(set(data) - _SECTIONS)
+    if unknown:
+        raise SceneError(f"{source}: unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_SECTIONS))}")
+    if "camera" not in data:
+        raise SceneError(f"{source}: missing [camera] section")
+    if "light" not in data:
+        raise SceneError(f"{source}: the scene has no light; add at least one [[light]] table")
+    camera = _parse_camera(data["camera"], source)
+    lights = _parse_lights(data["light"], source)
+    background = _parse_background(data.get("background", {}), source, Path(base_dir))
+    material_table = data.get("material", {})
+    if not isinstance(material_table, dict):
+        raise SceneError(f"{source}: [material] must be a table")
+    try:
+        material = Material.from_dict(material_table)
+    except MaterialError as exc:
+        raise SceneError(f"{source}: [material]: {exc}") from None
+    render_table = _Where(source, "[render]").keys(data.get("render", {}), _RENDER_KEYS)
+    depth = _Where(source, "[render]").integer(render_table, "depth", DEFAULT_DEPTH, low=1, high=64)
+    return Scene(camera=camera, lights=lights, background=background, material=material, depth=depth)
+
+
+@uses_float64
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a TOML scene file."""
+    path = Path(path)
+    if not path.exists():
+        raise SceneError(f"scene file not found: {path}")
+    if path.is_dir():
+        raise SceneError(f"scene file is a directory: {path}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"cannot read scene file {path}: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+    return parse_scene(data, source=str(path), base_dir=path.parent)

@@ -1,0 +1,167 @@
+"""``strauss-fit report`` end to end: a fit and a chain made by the commands, the report with
+a chain (every section), from a fit alone (Laplace intervals), and one-line errors."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+import strauss_fit as sf
+from strauss_fit.inference.sampler import load_chain
+from strauss_fit.inference.summaries import posterior_summary
+from strauss_fit.io.images import write_image
+from strauss_fit_cli.main import main
+from support import SMALL_MATERIAL, key_and_fill_scene, key_and_fill_toml, noisy_target
+
+TRUTH = dict(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.4)
+
+
+def make_target(scene, material, noise=0.01, seed=0):
+    return noisy_target(scene, material, noise, seed, path="synthetic.exr")
+
+
+@pytest.fixture(scope="module")
+def sampled(tmp_path_factory):
+    """A fit and a short chain written by `strauss-fit sample`, files on disk."""
+    folder = tmp_path_factory.mktemp("report")
+    scene_path = folder / "scene.toml"
+    scene_path.write_text(key_and_fill_toml(24, material=SMALL_MATERIAL))
+    scene = key_and_fill_scene(24, material=SMALL_MATERIAL, source="opaque")
+    write_image(folder / "target.exr", make_target(scene, sf.Material(**TRUTH), seed=7).pixels)
+    assert (
+        main(
+            [
+                "fit",
+                str(folder / "target.exr"),
+                "--scene",
+                str(scene_path),
+                "-o",
+                str(folder / "fit.json"),
+                "--free",
+                "color,smoothness,metalness",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    assert main(
+        [
+            "sample",
+            str(folder / "target.exr"),
+            "--scene",
+            str(scene_path),
+            "-o",
+            str(folder / "chain.h5"),
+            "--fit",
+            str(folder / "fit.json"),
+            "--max-steps",
+            "400",
+            "--quiet",
+        ]
+    ) in (0, 1)
+    return folder
+
+
+def check_self_contained(page: str) -> None:
+    assert page.startswith("<!DOCTYPE html>")
+    # nothing to fetch: no external URL, no script, every image inline
+    assert not re.search(r"(src|href)\s*=\s*\"(?!data:)", page)
+    assert "http://" not in page and "https://" not in page and "<script" not in page
+    for image in re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page):
+        import base64
+
+        assert base64.b64decode(image).startswith(b"\x89PNG\r\n\x1a\n")
+
+
+def test_report_with_a_chain_has_every_section(sampled, capsys):
+    folder = sampled
+    out = folder / "report.html"
+    code = main(["report", "--fit", str(folder / "fit.json"), "--chain", str(folder / "chain.h5"), "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    page = out.read_text()
+    check_self_contained(page)
+    assert page.count("data:image/png;base64,") == 4  # images, correlation, corner, trace
+    for text in (
+        "Warnings",
+        "Target, fit and residual",
+        "Parameters",
+        "median",
+        "16 %",
+        "84 %",
+        "2.5 %",
+        "97.5 %",
+        "Laplace estimate against the posterior",
+        "Correlations",
+        "Corner plot",
+        "Sampler diagnostics",
+        "effective samples",
+        "τ (steps)",
+    ):
+        assert text in page, text
+    markdown = (folder / "report.md").read_text()
+    for name in ("images.png", "correlation.png", "corner.png", "trace.png"):
+        assert f"](report_files/{name})" in markdown
+        assert (folder / "report_files" / name).read_bytes().startswith(b"\x89PNG")
+    assert "| smoothness |" in markdown
+    # the table's percentiles are the chain's
+    chain = load_chain(folder / "chain.h5")
+    summary = posterior_summary(chain.samples(chain.diagnostics().burn_in), chain.labels)
+    assert f"{summary['parameters']['smoothness']['p97.5']:.4g}" in markdown
+    # a 400-step chain is not 50 autocorrelation times long: the report says so first
+    assert "The chain is not trustworthy yet" in page
+    # no overwrite without --force, then with it
+    code = main(["report", "--chain", str(folder / "chain.h5"), "-o", str(out)])
+    assert code == 2 and "exists; pass --force" in capsys.readouterr().err
+    assert main(["report", "--chain", str(folder / "chain.h5"), "-o", str(out), "--force"]) == 0
+
+
+def test_report_from_a_fit_alone_uses_laplace_intervals(sampled, capsys):
+    folder = sampled
+    out = folder / "laplace.html"
+    assert main(["report", "--fit", str(folder / "fit.json"), "-o", str(out)]) == 0
+    page = out.read_text()
+    check_self_contained(page)
+    assert "16 % (Laplace)" in page and "No chain was given" in page
+    assert "Sampler diagnostics" not in page
+    assert "draws from the Laplace approximation" in page
+    data = json.loads((folder / "fit.json").read_text())
+    assert f"{data['smoothness'] - data['uncertainty']['smoothness']:.4g}" in page
+
+
+@pytest.mark.parametrize(
+    "case,pattern",
+    [
+        ("nothing", "give a fit result (--fit RESULT.json), a chain (--chain CHAIN.h5), or both"),
+        ("not-html", "give -o a .html name"),
+        ("corrupt-chain", "not an HDF5 file"),
+        ("not-a-fit", "is not a strauss-fit fit result"),
+        ("other-mask", "give the target (and --mask) the fit was made with"),
+    ],
+)
+def test_report_bad_inputs_are_one_line_errors(sampled, capsys, tmp_path, case, pattern):
+    folder = sampled
+    out = tmp_path / "r.html"
+    args = ["report", "-o", str(out)]
+    if case == "nothing":
+        pass
+    elif case == "not-html":
+        args = ["report", "--fit", str(folder / "fit.json"), "-o", str(tmp_path / "r.pdf")]
+    elif case == "corrupt-chain":
+        (tmp_path / "bad.h5").write_bytes(b"not a chain")
+        args += ["--chain", str(tmp_path / "bad.h5")]
+    elif case == "not-a-fit":
+        (tmp_path / "x.json").write_text('{"hello": 1}')
+        args += ["--fit", str(tmp_path / "x.json")]
+    elif case == "other-mask":
+        mask = np.ones((24, 24, 3))
+        mask[:12] = 0
+        write_image(tmp_path / "mask.png", mask)
+        args += ["--fit", str(folder / "fit.json"), "--mask", str(tmp_path / "mask.png")]
+    code = main(args)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1, err
+    assert pattern in err
+    assert not out.exists()

@@ -1,0 +1,205 @@
+"""Phong <-> Strauss conversion: closed-form guesses by hand, round trips within the reported
+residual, batches that survive bad materials, and the entry points (the material tables:
+tests/io/test_material_tables.py; the commands: tests/cli/test_cli_convert.py)."""
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from strauss_fit.convert.converter import Converter, Entry, Settings, conversion_scene, phong_guess, strauss_guess
+from strauss_fit.convert.phong_fit import LOG_MAX_EXPONENT, phong_problem, vector_from_material
+from strauss_fit.fit.problem import render_at
+from strauss_fit.models.material import Material
+from strauss_fit.models.phong import PhongMaterial, highlight_power
+from strauss_fit.models.strauss import highlight_falloff
+from strauss_fit.render.phong import render_phong
+from strauss_fit.scene.loading import parse_scene
+
+pytestmark = pytest.mark.usefixtures("x64")
+
+SIZE = 24  # the study's tests use the same size, so compiled solvers are shared
+
+
+@pytest.fixture(scope="module")
+def converter():
+    return Converter(conversion_scene(size=SIZE), Settings())
+
+
+def rms(a, b):
+    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+
+
+# --- closed-form guesses ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [3.5, 10.0, 30.0, 250.0, 1000.0, 9999.0])
+def test_guess_recovers_s_exactly_for_a_pure_specular_lobe(n):
+    guess, notes = strauss_guess(PhongMaterial(ka=0.0, kd=0.0, ks=1.0, exponent=n))
+    assert guess["smoothness"] == 1 - 3 / n  # h = 3 / (1 - s) = n
+    assert guess["metalness"] == 0.0 and guess["color"] == [0.0, 0.0, 0.0]  # white lobe, no diffuse term
+    cos_beta = np.linspace(0.0, 1.0, 201)
+    np.testing.assert_allclose(
+        np.asarray(highlight_falloff(cos_beta, guess["smoothness"])),
+        np.asarray(highlight_power(cos_beta, n)),
+        rtol=1e-9,
+        atol=1e-300,
+    )
+
+
+def test_guess_for_blinn_uses_a_quarter_of_the_exponent_and_clips_wide_lobes():
+    assert strauss_guess(PhongMaterial(kd=0.0, ks=1.0, exponent=40.0, blinn=True))[0]["smoothness"] == 1 - 12 / 40
+    assert strauss_guess(PhongMaterial(kd=0.0, ks=1.0, exponent=2.0))[0]["smoothness"] == 0.0
+
+
+def test_guess_colour_and_metalness_by_hand():
+    # s = 1 - 3/6 = 0.5; D = kd Cd = (0.5, 0.25, 0.125), hue (1, 0.5, 0.25), chroma 0.75;
+    # tint = S / max S = (1, 0.75, 0.625) -> m = (1 - 0.625) / 0.75 = 0.5;
+    # C = D / ((1 - m s)(1 - s^3)) = D / (0.75 * 0.875) = D / 0.65625
+    guess, notes = strauss_guess(
+        PhongMaterial(kd=0.5, ks=0.5, exponent=6.0, diffuse_color=(1.0, 0.5, 0.25), specular_color=(1.0, 0.75, 0.625))
+    )
+    assert guess["smoothness"] == pytest.approx(0.5)
+    assert guess["metalness"] == pytest.approx(0.5)
+    np.testing.assert_allclose(guess["color"], [0.76190476190, 0.38095238095, 0.19047619048], atol=1e-10)
+    assert notes == []
+    # no diffuse term and a tinted highlight: a metal of the highlight's colour
+    metal, _ = strauss_guess(PhongMaterial(kd=0.0, ks=0.9, exponent=100.0, specular_color=(1.0, 0.8, 0.4)))
+    assert metal["metalness"] == 1.0
+    np.testing.assert_allclose(metal["color"], [1.0, 0.8, 0.4])
+    # a diffuse term brighter than Strauss allows at this smoothness: scaled down, with a note
+    bright, notes = strauss_guess(PhongMaterial(kd=1.0, ks=0.5, exponent=30.0))
+    np.testing.assert_allclose(bright["color"], [1.0, 1.0, 1.0])
+    assert notes and "brighter than Strauss allows" in notes[0]
+
+
+def test_phong_guess_from_strauss_by_hand():
+    # h = 3/(1 - 0.5) = 6; D = (1 - 0.25)(1 - 0.125) C = 0.65625 C; ka = (1 - s^3) max C = 0.7
+    vector, ka = phong_guess(Material(color=(0.8, 0.4, 0.2), smoothness=0.5, metalness=0.5))
+    np.testing.assert_allclose(vector[:3], [0.525, 0.2625, 0.13125])
+    assert vector[6] == pytest.approx(math.log(6.0) / LOG_MAX_EXPONENT)
+    assert ka == pytest.approx(0.7)
+    assert np.all(vector[3:6] > 0) and vector[3] > vector[5]  # a highlight tinted towards C
+
+
+# --- the Phong fitter's renderer --------------------------------------------------------------
+
+
+def test_fitter_geometry_renders_like_render_phong():
+    scene = parse_scene(
+        tomllib.loads("""
+[camera]
+width = 12
+height = 12
+[[light]]
+kind = "directional"
+direction = [0.3, 0.5, 1.0]
+intensity = 0.8
+color = [1.0, 0.9, 0.8]
+[[light]]
+kind = "point"
+position = [2.0, 1.0, 3.0]
+intensity = 5.0
+attenuation = [1.0, 0.0, 0.5]
+[[light]]
+kind = "ambient"
+intensity = 0.2
+""")
+    )
+    material = PhongMaterial(
+        ka=0.3, kd=0.6, ks=0.4, exponent=12.0, diffuse_color=(0.9, 0.5, 0.2), specular_color=(1.0, 0.9, 0.7)
+    )
+    image, mask = render_phong(scene, material)
+    index = np.flatnonzero(np.asarray(mask).ravel())
+    problem = phong_problem(scene, index)
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    # the fitter's ambient term is ka * Cd with Cd = D / max D (here Cd itself, max 0.9 -> scaled)
+    x = vector_from_material(material)
+    problem = dataclasses.replace(problem, ambient_ka=jnp.asarray(0.3 * 0.9 / 1.0))
+    model = np.asarray(render_at(problem, jnp.asarray(x)))
+    np.testing.assert_allclose(model, np.asarray(image).reshape(-1, 3)[index], atol=1e-12)
+
+
+# --- conversions ----------------------------------------------------------------------------
+
+
+def test_round_trip_reproduces_the_image_within_the_reported_residual(converter):
+    source = PhongMaterial(ka=0.0, kd=0.6, ks=0.25, exponent=8.0, diffuse_color=(0.9, 0.45, 0.2))
+    forward = converter.phong_to_strauss([Entry("clay", "test", source)])[0]
+    assert forward["status"] == "ok", forward
+    strauss = Material(**{**forward["strauss"], "transparency": 0.0})
+    back = converter.strauss_to_phong([Entry("clay", "test", strauss)])[0]
+    assert back["status"] == "ok", back
+    original = converter.phong_target(source)
+    as_strauss = converter.strauss_target(strauss)
+    returned = converter.phong_target(PhongMaterial.from_dict(back["phong"]))
+    # the reported residuals are the real ones ...
+    assert forward["residual"]["rms"] == pytest.approx(rms(as_strauss, original), rel=1e-9)
+    assert back["residual"]["rms"] == pytest.approx(rms(returned, as_strauss), rel=1e-9)
+    # ... so the round trip stays within their sum (RMS is a norm)
+    assert rms(returned, original) <= forward["residual"]["rms"] + back["residual"]["rms"] + 1e-12
+    # and this material is one Strauss can match well
+    assert forward["residual"]["delta_e2000_mean"] < 2.0
+    assert forward["uncertainty"]["smoothness"] > 0 and len(forward["uncertainty"]["color"]) == 3
+    # the fit improves on its closed-form start
+    guess_image = converter.strauss_target(Material(**forward["guess"]))
+    assert forward["residual"]["rms"] <= rms(guess_image, original) + 1e-12
+
+
+def test_strauss_to_phong_matches_a_dielectric_closely(converter):
+    result = converter.strauss_to_phong([Entry("plastic", "test", Material(color=(0.2, 0.5, 0.8), smoothness=0.5))])[0]
+    assert result["status"] == "ok"
+    assert result["residual"]["delta_e2000_mean"] < 0.5
+    assert result["phong"]["exponent"] == pytest.approx(6.0, rel=0.5)  # h = 3 / (1 - s) = 6 as the start
+    assert set(result["uncertainty"]) == {"diffuse", "specular", "exponent"}
+    assert result["opacity"] == 1.0 and result["ior"] == 1.5
+
+
+def test_a_bad_material_is_reported_and_the_batch_goes_on(converter):
+    good = PhongMaterial(ka=0.0, kd=0.5, ks=0.3, exponent=12.0, diffuse_color=(0.3, 0.6, 0.9))
+    other = PhongMaterial(ka=0.0, kd=0.4, ks=0.5, exponent=5.0, diffuse_color=(0.8, 0.8, 0.2))
+    entries = [
+        Entry("good", "test", good),
+        Entry("unreadable", "test", error="Kd needs 3 numbers"),
+        Entry("broken", "test", material=None),
+        Entry("other", "test", other),
+        Entry("black", "test", PhongMaterial(ka=0.0, kd=0.0, ks=0.0)),
+    ]
+    seen = []
+    results = converter.phong_to_strauss(entries, lambda done, total, message: seen.append((done, total)))
+    assert [r["name"] for r in results] == ["good", "unreadable", "broken", "other", "black"]
+    assert [r["status"] for r in results] == ["ok", "error", "error", "ok", "ok"]
+    assert results[1]["message"] == "Kd needs 3 numbers"
+    assert results[2]["message"].startswith("unexpected AttributeError")
+    # Phong black: Strauss's darkest material, C = 0, m = 1, s = 0 (only k_j j F is left)
+    assert "renders black" in results[4]["notes"][-1]
+    assert results[4]["strauss"]["color"] == [0.0, 0.0, 0.0] and results[4]["strauss"]["metalness"] == 1.0
+    assert 0 < results[4]["residual"]["rms"] < 1e-3
+    assert sorted(seen) == [(k, 5) for k in range(1, 6)]
+    alone = converter.phong_to_strauss([Entry("good", "test", good)])[0]
+    np.testing.assert_allclose(alone["strauss"]["color"], results[0]["strauss"]["color"], atol=1e-9)
+    assert alone["strauss"]["smoothness"] == pytest.approx(results[0]["strauss"]["smoothness"], abs=1e-9)
+
+
+def test_opacity_and_ior_are_carried_over(converter):
+    result = converter.phong_to_strauss(
+        [Entry("glass", "test", PhongMaterial(ka=0.0, kd=0.2, ks=0.8, exponent=50.0), opacity=0.25, ior=1.33)]
+    )[0]
+    assert result["strauss"]["transparency"] == pytest.approx(0.75)
+    assert result["strauss"]["ior"] == pytest.approx(1.33)
+    assert any("carried over" in note for note in result["notes"])
+
+
+def test_the_entry_points_convert_single_materials(converter):
+    import strauss_fit as sf
+
+    phong = PhongMaterial(ka=0.0, kd=0.5, ks=0.3, exponent=12.0, diffuse_color=(0.3, 0.6, 0.9))
+    [result] = sf.phong_to_strauss(phong, scene=conversion_scene(size=SIZE))
+    assert result == converter.phong_to_strauss([Entry("material-1", "python", phong)])[0]
+    assert result["status"] == "ok" and result["residual"]["delta_e2000_mean"] < 5
+    [back] = sf.strauss_to_phong(Material(**result["strauss"]), scene=conversion_scene(size=SIZE))
+    assert back["status"] == "ok" and back["phong"]["kd"] > 0

@@ -1,0 +1,58 @@
+"""Fit options and the quality presets: one table in the library, read by fits, sampling
+and conversions alike, and FitOptions() is the balanced preset the command line uses."""
+
+import pytest
+
+import strauss_fit as sf
+from strauss_fit.convert.converter import Settings
+from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS, FitOptions
+
+
+def test_default_options_are_the_balanced_preset():
+    assert DEFAULT_QUALITY == "balanced"
+    assert FitOptions() == FitOptions.preset("balanced") == FitOptions.preset()
+    balanced = QUALITY_PRESETS["balanced"]
+    assert (FitOptions().starts, FitOptions().max_steps, FitOptions().rtol, FitOptions().atol) == (
+        balanced["starts"],
+        balanced["max_steps"],
+        balanced["rtol"],
+        balanced["atol"],
+    )
+
+
+@pytest.mark.parametrize("name", sorted(QUALITY_PRESETS))
+def test_presets_set_the_fit_settings_and_explicit_values_override_them(name):
+    preset = QUALITY_PRESETS[name]
+    options = FitOptions.preset(name)
+    assert (options.starts, options.max_steps, options.rtol, options.atol) == (
+        preset["starts"],
+        preset["max_steps"],
+        preset["rtol"],
+        preset["atol"],
+    )
+    changed = FitOptions.preset(name, starts=7, free=("color",), max_steps=None)
+    assert changed.starts == 7 and changed.free == ("color",) and changed.max_steps == preset["max_steps"]
+
+
+@pytest.mark.parametrize("name", sorted(QUALITY_PRESETS))
+def test_sampling_and_conversion_read_the_same_table(name):
+    preset = QUALITY_PRESETS[name]
+    settings = sf.SampleSettings.preset(name)
+    assert (settings.max_steps, settings.min_tau_multiple, settings.walkers) == (
+        preset["sample_max_steps"],
+        preset["min_tau_multiple"],
+        preset["walkers"],
+    )
+    conversion = Settings.preset(name, starts=None)
+    assert (conversion.starts, conversion.max_steps, conversion.rtol, conversion.atol) == (
+        preset["starts"],
+        preset["max_steps"],
+        preset["rtol"],
+        preset["atol"],
+    )
+    assert sf.SampleSettings() == sf.SampleSettings.preset("balanced", check_every=100, seed=0)
+
+
+def test_an_unknown_preset_is_a_one_line_error():
+    with pytest.raises(sf.StraussFitError, match="unknown quality preset 'slow'"):
+        FitOptions.preset("slow")

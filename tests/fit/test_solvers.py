@@ -1,0 +1,55 @@
+"""The solvers of :mod:`strauss_fit.fit.solvers`: the Levenberg–Marquardt variant reaches the
+same optimum as optimistix's stock one, in fewer steps on this model."""
+
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+
+import strauss_fit as sf
+from strauss_fit import FitOptions, plan_render
+from strauss_fit.fit.problem import build_problem
+from strauss_fit.fit.solvers import GROW_RATIO, SOLVERS, levenberg_marquardt, make_solver
+from support import noisy_target
+
+pytestmark = pytest.mark.usefixtures("x64")
+
+
+def _problem(scene):
+    truth = sf.Material(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.3)
+    target = noisy_target(scene, truth, noise=0.01, seed=1)
+    plan = plan_render(scene, scene.material)
+    problem, _, _ = build_problem(
+        scene, target, ["color", "smoothness", "metalness"], scene.material, plan, FitOptions(), reference_noise=0.01
+    )
+    return problem
+
+
+def _solve(problem, solver, start):
+    theta = jnp.asarray(problem.layout.to_unconstrained(np.asarray(start, dtype=float)))
+    solution = optx.least_squares(problem.residual, solver, theta, max_steps=200, throw=False)
+    residual = problem.residual(solution.value)
+    return int(solution.stats["num_steps"]), float(jnp.sum(residual**2)), solution.result
+
+
+def test_textbook_growth_cutoff_reaches_the_same_optimum_in_fewer_steps(key_and_fill):
+    problem = _problem(key_and_fill)
+    starts = [(0.5, 0.5, 0.5, 0.4, 0.5), (0.3, 0.3, 0.3, 0.2, 0.8), (0.9, 0.9, 0.9, 0.9, 0.1)]
+    stock_steps, our_steps = 0, 0
+    for start in starts:
+        steps_stock, cost_stock, result_stock = _solve(problem, optx.LevenbergMarquardt(rtol=1e-6, atol=1e-8), start)
+        steps_ours, cost_ours, result_ours = _solve(problem, levenberg_marquardt(1e-6, 1e-8), start)
+        assert result_stock == optx.RESULTS.successful and result_ours == optx.RESULTS.successful
+        assert cost_ours == pytest.approx(cost_stock, rel=1e-9)
+        assert steps_ours <= steps_stock
+        stock_steps, our_steps = stock_steps + steps_stock, our_steps + steps_ours
+    assert our_steps < stock_steps
+
+
+def test_make_solver_knows_every_name_and_sets_the_growth_cutoff():
+    for name in SOLVERS:
+        solver = make_solver(name, 1e-5, 1e-7)
+        assert (solver.rtol, solver.atol) == (1e-5, 1e-7)
+    assert make_solver("lm", 1e-5, 1e-7).search.high_cutoff == GROW_RATIO
+    with pytest.raises(sf.StraussFitError, match="unknown solver 'newton'"):
+        make_solver("newton", 1e-5, 1e-7)
