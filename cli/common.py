@@ -4,6 +4,8 @@ the library: :data:`strauss_fit.fit.options.QUALITY_PRESETS`)."""
 from __future__ import annotations
 
 import argparse
+import re
+import sys
 
 from strauss_fit.errors import StraussFitError
 from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS
@@ -21,7 +23,7 @@ def add_evaluator_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--table-size",
-        type=int,
+        type=bounded_int(-(2**31), 2**31),
         default=DEFAULT_TABLE_SIZE,
         metavar="N",
         help=f"entries of the F/G tables, or per axis of the j table (default {DEFAULT_TABLE_SIZE})",
@@ -37,17 +39,108 @@ def add_evaluator_options(parser: argparse.ArgumentParser) -> None:
 def check_evaluator_options(args: argparse.Namespace) -> None:
     if args.table_size < 2:
         raise StraussFitError(f"--table-size must be at least 2, got {args.table_size}")
+    limit = MAX_J_TABLE_SIZE if getattr(args, "mode", None) == "j-table" else MAX_TABLE_SIZE
+    if args.table_size > limit:
+        raise StraussFitError(
+            f"--table-size must be at most {limit}{' with --mode j-table' if limit == MAX_J_TABLE_SIZE else ''}, "
+            f"got {args.table_size}"
+        )
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+#: Largest integer any count option takes (steps, starts, walkers, ...): beyond it the
+#: values overflow the solvers' int32/int64 counters and mean nothing anyway.
+MAX_COUNT = 10**9
+#: Largest --table-size: entries of the F/G tables, and per axis of the j table (N² entries).
+MAX_TABLE_SIZE = 1 << 20
+MAX_J_TABLE_SIZE = 4096
+#: Largest image side, as in scene files (:data:`strauss_fit.scene.loading.MAX_IMAGE_SIDE`).
+MAX_IMAGE_SIDE = 8192
+
+
+def bounded_int(low: int, high: int):
+    """argparse type: an integer in [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {escape(text)!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+#: argparse type: an integer >= 1 (and at most :data:`MAX_COUNT`).
+positive_int = bounded_int(1, MAX_COUNT)
+positive_int.__name__ = "positive integer"
+#: argparse type: an image side in pixels, 1 to :data:`MAX_IMAGE_SIDE`.
+image_side = bounded_int(1, MAX_IMAGE_SIDE)
+
+
+def finite_float(low: float | None = None, *, open_low: bool = False):
+    """argparse type: a finite number, at least ``low`` (above it with ``open_low``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {escape(text)!r}") from None
+        if value != value or value in (float("inf"), float("-inf")):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
+        if low is not None and (value <= low if open_low else value < low):
+            raise argparse.ArgumentTypeError(f"expected a number {'>' if open_low else '>='} {low:g}, got {value:g}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+# --- escaping what input files bring to the terminal -------------------------------------------
+
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028\u2029]")
+_CONTROL_AND_NEWLINES = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def _escaped(match: re.Match) -> str:
+    code = ord(match.group())
+    return {9: "\\t", 10: "\\n", 13: "\\r"}.get(code) or (f"\\x{code:02x}" if code < 256 else f"\\u{code:04x}")
+
+
+def escape(text: str, *, newlines: bool = False) -> str:
+    """``text`` with control characters (an ESC sequence in a material name, say) shown as
+    ``\\x1b``; with ``newlines`` also tab, CR and LF (for one-line messages)."""
+    return (_CONTROL_AND_NEWLINES if newlines else _CONTROL).sub(_escaped, text)
+
+
+class EscapingStream:
+    """A text stream that escapes control characters (:func:`escape`) except tab, LF and
+    CR (the progress bar's), so nothing quoted from an input file reaches the terminal raw."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        self._stream.write(escape(text))
+        return len(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def progress_printer(quiet: bool, prefix: str = "", stream=None):
+    """A log function for the library's progress lines: prints ``PREFIX message`` on stderr
+    (nothing with ``quiet``) and is a safe point for a recorded Ctrl-C."""
+    from . import interrupts
+
+    def log(message: str) -> None:
+        interrupts.check()
+        if not quiet:
+            print(f"{prefix}{message}", file=stream or sys.stderr, flush=True)
+
+    return log
 
 
 def add_quality_option(parser: argparse.ArgumentParser) -> None:

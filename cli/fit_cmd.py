@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from strauss_fit.fit.options import QUALITY_PRESETS
 
-from .common import add_evaluator_options, add_quality_option, check_evaluator_options, positive_int
+from .common import (
+    add_evaluator_options,
+    add_quality_option,
+    check_evaluator_options,
+    finite_float,
+    positive_int,
+    progress_printer,
+)
 
 PARAMETER_HELP = (
     "color, smoothness, metalness, transparency, ior "
@@ -68,7 +74,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--fit-lights", action="store_true", help="also consider the light intensities as parameters")
     parser.add_argument(
         "--reference-noise",
-        type=float,
+        type=finite_float(0.0, open_low=True),
         metavar="SIGMA",
         help="noise level used to decide what the image constrains (default: 1%% of the target's 98th percentile)",
     )
@@ -85,6 +91,8 @@ def add_parser(subparsers) -> None:
 
 
 def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]], ...]:
+    import math
+
     from strauss_fit.errors import StraussFitError
 
     fixed = []
@@ -96,6 +104,8 @@ def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]]
             numbers = tuple(float(v) for v in text.split(","))
         except ValueError:
             raise StraussFitError(f"--fix {name}: {text!r} is not a number (or R,G,B for color)") from None
+        if not all(math.isfinite(v) for v in numbers):
+            raise StraussFitError(f"--fix {name}: {text!r} is not a finite number")
         if name == "color":
             if len(numbers) != 3:
                 raise StraussFitError(f"--fix color expects R,G,B, got {text!r}")
@@ -201,20 +211,30 @@ def _by_quality(setting: str) -> str:
     return ", ".join(f"{name} {values[setting]}" for name, values in QUALITY_PRESETS.items())
 
 
+def check_outputs(args: argparse.Namespace) -> Path | None:
+    """Check every output of ``fit`` before any work; returns the comparison image's path."""
+    from strauss_fit.io.files import check_distinct, check_writable
+    from strauss_fit.io.images import check_image_output
+
+    compare_path = Path(args.render_fit).with_suffix(".compare.png") if args.render_fit else None
+    check_distinct({"-o": args.output, "--render-fit": args.render_fit, "--render-fit's comparison": compare_path})
+    check_writable(args.output, args.force)
+    if args.render_fit:
+        check_image_output(args.render_fit, args.force)
+        check_image_output(compare_path, args.force)
+    return compare_path
+
+
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
-    from strauss_fit import fit, load_scene, load_target, match_scene, write_image
-    from strauss_fit.io.files import check_writable, write_json
-
-    log = (lambda message: None) if args.quiet else (lambda message: print(f"... {message}", file=sys.stderr))
-    check_writable(args.output, args.force)
-    compare_path = None
-    if args.render_fit:
-        check_writable(args.render_fit, args.force)
-        compare_path = Path(args.render_fit).with_suffix(".compare.png")
-        check_writable(compare_path, args.force)
+    compare_path = check_outputs(args)
     fixed = parse_fixed(args.fix)
     check_fixed_ranges(fixed)
+
+    from strauss_fit import fit, load_scene, load_target, match_scene
+    from strauss_fit.io.files import Outputs
+
+    log = progress_printer(args.quiet, "... ")
     scene = load_scene(args.scene)
     target = load_target(args.target, args.mask, args.encoding)
     scene, message = match_scene(scene, target)
@@ -230,11 +250,12 @@ def run(args: argparse.Namespace) -> int:
     payload["mask"] = str(args.mask) if args.mask else None
     payload["encoding"] = args.encoding
     payload["settings"]["quality"] = args.quality
-    write_json(args.output, payload, force=args.force)
-    if args.render_fit:
-        write_image(args.render_fit, result.fitted_image, force=args.force)
-        write_image(compare_path, comparison_image(target.pixels, result.fitted_image, result.mask), force=args.force)
+    with Outputs(force=args.force) as out:  # all or nothing
+        out.add_json(args.output, payload)
+        if args.render_fit:
+            out.add_image(args.render_fit, result.fitted_image)
+            out.add_image(compare_path, comparison_image(target.pixels, result.fitted_image, result.mask))
+        written = out.commit(final=True)
     print(format_table(payload))
-    written = [args.output] + ([args.render_fit, str(compare_path)] if args.render_fit else [])
-    print(f"wrote {', '.join(written)}")
+    print(f"wrote {', '.join(str(p) for p in written)}")
     return 0 if result.solver["status"] == "successful" else 1

@@ -1,8 +1,12 @@
 """Entry point of the ``strauss-fit`` command: subcommands, error handling, JAX set-up.
 
 Every user error (a :class:`strauss_fit.errors.StraussFitError`) is printed as one line,
-``strauss-fit: error: ...``, with exit status 2; an interrupt exits with 130. Nothing else is
-caught, so a real bug still shows its traceback.
+``strauss-fit: error: ...``, with exit status 2; an interrupt (Ctrl-C, at any moment,
+see :mod:`strauss_fit_cli.interrupts`) exits with 130 and leaves no output behind. A full
+disk or another OSError is one line too. Nothing else is caught, so a real bug still shows
+its traceback. Text the commands print passes through :func:`strauss_fit_cli.common.escape`
+(control characters from input files, such as terminal escape sequences, are shown as
+``\\x1b``, never sent to the terminal).
 """
 
 from __future__ import annotations
@@ -12,10 +16,18 @@ import os
 import sys
 from pathlib import Path
 
-from . import fit_cmd, phong2strauss_cmd, render_cmd, report_cmd, sample_cmd, study_cmd, synth_cmd
+from . import interrupts
 
-#: Subcommand modules; each has ``add_parser(subparsers)`` and ``run(args)``.
-COMMANDS = [render_cmd, fit_cmd, synth_cmd, sample_cmd, report_cmd, phong2strauss_cmd, study_cmd]
+#: Names of the subcommand modules; each has ``add_parser(subparsers)`` and ``run(args)``.
+COMMAND_MODULES = (
+    "render_cmd",
+    "fit_cmd",
+    "synth_cmd",
+    "sample_cmd",
+    "report_cmd",
+    "phong2strauss_cmd",
+    "study_cmd",
+)
 
 
 def _enable_compilation_cache() -> None:
@@ -33,8 +45,19 @@ def _enable_compilation_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, with a usage error as one line like every other error (exit status 2)."""
+
+    def error(self, message: str):
+        from .common import escape
+
+        self.exit(2, f"strauss-fit: error: {escape(message, newlines=True)} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    import importlib
+
+    parser = OneLineParser(
         prog="strauss-fit",
         description="Render, fit and compare the Strauss (1990) lighting model on sphere images.",
         epilog="Run 'strauss-fit COMMAND --help' for the options of each command. "
@@ -42,8 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version="%(prog)s " + _version())
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in COMMANDS:
-        module.add_parser(subparsers)
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"{__package__}.{name}").add_parser(subparsers)
     return parser
 
 
@@ -53,25 +76,60 @@ def _version() -> str:
     return __version__
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    from strauss_fit.errors import StraussFitError
+def _error(message: str) -> None:
+    from .common import escape
 
+    print(f"strauss-fit: error: {escape(message, newlines=True)}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .common import EscapingStream
+
+    interrupts.install()
+    stdout, stderr = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = EscapingStream(stdout), EscapingStream(stderr)
     try:
-        _enable_compilation_cache()
-        return int(args.run(args) or 0)
-    except StraussFitError as exc:
-        print(f"strauss-fit: error: {exc}", file=sys.stderr)
-        return 2
+        try:
+            interrupts.arm()  # raises an interrupt recorded while Python was starting
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            interrupts.check()
+            _enable_compilation_cache()
+            code = int(args.run(args) or 0)
+            interrupts.check()
+            return code
+        except KeyboardInterrupt:
+            raise
+        except SystemExit:  # argparse: --help, --version, usage errors
+            if interrupts.HANDLER.pending:
+                raise KeyboardInterrupt from None
+            raise
+        except BaseException as exc:
+            # an interrupt that surfaced as another exception (raised inside a library
+            # callback and re-wrapped) is still an interrupt
+            if interrupts.HANDLER.pending:
+                raise KeyboardInterrupt from None
+            errors = sys.modules.get("strauss_fit.errors")
+            if errors is not None and isinstance(exc, errors.StraussFitError):
+                _error(str(exc))
+                return 2
+            if isinstance(exc, OSError):  # a full disk, a vanished folder: still one line
+                _error(f"{exc.strerror or exc}{f': {exc.filename}' if exc.filename else ''}")
+                return 2
+            raise  # anything else is a bug: its traceback is shown
     except KeyboardInterrupt:
+        interrupts.reset()
         print("strauss-fit: interrupted", file=sys.stderr)
+        if argv is None:  # the strauss-fit process itself (tests call main with a list)
+            interrupts.interrupted_exit(130)
         return 130
-    except OSError as exc:  # a full disk, a vanished folder: still one line
-        print(
-            f"strauss-fit: error: {exc.strerror or exc}{f': {exc.filename}' if exc.filename else ''}", file=sys.stderr
-        )
-        return 2
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        sys.stdout, sys.stderr = stdout, stderr
 
 
 if __name__ == "__main__":

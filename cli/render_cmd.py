@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from .common import add_evaluator_options, check_evaluator_options, positive_int
+from .common import add_evaluator_options, check_evaluator_options, image_side, positive_int
 
 
 def add_parser(subparsers) -> None:
@@ -15,14 +15,18 @@ def add_parser(subparsers) -> None:
         description="Render the sphere of SCENE (its [material]) to OUT. .exr/.hdr/.tif are written "
         "as linear float; .png/.jpg are sRGB-encoded and clipped to 8 bits.",
     )
-    parser.add_argument("scene", metavar="SCENE.toml", help="scene file (see README, 'Scene file')")
+    parser.add_argument("scene", metavar="SCENE.toml", help="scene file (see docs/formats.md, 'Scene files')")
     parser.add_argument("-o", "--output", required=True, metavar="OUT", help="output image")
-    parser.add_argument("--width", type=positive_int, help="override the camera's width in pixels")
-    parser.add_argument("--height", type=positive_int, help="override the camera's height in pixels")
+    parser.add_argument(
+        "--width", type=image_side, help="override the camera's width in pixels (at most 8192, as in scene files)"
+    )
+    parser.add_argument(
+        "--height", type=image_side, help="override the camera's height in pixels (at most 8192, as in scene files)"
+    )
     parser.add_argument(
         "--depth",
         type=positive_int,
-        help="recursion depth of the global model (1 = local model only); default: the scene's",
+        help="recursion depth of the global model (1 = local model only, at most 64); default: the scene's",
     )
     parser.add_argument("--mask", metavar="MASK_OUT", help="also write the sphere mask (white = sphere)")
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -32,29 +36,35 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import Outputs, check_distinct
+    from strauss_fit.io.images import check_image_output
+
+    # every output checked before any work
+    check_distinct({"-o": args.output, "--mask": args.mask})
+    check_image_output(args.output, args.force)
+    if args.mask:
+        check_image_output(args.mask, args.force)
+    if args.depth is not None and args.depth > 64:
+        raise StraussFitError(f"--depth must be from 1 to 64, got {args.depth}")
+
     import jax.numpy as jnp
     import numpy as np
 
-    from strauss_fit import load_scene, render, write_image
-    from strauss_fit.io.files import check_writable
+    from strauss_fit import load_scene, render
 
-    check_writable(args.output, args.force)
-    if args.mask:
-        check_writable(args.mask, args.force)
     scene = load_scene(args.scene)
     if args.width or args.height:
         scene = scene.resized(args.width or scene.camera.width, args.height or scene.camera.height)
     if args.depth:
         scene = dataclasses.replace(scene, depth=args.depth)
     image, mask = render(scene, mode=args.mode, table_size=args.table_size, dtype=jnp.dtype(args.precision))
-    write_image(args.output, np.asarray(image), force=args.force)
-    if args.mask:
-        write_image(
-            args.mask,
-            np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1),
-            force=args.force,
-            encoding="linear",
-        )
+    with Outputs(force=args.force) as out:
+        out.add_image(args.output, np.asarray(image))
+        if args.mask:
+            mask_rgb = np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1)
+            out.add_image(args.mask, mask_rgb, encoding="linear")
+        out.commit(final=True)
     height, width = mask.shape
     print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels)")
     return 0

@@ -1,11 +1,14 @@
-"""Writing a sample's files reproducibly (same pixels → same bytes), atomically.
+"""Encoding a sample's files reproducibly (same pixels → same bytes).
 
-- HDR: float32 linear OpenEXR (zip compression, no timestamp: :func:`strauss_fit.io.images.write_image`),
-  so that the same seed gives byte-identical files.
+- HDR: float32 linear OpenEXR (zip compression, no timestamp:
+  :func:`strauss_fit.io.images.encode_image`), so that the same seed gives byte-identical
+  files.
 - LDR: 8-bit PNG holding exactly the given sRGB codes.
 - Clip mask: 8-bit single-channel PNG, 255 where the LDR image is clipped, 0 elsewhere.
 
-Every write goes through a temporary file and a rename (:mod:`strauss_fit.io.files`).
+The ``*_bytes`` functions encode in memory; :mod:`data_synth.generate` writes a sample's
+files together through :class:`strauss_fit.io.files.Outputs` (temporary files, every write
+checked, then renamed together). The ``write_*`` functions write one file the same way.
 """
 
 from __future__ import annotations
@@ -16,7 +19,26 @@ from pathlib import Path
 import numpy as np
 
 from strauss_fit.errors import ImageError
-from strauss_fit.io.images import write_image
+from strauss_fit.io.images import encode_image, write_image
+
+
+def exr_bytes(image: np.ndarray) -> bytes:
+    """A linear RGB image (H, W, 3) as float32 OpenEXR bytes (no timestamp, zip)."""
+    data = np.asarray(image, dtype=np.float32)
+    if data.ndim != 3 or data.shape[-1] != 3:
+        raise ImageError(f"cannot write an image of shape {data.shape} as OpenEXR")
+    return encode_image(data, "sample.exr")
+
+
+def codes_bytes(codes: np.ndarray) -> bytes:
+    """8-bit codes (H, W, C) uint8 as PNG bytes, unchanged."""
+    values = np.asarray(codes, dtype=np.float64) / 255.0
+    return encode_image(values, "sample.png", encoding="linear")  # round(code/255·255) = code
+
+
+def mask_bytes(mask: np.ndarray) -> bytes:
+    """A boolean mask (H, W) as a grey 8-bit PNG: 255 where true."""
+    return codes_bytes(np.asarray(mask, dtype=np.uint8)[..., None] * 255)
 
 
 def write_exr(path: str | Path, image: np.ndarray, *, force: bool = False) -> Path:
@@ -30,7 +52,7 @@ def write_exr(path: str | Path, image: np.ndarray, *, force: bool = False) -> Pa
 def write_codes(path: str | Path, codes: np.ndarray, *, force: bool = False) -> Path:
     """Write 8-bit codes (H, W, C) uint8 to an LDR file unchanged."""
     values = np.asarray(codes, dtype=np.float64) / 255.0
-    return write_image(path, values, force=force, encoding="linear")  # round(code/255·255) = code
+    return write_image(path, values, force=force, encoding="linear")
 
 
 def write_mask(path: str | Path, mask: np.ndarray, *, force: bool = False) -> Path:
@@ -41,3 +63,8 @@ def write_mask(path: str | Path, mask: np.ndarray, *, force: bool = False) -> Pa
 def sha256(path: str | Path) -> str:
     """Hex SHA-256 of a file's bytes."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def sha256_bytes(data: bytes) -> str:
+    """Hex SHA-256 of bytes."""
+    return hashlib.sha256(data).hexdigest()

@@ -1,19 +1,26 @@
 """Generating a dataset: render every planned sample, pass it through the sensor, write its
 files, and keep the index up to date.
 
-Per sample, in this order, each file written atomically (temporary file, then rename):
+Per sample, in this order:
 
-1. the images: ``ID.exr`` (linear float32) and/or ``ID.png`` (8-bit sRGB) with
-   ``ID.clip.png`` (255 where the PNG is clipped);
-2. the sidecar ``ID.json`` (model, exact parameters, scene, sensor, seed, files);
-3. the index ``index.json``, rewritten to list the sample (with the SHA-256 of its files).
+1. the images are rendered and encoded in memory: ``ID.exr`` (linear float32) and/or
+   ``ID.png`` (8-bit sRGB) with ``ID.clip.png`` (255 where the PNG is clipped), and the
+   sidecar ``ID.json`` (model, exact parameters, scene, sensor, seed, files);
+2. the files are written to temporary files, every write checked, then renamed into place
+   together (:class:`strauss_fit.io.files.Outputs`);
+3. the index ``index.json`` is rewritten (atomically) to list the sample (with the SHA-256
+   of its files).
 
 A sample is complete exactly when the index lists it. An interruption or a failed write
-(a full disk) at any point leaves the index listing only complete samples; files of the
-sample in progress may remain and are overwritten when the run is resumed. Resuming skips
-every listed sample whose files still exist with the recorded checksums and renders the
-rest; since every sample has its own seed (:mod:`data_synth.plan`), the result is
-byte-identical to an uninterrupted run.
+(a full disk) at any point leaves the index listing only complete samples and no partial
+file of the sample in progress; the run stops (a full disk stops every later sample too)
+and says how many samples are complete. A sample that cannot be made — its scene is not
+usable (an environment map holding NaN), its rendering is not finite — is reported, its
+files are not written and the batch goes on; the run then ends with
+:attr:`Report.failed` listing them (the command exits with status 1). Resuming skips every
+listed sample whose files still exist with the recorded checksums and renders the rest
+(failed samples are tried again); since every sample has its own seed
+(:mod:`data_synth.plan`), the result is byte-identical to an uninterrupted run.
 """
 
 from __future__ import annotations
@@ -26,9 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from strauss_fit.errors import ImageError, OutputExistsError, StraussFitError
+from strauss_fit.errors import OutputExistsError, StraussFitError
+from strauss_fit.io.files import Outputs, WriteError
 
-from .files import sha256, write_codes, write_exr, write_mask
+from .files import codes_bytes, exr_bytes, mask_bytes, sha256, sha256_bytes
 from .index import INDEX_NAME, build_index, read_index, write_index
 from .params import MODELS, SpecError
 from .plan import SamplePlan, describe, noise_rng, plan_digest, plan_samples
@@ -42,15 +50,20 @@ class GenerationError(StraussFitError):
     """Writing the dataset failed (e.g. a full disk); the index lists what is complete."""
 
 
+class SampleFailed(StraussFitError):
+    """One sample cannot be made (its scene is unusable, its rendering is not finite)."""
+
+
 @dataclass(frozen=True)
 class Progress:
-    """Reported after each sample written: ``done`` of ``total`` samples are complete;
-    ``seconds`` it took to render and write."""
+    """Reported after each sample written or failed: ``done`` of ``total`` samples are
+    complete; ``seconds`` it took to render and write; ``error`` why it failed, if it did."""
 
     done: int
     total: int
     sample_id: str
     seconds: float
+    error: str | None = None
 
 
 @dataclass(frozen=True)
@@ -62,10 +75,16 @@ class Report:
     complete: int
     written: int
     skipped: int
+    failed: tuple[tuple[str, str], ...] = ()
 
     @property
     def finished(self) -> bool:
         return self.complete == self.total
+
+    @property
+    def stopped_by_limit(self) -> bool:
+        """Whether samples are left that this run did not try (``limit``)."""
+        return self.complete + len(self.failed) < self.total
 
 
 def render_model(model: str, scene: Any, material: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -105,30 +124,47 @@ class _WriteFailed(Exception):
 
 
 def write_sample(spec: DatasetSpec, sample: SamplePlan, output: Path) -> dict[str, Any]:
-    """Render and write one sample's images and sidecar; return its index entry."""
-    from strauss_fit.io.files import write_json
+    """Render and write one sample's images and sidecar (all or none); return its index
+    entry. Raises :class:`SampleFailed` if the sample cannot be made and ``_WriteFailed``
+    if its files cannot be written."""
+    import json
 
     from .sensor import encode_ldr
 
-    clean, sphere = render_clean(sample)
-    observed = sample.group.sensor.apply(clean, noise_rng(spec, sample))
-    files = sample_files(sample)
-    sidecar = {"format": SIDECAR_FORMAT, "version": FORMAT_VERSION, **describe(spec, sample)}
-    sidecar["image"] = {"width": int(clean.shape[1]), "height": int(clean.shape[0]), "sphere_pixels": int(sphere.sum())}
+    if sample.scene.error is not None:
+        raise SampleFailed(f"its scene cannot be used: {sample.scene.error}")
     try:
+        clean, sphere = render_clean(sample)
+        if not np.all(np.isfinite(clean)):
+            raise SampleFailed(f"the rendering holds {int(np.sum(~np.isfinite(clean)))} NaN or infinite value(s)")
+        observed = sample.group.sensor.apply(clean, noise_rng(spec, sample))
+        files = sample_files(sample)
+        sidecar = {"format": SIDECAR_FORMAT, "version": FORMAT_VERSION, **describe(spec, sample)}
+        sidecar["image"] = {
+            "width": int(clean.shape[1]),
+            "height": int(clean.shape[0]),
+            "sphere_pixels": int(sphere.sum()),
+        }
+        contents: dict[str, bytes] = {}
         if "exr" in files:
-            write_exr(output / files["exr"], observed, force=True)
+            contents[files["exr"]] = exr_bytes(observed)
         if "png" in files:
             codes, clipped = encode_ldr(observed)
-            write_codes(output / files["png"], codes, force=True)
-            write_mask(output / files["clip_mask"], clipped, force=True)
+            contents[files["png"]] = codes_bytes(codes)
+            contents[files["clip_mask"]] = mask_bytes(clipped)
             sidecar["image"]["clipped_pixels"] = int(clipped.sum())
         sidecar["files"] = {k: v for k, v in files.items() if k != "sidecar"}
-        write_json(output / files["sidecar"], sidecar, force=True)
-        checksums = {name: sha256(output / name) for name in files.values()}
-    except OSError as exc:
-        raise _WriteFailed(exc.strerror or str(exc)) from None
-    except ImageError as exc:
+        contents[files["sidecar"]] = (json.dumps(sidecar, indent=2, allow_nan=False) + "\n").encode("utf-8")
+    except SampleFailed:
+        raise
+    except (StraussFitError, ValueError) as exc:  # a value the sample cannot hold (NaN in a sidecar, ...)
+        raise SampleFailed(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    try:
+        with Outputs(force=True) as out:  # all files of the sample, or none
+            for name, data in contents.items():
+                out.add_bytes(output / name, data)
+            out.commit()
+    except WriteError as exc:
         raise _WriteFailed(str(exc)) from None
     return {
         "id": sample.id,
@@ -137,8 +173,20 @@ def write_sample(spec: DatasetSpec, sample: SamplePlan, output: Path) -> dict[st
         "scene": sample.scene.name,
         "parameters": sample.parameters,
         "files": files,
-        "sha256": checksums,
+        "sha256": {name: sha256_bytes(data) for name, data in contents.items()},
     }
+
+
+def unusable_scenes(spec: DatasetSpec) -> list[tuple[str, str, int]]:
+    """The scenes whose samples will fail: (group, error, number of samples)."""
+    samples = plan_samples(spec)
+    out = []
+    for group in spec.groups:
+        for ref in group.scenes:
+            if ref.error is not None:
+                count = sum(1 for s in samples if s.group is group and s.scene is ref)
+                out.append((group.name, ref.error, count))
+    return out
 
 
 def _is_intact(entry: dict[str, Any], output: Path) -> bool:
@@ -205,7 +253,8 @@ def generate(
     An existing non-empty folder is refused unless ``resume`` (continue the same dataset:
     same spec, same seed) or ``force`` (replace it: the files of the old index are removed,
     others are left alone). ``limit`` caps the number of samples written by this call.
-    ``progress`` is called after every sample. Returns a :class:`Report`; raises
+    ``progress`` is called after every sample. A sample that cannot be made is skipped and
+    listed in :attr:`Report.failed`. Returns a :class:`Report`; raises
     :class:`GenerationError` (one line, naming how many samples are complete) if a write
     fails, and lets ``KeyboardInterrupt`` through: in both cases the index lists exactly
     the complete samples.
@@ -222,8 +271,8 @@ def generate(
     def save() -> None:
         try:
             write_index(output, build_index(spec, digest, order, entries))
-        except OSError as exc:
-            raise _WriteFailed(exc.strerror or str(exc)) from None
+        except (OSError, WriteError) as exc:
+            raise _WriteFailed(str(exc) if isinstance(exc, WriteError) else (exc.strerror or str(exc))) from None
 
     for sample in samples:  # keep what is intact, forget what is not
         entry = kept.get(sample.id)
@@ -231,6 +280,7 @@ def generate(
             entries[sample.id] = entry
     skipped = len(entries)
     written = 0
+    failed: list[tuple[str, str]] = []
     try:
         save()
         for sample in samples:
@@ -239,7 +289,13 @@ def generate(
             if limit is not None and written >= limit:
                 break
             start = time.perf_counter()
-            entries[sample.id] = write_sample(spec, sample, output)
+            try:
+                entries[sample.id] = write_sample(spec, sample, output)
+            except SampleFailed as exc:  # one bad sample never stops the others
+                failed.append((sample.id, str(exc)))
+                if progress:
+                    progress(Progress(len(entries), len(samples), sample.id, time.perf_counter() - start, str(exc)))
+                continue
             save()
             written += 1
             if progress:
@@ -249,7 +305,7 @@ def generate(
             f"writing {output} failed ({exc}); {_complete(output)} of {len(samples)} samples are complete "
             f"and listed in {output / INDEX_NAME}; rerun with --resume"
         ) from None
-    return Report(output, len(samples), len(entries), written, skipped)
+    return Report(output, len(samples), len(entries), written, skipped, tuple(failed))
 
 
 def _complete(output: Path) -> int:

@@ -1,4 +1,4 @@
-"""The dataset spec: a TOML file saying what to render (see README.md, "Synthetic datasets").
+"""The dataset spec: a TOML file saying what to render (see docs/datasets.md and docs/formats.md).
 
 .. code-block:: toml
 
@@ -29,8 +29,10 @@
 Every sample of a group is one parameter set rendered in one scene: the group has
 (number of parameter sets) × (number of scenes) samples, each parameter set rendered in
 every scene. Loading is strict: unknown keys, wrong types and values outside a model's
-ranges are one-line :class:`~data_synth.params.SpecError` messages naming the file, the
-group and the key.
+ranges, a scene file that is missing or not TOML, are one-line
+:class:`~data_synth.params.SpecError` messages naming the file, the group and the key. A
+scene file that is TOML but not a usable scene (see :class:`SceneRef`) fails only its own
+samples.
 """
 
 from __future__ import annotations
@@ -59,13 +61,17 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 class SceneRef:
     """A scene of a group: ``file`` as written in the spec, ``definition`` the scene's TOML
     mapping as rendered (camera size and depth overrides applied, ``[material]`` removed:
-    the sample's parameters replace it), ``scene`` the parsed :class:`Scene`."""
+    the sample's parameters replace it), ``scene`` the parsed :class:`Scene`, or None and
+    ``error`` the one-line reason when the file is valid TOML but not a usable scene (an
+    environment map holding NaN, a value out of range): its samples are reported as failed
+    and the rest of the dataset is produced."""
 
     name: str
     file: str
     path: Path
     definition: dict[str, Any]
-    scene: Scene = field(repr=False, compare=False)
+    scene: Scene | None = field(repr=False, compare=False)
+    error: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -140,8 +146,8 @@ def _load_scene(w: _Where, file: Any, base_dir: Path, size: list[int] | None, de
             render["depth"] = depth
     try:
         scene = parse_scene(copy.deepcopy(definition), source=str(path), base_dir=path.parent)
-    except StraussFitError as exc:
-        raise SpecError(str(exc)) from None
+    except StraussFitError as exc:  # a bad item of the batch, not a broken spec
+        return SceneRef(path.stem, file, path, definition, None, str(exc))
     return SceneRef(path.stem, file, path, definition, scene)
 
 

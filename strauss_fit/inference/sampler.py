@@ -33,15 +33,31 @@ Storage: emcee's own HDF5 layout (group ``mcmc``: ``chain`` (S, W, P), ``log_pro
 ``accepted`` (W,), the random state) — load it with
 ``emcee.backends.HDFBackend(path, read_only=True)`` or h5py — plus a group ``strauss_fit``
 holding what is needed to resume and report (labels, prior, σ, the fit, the target's
-digest). Steps are buffered in memory and written at least every
-:data:`FLUSH_SECONDS` seconds and at every check (emcee's backend opens the file for every
-step, which costs more than a step itself); Ctrl-C writes every step sampled so far before
-the interrupt propagates. Resuming restores the last walkers, log-probabilities and the
-random state, so an interrupted-and-resumed chain equals an uninterrupted one.
+digest).
+
+Writing the chain safely. HDF5 cannot survive a full disk: a failed write inside it can
+crash the process (a segmentation fault in h5py's clean-up) and leave a file that no
+longer opens. So HDF5 never writes to the disk here: the chain file is held in memory
+(:class:`BufferedHDFBackend`; h5py writes into a ``BytesIO``), and
+:meth:`BufferedHDFBackend.persist` writes the whole file image to a temporary file, every
+write and the ``fsync`` checked, and renames it over the chain
+(:class:`strauss_fit.io.files.Outputs`). A failed write (a full disk) removes the temporary
+and leaves the chain on disk exactly as it was after the previous write; ``--resume`` reads
+it once there is space again. The file is written at least every :data:`FLUSH_SECONDS`
+seconds — less often when one write costs more than a tenth of that time
+(:data:`PERSIST_SHARE`), as for long chains — at every check when that is due, and at the
+end; Ctrl-C writes every step sampled so far before the interrupt propagates. Resuming
+restores the last walkers, log-probabilities and the random state, so an
+interrupted-and-resumed chain equals an uninterrupted one.
+
+Reading a chain (:func:`load_chain`) checks what it reads: metadata with every key a
+report or a resume needs, as many rows as the iteration count says, finite samples; a
+damaged file is a one-line :class:`ChainError`.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import signal
@@ -61,7 +77,7 @@ from ..errors import StraussFitError
 from ..fit.api import fit as run_fit
 from ..fit.options import DEFAULT_QUALITY, FitOptions, quality_preset
 from ..fit.result import FitResult
-from ..io.files import check_writable, read_json, write_json
+from ..io.files import Outputs, WriteError, check_writable, read_json
 from ..io.targets import load_target, match_scene
 from ..precision import uses_float64
 from ..scene.loading import load_scene
@@ -81,8 +97,12 @@ from .summaries import summarise_chain
 CHECK_EVERY = 100
 #: Relative change of max τ̂ between checks below which the estimate counts as stable.
 TAU_STABILITY = 0.05
-#: Buffered steps are written to the file at least this often (seconds).
+#: The chain file is written at least this often (seconds) while sampling ...
 FLUSH_SECONDS = 2.0
+#: ... or less often, so that writing it takes at most this share of the time.
+PERSIST_SHARE = 0.1
+#: Steps per HDF5 chunk of the chain and log-probability datasets.
+CHUNK_STEPS = 64
 DEFAULT_MIN_TAU_MULTIPLE = 50.0
 #: Trustworthiness thresholds (see the module docstring).
 MIN_ESS = 100.0
@@ -108,15 +128,85 @@ def default_walkers(ndim: int) -> int:
 
 
 class BufferedHDFBackend(emcee.backends.HDFBackend):
-    """emcee's HDF5 backend, same file layout, but steps are kept in memory until
-    :meth:`flush` writes them in one go."""
+    """emcee's HDF5 backend, same file layout, but the HDF5 file lives in memory: steps are
+    buffered until :meth:`flush` adds them to the in-memory file, and only :meth:`persist`
+    writes the file to ``filename`` (atomically, every write checked; see the module
+    docstring). ``image`` is the bytes of an existing chain file (to resume it)."""
 
-    def __init__(self, filename: str | Path, **kwargs: Any):
+    def __init__(self, filename: str | Path, image: bytes | None = None, **kwargs: Any):
         super().__init__(str(filename), name=CHAIN_GROUP, **kwargs)
+        self._image = io.BytesIO(image or b"")
         self._coords: list[np.ndarray] = []
         self._log_prob: list[np.ndarray] = []
         self._accepted: np.ndarray | None = None
         self._random_state: Any = None
+        self.persisted_steps = 0 if image is None else self._stored_iteration()
+        self.persist_seconds = 0.0
+        self.last_persist = time.perf_counter()
+        self.replaces: list[Path] = []
+
+    @classmethod
+    def load(cls, filename: str | Path) -> BufferedHDFBackend:
+        """The chain file ``filename``, read into memory."""
+        try:
+            image = Path(filename).read_bytes()
+        except OSError as exc:
+            raise ChainError(f"cannot read chain file {filename}: {exc.strerror or exc}") from None
+        return cls(filename, image)
+
+    def _stored_iteration(self) -> int:
+        try:
+            with self.open() as f:
+                return int(f[self.name].attrs["iteration"]) if self.name in f else 0
+        except (OSError, KeyError, ValueError):
+            return 0
+
+    @property
+    def initialized(self) -> bool:  # noqa: D102 (emcee's API)
+        if self._image.getbuffer().nbytes == 0:
+            return False
+        try:
+            with self.open() as f:
+                return self.name in f
+        except OSError:
+            return False
+
+    def open(self, mode: str = "r"):  # noqa: D102 (emcee's API)
+        if self.read_only and mode != "r":
+            raise RuntimeError("The backend has been loaded in read-only mode.")
+        if mode != "r" and self._image.getbuffer().nbytes == 0:
+            mode = "w"  # a new file
+        f = h5py.File(self._image, mode)
+        if not self.dtype_set and self.name in f:
+            g = f[self.name]
+            if "chain" in g:
+                self.dtype = g["chain"].dtype
+                self.dtype_set = True
+        return f
+
+    def reset(self, nwalkers, ndim):  # noqa: D102 (emcee's API)
+        """emcee's layout, with chunks of :data:`CHUNK_STEPS` whole steps (h5py's automatic
+        chunks split the walkers and made a chain of a few steps weigh 200 KB)."""
+        with self.open("a") as f:
+            if self.name in f:
+                del f[self.name]
+            g = f.create_group(self.name)
+            g.attrs["version"] = emcee.__version__
+            g.attrs["nwalkers"] = nwalkers
+            g.attrs["ndim"] = ndim
+            g.attrs["has_blobs"] = False
+            g.attrs["iteration"] = 0
+            g.create_dataset("accepted", data=np.zeros(nwalkers))
+            g.create_dataset(
+                "chain",
+                (0, nwalkers, ndim),
+                maxshape=(None, nwalkers, ndim),
+                dtype=self.dtype,
+                chunks=(CHUNK_STEPS, nwalkers, ndim),
+            )
+            g.create_dataset(
+                "log_prob", (0, nwalkers), maxshape=(None, nwalkers), dtype=self.dtype, chunks=(CHUNK_STEPS, nwalkers)
+            )
 
     def save_step(self, state, accepted):  # noqa: D102 (emcee's API)
         self._coords.append(np.array(state.coords, dtype=np.float64))
@@ -127,14 +217,13 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
     def pending(self) -> int:
         return len(self._coords)
 
-    def grow(self, ngrow, blobs):  # noqa: D102
+    def grow(self, ngrow, blobs):  # noqa: D102 - rows are added as they are flushed, never reserved
         self.flush()
-        super().grow(ngrow, blobs)
 
     def flush(self, trim: bool = False) -> None:
-        """Write the buffered steps; with ``trim``, also drop the unused rows emcee
-        reserved, so that plain h5py readers see exactly the sampled steps."""
-        if not self._coords and not trim:
+        """Add the buffered steps to the in-memory file (its datasets hold exactly the
+        sampled steps: no rows are reserved ahead). ``trim`` is kept for compatibility."""
+        if not self._coords:
             return
         with self.open("a") as f:
             if self.name not in f:  # nothing was ever started in this file
@@ -142,20 +231,52 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
             g = f[self.name]
             start = int(g.attrs["iteration"])
             k = len(self._coords)
-            if k:
-                if g["chain"].shape[0] < start + k:
-                    g["chain"].resize(start + k, axis=0)
-                    g["log_prob"].resize(start + k, axis=0)
-                g["chain"][start : start + k] = np.stack(self._coords)
-                g["log_prob"][start : start + k] = np.stack(self._log_prob)
-                g["accepted"][:] += self._accepted
-                for i, v in enumerate(self._random_state):
-                    g.attrs[f"random_state_{i}"] = v
-                g.attrs["iteration"] = start + k
-            if trim:
-                g["chain"].resize(start + k, axis=0)
-                g["log_prob"].resize(start + k, axis=0)
+            g["chain"].resize(start + k, axis=0)
+            g["log_prob"].resize(start + k, axis=0)
+            g["chain"][start : start + k] = np.stack(self._coords)
+            g["log_prob"][start : start + k] = np.stack(self._log_prob)
+            g["accepted"][:] += self._accepted
+            for i, v in enumerate(self._random_state):
+                g.attrs[f"random_state_{i}"] = v
+            g.attrs["iteration"] = start + k
         self._coords, self._log_prob, self._accepted = [], [], None
+
+    def write_metadata(self, meta: dict[str, Any]) -> None:
+        """Create or replace the ``strauss_fit`` group of the in-memory file."""
+        with self.open("a") as f:
+            _write_metadata_group(f, meta)
+
+    def persist_due(self) -> bool:
+        """Whether the file is due to be written (see :data:`FLUSH_SECONDS`)."""
+        interval = max(FLUSH_SECONDS, self.persist_seconds / PERSIST_SHARE)
+        return time.perf_counter() - self.last_persist >= interval
+
+    def persist(self) -> None:
+        """Flush, then write the whole file to ``filename``: a temporary file, every write
+        and the fsync checked, renamed over the chain. A failure (a full disk) leaves the
+        chain on disk as it was and raises a :class:`ChainError` saying how many steps it
+        keeps."""
+        self.flush()
+        steps = self._stored_iteration()
+        started = time.perf_counter()
+        try:
+            with Outputs(force=True) as out:
+                out.add_bytes(self.filename, self._image.getbuffer())
+                out.commit()
+        except WriteError as exc:
+            kept = (
+                f"{self.filename} keeps the {self.persisted_steps} steps written before "
+                "(free some space and continue with --resume)"
+                if self.persisted_steps
+                else "no chain was written (free some space and start again)"
+            )
+            raise ChainError(f"{exc}; {kept}") from None
+        self.persisted_steps = steps
+        self.persist_seconds = time.perf_counter() - started
+        self.last_persist = time.perf_counter()
+        for stale in self.replaces:  # files that belonged to the chain just replaced
+            Path(stale).unlink(missing_ok=True)
+        self.replaces = []
 
 
 # --- diagnostics ---------------------------------------------------------------------------
@@ -305,9 +426,57 @@ def _check_file(path: Path) -> None:
         raise ChainError(f"cannot read chain file {path}: not an HDF5 file (corrupt, or not a chain)")
 
 
-def read_metadata(path: str | Path) -> dict[str, Any]:
+#: Metadata keys every chain of :func:`sample` holds, and what each must be.
+REQUIRED_METADATA = {
+    "labels": "a list of parameter names",
+    "fit": "the fit result it started from",
+    "sigma": "the noise level, a number > 0",
+    "prior": "the prior box, {label: [low, high]}",
+}
+
+
+def _check_metadata(path: Path, meta: Any, required: bool) -> dict[str, Any]:
+    """One-line errors for metadata that a report or a resume cannot use."""
+
+    def damaged(what: str) -> ChainError:
+        return ChainError(f"chain file {path}: its strauss-fit metadata is damaged ({what})")
+
+    if not isinstance(meta, dict):
+        raise damaged("not a JSON object")
+    labels = meta.get("labels")
+    if "labels" in meta or required:
+        if not isinstance(labels, list) or not labels or not all(isinstance(x, str) for x in labels):
+            raise damaged(f"'labels' must be {REQUIRED_METADATA['labels']}")
+    if not required:
+        return meta
+    missing = [key for key in REQUIRED_METADATA if key not in meta]
+    if missing:
+        raise damaged(f"no {', '.join(repr(k) for k in missing)}: {REQUIRED_METADATA[missing[0]]}")
+    if not isinstance(meta["fit"], dict):
+        raise damaged("'fit' is not a fit result")
+    sigma = meta["sigma"]
+    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not math.isfinite(sigma) or sigma <= 0:
+        raise damaged(f"'sigma' must be a finite number > 0, got {sigma!r}")
+    prior = meta["prior"]
+    for label in labels:
+        bounds = prior.get(label) if isinstance(prior, dict) else None
+        if (
+            not isinstance(bounds, list)
+            or len(bounds) != 2
+            or not all(isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) for b in bounds)
+            or not bounds[0] < bounds[1]
+        ):
+            raise damaged(f"the prior of {label} must be [low, high] with low < high, got {bounds!r}")
+    for key in ("target", "scene", "target_sha256"):
+        if key in meta and not isinstance(meta[key], str):
+            raise damaged(f"'{key}' must be a string")
+    return meta
+
+
+def read_metadata(path: str | Path, *, required: bool = True) -> dict[str, Any]:
     """The ``strauss_fit`` group's metadata of a chain file (one-line errors for a missing,
-    corrupt or foreign file)."""
+    corrupt or foreign file, or metadata lacking what a report or a resume needs; with
+    ``required=False`` only the file's identity and the labels are checked)."""
     path = Path(path)
     _check_file(path)
     try:
@@ -331,18 +500,24 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
         raise ChainError(
             f"cannot read chain file {path}: its strauss-fit metadata is damaged ({type(exc).__name__})"
         ) from None
-    return meta
+    return _check_metadata(path, meta, required)
+
+
+def _write_metadata_group(f: h5py.File, meta: dict[str, Any]) -> None:
+    if META_GROUP in f:
+        del f[META_GROUP]
+    g = f.create_group(META_GROUP)
+    g.attrs["format"] = FORMAT
+    g.attrs["format_version"] = FORMAT_VERSION
+    g.attrs["metadata"] = json.dumps(meta, allow_nan=False)
 
 
 def write_metadata(path: str | Path, meta: dict[str, Any]) -> None:
-    """Create or replace the ``strauss_fit`` group (the emcee group is left alone)."""
-    with h5py.File(path, "a") as f:
-        if META_GROUP in f:
-            del f[META_GROUP]
-        g = f.create_group(META_GROUP)
-        g.attrs["format"] = FORMAT
-        g.attrs["format_version"] = FORMAT_VERSION
-        g.attrs["metadata"] = json.dumps(meta, allow_nan=False)
+    """Create or replace the ``strauss_fit`` group of the chain file ``path`` (the emcee
+    group is left alone), atomically (the file is rewritten, see the module docstring)."""
+    backend = BufferedHDFBackend.load(path) if Path(path).exists() else BufferedHDFBackend(path)
+    backend.write_metadata(meta)
+    backend.persist()
 
 
 @dataclass
@@ -375,28 +550,49 @@ class Chain:
         return self.chain[discard:].reshape(-1, self.chain.shape[-1])
 
 
-def load_chain(path: str | Path) -> Chain:
-    """Read a chain file written by :func:`run_sampler` (one-line errors otherwise)."""
-    meta = read_metadata(path)
+def load_chain(path: str | Path, *, required: bool = False) -> Chain:
+    """Read a chain file written by :func:`run_sampler` (one-line errors otherwise: see
+    :func:`read_metadata`, whose ``required`` says whether the metadata must hold what a
+    report or a resume needs; the samples must be as many as the iteration count says,
+    and finite)."""
+    meta = read_metadata(path, required=required)
     try:
-        backend = emcee.backends.HDFBackend(str(path), name=CHAIN_GROUP, read_only=True)
-        iteration = backend.iteration
-        if iteration <= 0:
-            raise ChainError(f"chain file {path} holds no steps yet")
-        chain = backend.get_chain()
-        log_prob = backend.get_log_prob()
-        accepted = np.asarray(backend.accepted)
+        with h5py.File(path, "r") as f:
+            g = f[CHAIN_GROUP]
+            iteration = int(g.attrs["iteration"])
+            rows, chain_rows = g["chain"].shape[0], g["log_prob"].shape[0]
+            if iteration <= 0:
+                raise ChainError(f"chain file {path} holds no steps yet")
+            if iteration > min(rows, chain_rows):
+                raise ChainError(
+                    f"chain file {path} is damaged: it says {iteration} steps but holds {min(rows, chain_rows)}"
+                )
+            chain = np.asarray(g["chain"][:iteration], dtype=np.float64)
+            log_prob = np.asarray(g["log_prob"][:iteration], dtype=np.float64)
+            accepted = np.asarray(g["accepted"][...])
     except ChainError:
         raise
-    except (OSError, KeyError, ValueError, AttributeError) as exc:
+    except (OSError, KeyError, ValueError, AttributeError, TypeError) as exc:
         raise ChainError(
             f"cannot read the samples in {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
         ) from None
+    if chain.ndim != 3 or log_prob.shape != chain.shape[:2] or accepted.shape != chain.shape[1:2]:
+        raise ChainError(
+            f"chain file {path} is damaged: its datasets' shapes disagree "
+            f"(chain {chain.shape}, log_prob {log_prob.shape}, accepted {accepted.shape})"
+        )
     if chain.shape[-1] != len(meta.get("labels", [])):
         raise ChainError(
             f"chain file {path} is inconsistent: {chain.shape[-1]} parameters but {len(meta.get('labels', []))} labels"
         )
-    return Chain(str(path), np.asarray(chain, dtype=np.float64), np.asarray(log_prob, dtype=np.float64), accepted, meta)
+    bad = int(np.sum(~np.isfinite(chain)))
+    if bad:
+        raise ChainError(f"chain file {path} is damaged: {bad} of its sample values are NaN or infinite")
+    if np.any(np.isnan(log_prob)):
+        raise ChainError(f"chain file {path} is damaged: some of its log-probabilities are NaN")
+    if not np.all(np.isfinite(accepted)) or np.any(accepted < 0) or np.any(accepted > iteration):
+        raise ChainError(f"chain file {path} is damaged: its acceptance counts are not between 0 and {iteration}")
+    return Chain(str(path), chain, log_prob, accepted.astype(np.float64), meta)
 
 
 # --- running ---------------------------------------------------------------------------------
@@ -491,26 +687,34 @@ def run_sampler(
     metadata: dict[str, Any] | None = None,
     resume: bool = False,
     progress: Callable[[Progress], None] | None = None,
+    replaces: tuple[str | Path, ...] = (),
 ) -> SampleRun:
     """Sample until the stopping rule of the module docstring holds.
 
     New chain: ``start`` (W, P) are the walkers' starting points and ``metadata`` (labels,
-    prior, σ, ...) is written to the file's ``strauss_fit`` group; an existing file must
-    have been removed by the caller. ``resume``: continue the chain in ``path`` from its
-    last state (``start`` is ignored). ``path=None`` keeps the chain in memory (tests,
-    benchmarks). A KeyboardInterrupt is re-raised after every step so far is written.
+    prior, σ, ...) is written to the file's ``strauss_fit`` group; an existing file is
+    replaced when the first steps are written. ``resume``: continue the chain in ``path``
+    from its last state (``start`` is ignored). ``path=None`` keeps the chain in memory
+    (tests, benchmarks). A KeyboardInterrupt is re-raised after every step so far is
+    written; a failed write (a full disk) is a :class:`ChainError` and leaves the file as
+    the previous write left it.
     """
     started = time.perf_counter()
     ndim = log_posterior.prior.lower.size
     if path is None:
         backend: emcee.backends.Backend = emcee.backends.Backend()
+    elif resume:
+        backend = BufferedHDFBackend.load(path)
     else:
         backend = BufferedHDFBackend(path)
+        backend.replaces = [Path(p) for p in replaces]
     if resume:
         try:
             steps_stored = 0 if path is None or not backend.initialized else int(backend.iteration)
             walkers, file_ndim = backend.shape if steps_stored else (0, 0)
-        except (OSError, KeyError, ValueError) as exc:
+            if steps_stored and backend.random_state is None:
+                raise KeyError("random_state")
+        except (OSError, KeyError, ValueError, TypeError) as exc:
             raise ChainError(f"cannot resume from {path}: its samples are damaged ({type(exc).__name__})") from None
         if steps_stored <= 0:
             raise ChainError(f"cannot resume: {path} holds no steps")
@@ -525,13 +729,15 @@ def run_sampler(
                 f"the number of walkers must be even and at least twice the number of "
                 f"parameters ({2 * ndim}); got {walkers}"
             )
-        if path is not None:
-            write_metadata(
-                path,
-                dict(
-                    metadata or {}, labels=list(log_posterior.prior.labels), min_tau_multiple=settings.min_tau_multiple
-                ),
-            )
+    meta: dict[str, Any] | None = None
+    if path is not None:
+        meta = (
+            read_metadata(path, required=False)
+            if resume
+            else dict(metadata or {}, labels=list(log_posterior.prior.labels))
+        )
+        meta["min_tau_multiple"] = settings.min_tau_multiple
+        backend.write_metadata(meta)  # in memory; on disk at the first write
     sampler = emcee.EnsembleSampler(walkers, ndim, log_posterior, vectorize=True, backend=backend)
     if resume:
         state = backend.get_last_sample()
@@ -543,12 +749,12 @@ def run_sampler(
     sampling = 0.0
     new_steps = 0
     check = max(int(settings.check_every), 1)
+    write_failed = False
     try:
         with deferred_interrupt() as interrupted:
             while done < settings.max_steps:
                 chunk = min(check - done % check, settings.max_steps - done)
                 t0 = time.perf_counter()
-                last_flush = t0
                 # the state after the last step starts the next chunk
                 for state in sampler.sample(  # noqa: B007, B020
                     state, iterations=chunk, store=True, skip_initial_state_check=True
@@ -557,12 +763,15 @@ def run_sampler(
                     new_steps += 1
                     if interrupted():
                         raise KeyboardInterrupt
-                    if path is not None and time.perf_counter() - last_flush > FLUSH_SECONDS:
-                        backend.flush()
-                        last_flush = time.perf_counter()
+                    if path is not None and backend.persist_due():
+                        sampling += time.perf_counter() - t0
+                        backend.persist()
+                        t0 = time.perf_counter()
                 sampling += time.perf_counter() - t0
                 if path is not None:
                     backend.flush()
+                    if backend.persist_due():
+                        backend.persist()
                 tau = autocorrelation_times(backend.get_chain())
                 tau_max = float(np.max(tau))
                 stable = tau_previous is not None and abs(tau_max - tau_previous) < TAU_STABILITY * tau_max
@@ -582,14 +791,15 @@ def run_sampler(
                 if done >= settings.min_tau_multiple * tau_max and stable:
                     stopped = "converged"
                     break
+    except ChainError:
+        write_failed = True
+        raise
     finally:
-        if path is not None:
-            backend.flush(trim=True)
+        # every step sampled is written, on Ctrl-C too (not after a failed write: the
+        # chain on disk stays as the last successful write left it)
+        if path is not None and not write_failed and (new_steps or resume):
+            backend.persist()
     chain, log_prob = backend.get_chain(), backend.get_log_prob()
-    if path is not None:
-        meta = read_metadata(path)
-        meta["min_tau_multiple"] = settings.min_tau_multiple
-        write_metadata(path, meta)
     diagnostics = diagnose(
         chain, log_prob, np.asarray(backend.accepted), list(log_posterior.prior.labels), settings.min_tau_multiple
     )
@@ -637,7 +847,7 @@ class SamplingInterrupted(KeyboardInterrupt):
 def stored_steps(path: str | Path) -> int:
     """How many steps the chain file ``path`` holds (0 if it holds none or cannot be read)."""
     try:
-        return len(load_chain(path).chain)
+        return len(load_chain(path, required=False).chain)
     except StraussFitError:
         return 0
 
@@ -687,7 +897,8 @@ def sample(
         raise ChainError(f"the chain file needs an extension other than .json (the summary goes to {summary_path})")
     meta: dict[str, Any] = {}
     if resume:
-        meta = read_metadata(out)
+        existing = load_chain(out, required=True)  # a damaged chain is refused before any work
+        meta = existing.meta
         check_writable(summary_path, True)
     else:
         check_writable(out, force)
@@ -715,7 +926,7 @@ def sample(
         )
         start = None
         log_posterior = LogPosterior(problem, prior, sigma)
-        log(f"resuming {out} at step {len(load_chain(out).chain)}")
+        log(f"resuming {out} at step {len(existing.chain)}")
     else:
         if fit is None:
             result = run_fit(loaded_scene, loaded_target, fit_options or FitOptions.preset(quality), progress=log)
@@ -759,15 +970,21 @@ def sample(
             "pixels_used": int(problem.target.shape[0]),
             "quality": quality,
         }
-        if out.exists():
-            out.unlink()  # force, checked above; only now that every input is valid
     try:
         run = run_sampler(
-            log_posterior, out, start=start, settings=settings, metadata=meta, resume=resume, progress=progress
+            log_posterior,
+            out,
+            start=start,
+            settings=settings,
+            metadata=meta,
+            resume=resume,
+            progress=progress,
+            # --force: the old summary goes when the new chain replaces the old one
+            replaces=() if resume else (summary_path,),
         )
     except KeyboardInterrupt:
         raise SamplingInterrupted(out, stored_steps(out)) from None
-    summary = summarise_chain(load_chain(out))
+    summary = summarise_chain(load_chain(out, required=True))
     summary["run"] = {
         "stopped": run.stopped,
         "new_steps": run.new_steps,
@@ -775,5 +992,7 @@ def sample(
         "sampling_s": run.sampling_s,
         "steps_per_s": run.steps_per_s,
     }
-    write_json(summary_path, summary, force=True)
+    with Outputs(force=True) as written:
+        written.add_json(summary_path, summary)
+        written.commit(final=True)
     return SampleResult(out, summary_path, summary, run)

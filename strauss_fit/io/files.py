@@ -1,20 +1,50 @@
 """Writing files safely, and reading JSON with one-line errors.
 
-Every write is atomic (a temporary file in the same folder, then a rename), and an existing
-file is never overwritten unless ``force`` is true. The image writer
-(:func:`strauss_fit.io.images.write_image`) goes through the same machinery.
+Every output goes through :class:`Outputs`: each file is first written in full to a
+temporary sibling (``.NAME.XXXXXXXX.tmp.EXT`` in the same folder), every write and the
+final ``fsync`` checked, and only :meth:`Outputs.commit` renames the temporaries into
+place, all of them together. Until then no output exists or is changed; if anything fails
+before the commit — a full disk, a bad value, Ctrl-C — every temporary is removed and
+the error names the file (``cannot write out.png: No space left on device``). An
+existing file is never overwritten unless ``force`` is true.
+
+Ctrl-C is honoured at the commit even when it was swallowed earlier (a
+``KeyboardInterrupt`` raised inside a callback that ignores exceptions, such as JAX's
+garbage-collection hook): a SIGINT handler that records the interrupt in a true
+``pending`` attribute (the command line installs one, :mod:`strauss_fit_cli.interrupts`)
+makes :func:`raise_if_interrupted` raise. The renames themselves run with SIGINT deferred,
+so an interrupt never leaves half of a command's outputs renamed.
+
+:func:`write_bytes`, :func:`write_text` and :func:`write_json` are one-file shorthands;
+the image writer (:func:`strauss_fit.io.images.write_image`) stages its encoded bytes the
+same way.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import signal
 import tempfile
-from collections.abc import Callable
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from ..errors import ImageError, OutputExistsError, StraussFitError
+
+
+class WriteError(StraussFitError):
+    """An output could not be written (a full disk, a vanished folder, no permission)."""
+
+
+def os_error_message(exc: OSError, path: str | Path | None = None) -> str:
+    """``cannot write PATH: REASON`` for an OSError met while writing ``path``."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    where = path if path is not None else exc.filename
+    return f"cannot write {where}: {reason}" if where is not None else f"cannot write: {reason}"
 
 
 def check_writable(path: str | Path, force: bool) -> Path:
@@ -32,35 +62,203 @@ def check_writable(path: str | Path, force: bool) -> Path:
     return path
 
 
-def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
-    """Call ``write(tmp_path)`` on a temporary sibling of ``path``, then rename it over
-    ``path``; the temporary file is removed if anything fails."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent or ".")
-    os.close(fd)
+def check_distinct(paths: dict[str, str | Path | None]) -> None:
+    """Refuse two outputs of one command that name the same file (``{"-o": ..., "--mask":
+    ...}``; None entries are skipped): the second would overwrite the first."""
+    seen: dict[str, str] = {}
+    for option, path in paths.items():
+        if path is None:
+            continue
+        key = os.path.normcase(os.path.abspath(os.fspath(path)))
+        if key in seen:
+            raise StraussFitError(f"{seen[key]} and {option} name the same file {path}: give two different names")
+        seen[key] = option
+
+
+# --- interrupts -------------------------------------------------------------------------------
+
+
+def interrupt_pending() -> bool:
+    """Whether the current SIGINT handler recorded an interrupt (see the module docstring)."""
     try:
-        write(Path(tmp))
-        # mkstemp creates the file owner-only; give the result the usual umask permissions
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        handler = signal.getsignal(signal.SIGINT)
+    except (ValueError, OSError):  # pragma: no cover - no signals on this platform
+        return False
+    return bool(getattr(handler, "pending", False))
+
+
+def raise_if_interrupted() -> None:
+    """Raise KeyboardInterrupt if an interrupt was recorded but not acted on."""
+    if interrupt_pending():
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def deferred_sigint(final: bool = False) -> Iterator[None]:
+    """Run the block with SIGINT deferred: an interrupt during it is raised at its end (in
+    the main thread; elsewhere a no-op). With ``final`` (the block finishes the command's
+    work), it is not raised, and a handler that has an ``armed`` attribute (the command
+    line's) is disarmed and marked ``finished``: the command is complete and exits as if
+    Ctrl-C had come a moment later."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.getsignal(signal.SIGINT)
+
+    def record(signum, frame):
+        received.append(signum)
+        if hasattr(previous, "pending") and not final:
+            previous.pending = True
+
+    signal.signal(signal.SIGINT, record)
+    try:
+        yield
+        if final and hasattr(previous, "armed"):
+            previous.armed = False
+            previous.finished = True
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if received and not final:
+        raise KeyboardInterrupt
+
+
+# --- writing ----------------------------------------------------------------------------------
+
+
+def _write_file(path: Path, data: bytes | memoryview) -> None:
+    """Write ``data`` to the new file ``path`` and fsync it; every step checked (this is the
+    one function through which every output's bytes reach the disk)."""
+    with open(path, "wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make the renames in ``folder`` durable (best effort: not every system allows it)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+class Outputs:
+    """Outputs written together: :meth:`add` writes each to a temporary sibling at once,
+    :meth:`commit` renames them all into place; leaving the ``with`` block by an exception
+    (or without a commit) removes every temporary and touches no output.
+
+    .. code-block:: python
+
+        with Outputs(force=args.force) as out:
+            out.add_json("result.json", payload)
+            out.add_bytes("fit.png", png)
+            out.commit()
+    """
+
+    def __init__(self, *, force: bool = False):
+        self.force = force
+        self._staged: list[tuple[Path, Path]] = []
+        self.committed: list[Path] = []
+
+    def __enter__(self) -> Outputs:
+        return self
+
+    def __exit__(self, *exc_info: Any) -> None:
+        self.discard()
+
+    def add_bytes(self, path: str | Path, data: bytes | memoryview) -> Path:
+        """Write ``data`` to a temporary sibling of ``path`` (renamed at :meth:`commit`)."""
+        path = check_writable(path, self.force)
+        if any(final == path for _, final in self._staged):
+            raise StraussFitError(f"{path} is written twice by one command")
+        folder = path.parent if str(path.parent) else Path(".")
+        try:
+            fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=folder)
+        except OSError as exc:
+            raise WriteError(os_error_message(exc, path)) from None
+        os.close(fd)
+        tmp = Path(name)
+        try:
+            _write_file(tmp, data)
+        except BaseException as exc:
+            tmp.unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise WriteError(os_error_message(exc, path)) from None
+            raise
+        self._staged.append((tmp, path))
+        return path
+
+    def add_text(self, path: str | Path, text: str) -> Path:
+        return self.add_bytes(path, text.encode("utf-8"))
+
+    def add_json(self, path: str | Path, data: Any) -> Path:
+        """JSON, indented; NaN and infinity are refused (they are not JSON)."""
+        return self.add_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+    def add_image(self, path: str | Path, image: Any, *, encoding: str = "auto") -> Path:
+        """An image (see :func:`strauss_fit.io.images.encode_image`)."""
+        from .images import encode_image
+
+        path = check_writable(path, self.force)
+        return self.add_bytes(path, encode_image(image, path, encoding=encoding))
+
+    def commit(self, *, final: bool = False) -> list[Path]:
+        """Rename every temporary into place (SIGINT deferred meanwhile) and return the
+        outputs. An interrupt recorded before is raised first, and nothing is renamed; one
+        during the renames is raised after them, unless ``final`` says that these outputs
+        complete the command (see :func:`deferred_sigint`)."""
+        raise_if_interrupted()
+        mode = 0o666 & ~_umask()
+        folders = []
+        try:
+            with deferred_sigint(final):
+                while self._staged:
+                    tmp, final = self._staged[0]
+                    os.chmod(tmp, mode)  # mkstemp made it owner-only
+                    os.replace(tmp, final)
+                    self._staged.pop(0)
+                    self.committed.append(final)
+                    if final.parent not in folders:
+                        folders.append(final.parent)
+        except OSError as exc:
+            raise WriteError(os_error_message(exc, self._staged[0][1] if self._staged else None)) from None
+        for folder in folders:
+            _fsync_folder(folder if str(folder) else Path("."))
+        return list(self.committed)
+
+    def discard(self) -> None:
+        """Remove every temporary not yet committed."""
+        while self._staged:
+            tmp, _ = self._staged.pop()
+            try:
+                tmp.unlink(missing_ok=True)
+            except OSError:
+                pass
 
 
 def write_bytes(path: str | Path, data: bytes, *, force: bool = False) -> Path:
     """Write bytes (e.g. an encoded PNG) atomically (refusing to overwrite without ``force``)."""
-    path = check_writable(path, force)
-    write_atomic(path, lambda tmp: tmp.write_bytes(data))
-    return path
+    with Outputs(force=force) as out:
+        out.add_bytes(path, data)
+        return out.commit()[0]
 
 
 def write_text(path: str | Path, text: str, *, force: bool = False) -> Path:
     """Write a text file atomically (refusing to overwrite without ``force``)."""
-    path = check_writable(path, force)
-    write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-    return path
+    return write_bytes(path, text.encode("utf-8"), force=force)
 
 
 def write_json(path: str | Path, data: Any, *, force: bool = False) -> Path:
@@ -77,3 +275,8 @@ def read_json(path: str | Path, what: str = "JSON file") -> Any:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise StraussFitError(f"cannot read {what} {path}: {exc}") from None
+
+
+def no_space(path: str | Path) -> OSError:
+    """The OSError of a full disk for ``path`` (for tests and fault injection)."""
+    return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))

@@ -7,13 +7,23 @@
   pixels (any channel at the top code value) are reported as *clipped*: their true
   radiance is unknown, so fits ignore them.
 
-Every write is atomic and an existing file is never overwritten unless ``force`` is true
-(:mod:`strauss_fit.io.files`). Written images carry no timestamp, so the same pixels always
-give the same bytes (reproducible datasets).
+Reading goes by the file's real format, not its name (a PNG renamed ``.exr`` is still
+decoded from sRGB), and a damaged file is refused: a truncated JPEG, whose decoder fills
+the missing part with grey and only warns, is an error here.
+
+Writing encodes the image in memory first (an anonymous in-memory file on Linux: some
+image libraries end the whole process when the disk fills up under them) and then writes
+the bytes through :class:`strauss_fit.io.files.Outputs`: atomically, every write checked,
+and an existing file is never overwritten unless ``force`` is true. Written images carry
+no timestamp, so the same pixels always give the same bytes (reproducible datasets).
 """
 
 from __future__ import annotations
 
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -21,11 +31,12 @@ import numpy as np
 
 from ..color import srgb_decode, srgb_encode
 from ..errors import ImageError
-from . import files
-from .files import check_writable
+from .files import Outputs, check_writable
 
 HDR_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")
 LDR_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga")
+#: OpenImageIO format names whose integer pixels are sRGB-encoded (decoded from sRGB by default).
+LDR_FORMATS = ("png", "jpeg", "bmp", "targa", "gif", "webp", "ico", "pnm", "jpeg2000")
 Encoding = Literal["auto", "linear", "srgb"]
 
 
@@ -49,32 +60,46 @@ def default_encoding(path: str | Path) -> str:
     return "srgb" if Path(path).suffix.lower() in LDR_EXTENSIONS else "linear"
 
 
+def _first_line(text: str, fallback: str) -> str:
+    lines = [line.strip() for line in (text or "").strip().splitlines() if line.strip()]
+    return lines[0] if lines else fallback
+
+
 def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
     """Read any image OpenImageIO reads, as linear RGB.
 
-    ``encoding="auto"`` decodes LDR formats from sRGB and takes HDR formats as linear;
-    ``"linear"`` or ``"srgb"`` override that. Grey images are replicated to RGB; an alpha
-    channel is ignored.
+    ``encoding="auto"`` decodes LDR formats from sRGB and takes HDR formats as linear, by
+    the file's real format; ``"linear"`` or ``"srgb"`` override that. Grey images are
+    replicated to RGB; an alpha channel is ignored. A damaged or truncated file is an
+    :class:`~strauss_fit.errors.ImageError`.
     """
     path = Path(path)
     if not path.exists():
         raise ImageError(f"image not found: {path}")
     if path.is_dir():
         raise ImageError(f"image path is a directory: {path}")
+    if encoding not in ("auto", "linear", "srgb"):
+        raise ImageError(f"unknown encoding {encoding!r}; expected auto, linear or srgb")
     oiio = _oiio()
     image_input = oiio.ImageInput.open(str(path))
     if image_input is None:
-        detail = oiio.geterror().strip().splitlines()
-        raise ImageError(f"cannot read image {path}: {detail[0] if detail else 'unknown format'}")
+        detail = _first_line(oiio.geterror(), "unknown format")
+        raise ImageError(f"cannot read image {path}: {detail}")
     try:
         spec = image_input.spec()
+        if spec.width < 1 or spec.height < 1 or spec.nchannels < 1:
+            raise ImageError(f"cannot read image {path}: it holds no pixels")
         raw = image_input.read_image(0, 0, 0, spec.nchannels, "float")
-        if raw is None:
-            detail = image_input.geterror().strip().splitlines()
-            raise ImageError(f"cannot read image {path}: {detail[0] if detail else 'corrupt data'}")
+        # a decoder may fill a truncated file and only warn ("Premature end of JPEG file")
+        damaged = image_input.has_error
+        detail = image_input.geterror() if damaged or raw is None else ""
+        if raw is None or damaged:
+            raise ImageError(f"cannot read image {path}: {_first_line(detail, 'corrupt or truncated data')}")
         integer = spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
+        real_format = image_input.format_name()
     finally:
         image_input.close()
+        oiio.geterror()  # clear anything left pending
     pixels = np.asarray(raw, dtype=np.float64)
     if pixels.ndim == 2:
         pixels = pixels[..., None]
@@ -84,52 +109,94 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
     else:
         pixels = pixels[..., :3]
     if encoding == "auto":
-        encoding = default_encoding(path)
-    if encoding not in ("linear", "srgb"):
-        raise ImageError(f"unknown encoding {encoding!r}; expected auto, linear or srgb")
+        encoding = "srgb" if integer and real_format in LDR_FORMATS else "linear"
     clipped = np.any(pixels >= 1.0, axis=-1) if integer else np.zeros(pixels.shape[:2], dtype=bool)
     if encoding == "srgb":
         pixels = srgb_decode(pixels)
     return LoadedImage(pixels, clipped, encoding)
 
 
-def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, encoding: Encoding = "auto") -> Path:
-    """Write a linear RGB image (H, W, 3) atomically.
-
-    HDR formats store float32 linear values; LDR formats store 8-bit values encoded with
-    ``encoding`` (``"auto"``: sRGB), clipped to [0, 1].
-    """
+def check_image_output(path: str | Path, force: bool = False) -> Path:
+    """Refuse, before any work, an image output that exists (without ``force``), whose
+    folder is missing, or whose extension no image writer knows."""
     path = check_writable(path, force)
+    oiio = _oiio()
+    output = oiio.ImageOutput.create(str(path))
+    if output is None:
+        oiio.geterror()  # clear OpenImageIO's pending message; ours says it in one line
+        raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
+    return path
+
+
+@contextmanager
+def _scratch_file(suffix: str) -> Iterator[str]:
+    """A path to encode an image into: an anonymous in-memory file where the system has
+    them (it cannot run out of disk space), else a temporary file."""
+    fd = None
+    if hasattr(os, "memfd_create") and Path("/proc/self/fd").is_dir():
+        try:
+            fd = os.memfd_create("strauss-fit-image")
+        except OSError:
+            fd = None
+    if fd is not None:
+        try:
+            yield f"/proc/self/fd/{fd}"
+        finally:
+            os.close(fd)
+        return
+    handle, name = tempfile.mkstemp(suffix=suffix)
+    os.close(handle)
+    try:
+        yield name
+    finally:
+        Path(name).unlink(missing_ok=True)
+
+
+def encode_image(image: np.ndarray, path: str | Path, *, encoding: Encoding = "auto") -> bytes:
+    """The bytes of the image file ``path`` (its extension picks the format) holding the
+    linear RGB image (H, W, 3): HDR formats store float32 linear values, LDR formats 8-bit
+    values encoded with ``encoding`` (``"auto"``: sRGB), clipped to [0, 1]."""
+    path = Path(path)
     image = np.asarray(image, dtype=np.float64)
-    if image.ndim != 3 or image.shape[-1] not in (1, 3, 4):
+    if image.ndim != 3 or image.shape[-1] not in (1, 3, 4) or image.shape[0] < 1 or image.shape[1] < 1:
         raise ImageError(f"cannot write an image of shape {image.shape} to {path}")
     if not np.all(np.isfinite(image)):
         raise ImageError(f"refusing to write non-finite pixel values to {path}")
     if encoding == "auto":
         encoding = default_encoding(path)
+    if encoding not in ("linear", "srgb"):
+        raise ImageError(f"unknown encoding {encoding!r}; expected auto, linear or srgb")
     oiio = _oiio()
-    if Path(path).suffix.lower() in LDR_EXTENSIONS:
+    if path.suffix.lower() in LDR_EXTENSIONS:
         encoded = srgb_encode(image) if encoding == "srgb" else np.clip(image, 0.0, 1.0)
         data = np.round(encoded * 255.0).astype(np.uint8)
         pixel_type = oiio.UINT8
     else:
         data = np.ascontiguousarray(image.astype(np.float32))
         pixel_type = oiio.FLOAT
+    output = oiio.ImageOutput.create(str(path))
+    if output is None:
+        oiio.geterror()
+        raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
+    spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], pixel_type)
+    if pixel_type == oiio.FLOAT:
+        spec.attribute("compression", "zip")
+    spec.attribute("DateTime", "")  # an empty value drops OpenImageIO's timestamp
+    with _scratch_file(path.suffix) as scratch:
+        # every step checked: PNG reports a failed write only through geterror()
+        ok = output.open(scratch, spec) and output.write_image(data) and not output.has_error
+        message = output.geterror() if not ok else ""
+        closed = output.close()
+        if ok and not closed:
+            message, ok = output.geterror(), False
+        if not ok:
+            raise ImageError(f"cannot write {path}: {_first_line(message, 'the image encoder failed')}")
+        with open(scratch, "rb") as handle:
+            return handle.read()
 
-    def write(tmp: Path) -> None:
-        output = oiio.ImageOutput.create(str(path))
-        if output is None:
-            oiio.geterror()  # clear OpenImageIO's pending message; ours says it in one line
-            raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
-        spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], pixel_type)
-        if pixel_type == oiio.FLOAT:
-            spec.attribute("compression", "zip")
-        spec.attribute("DateTime", "")  # an empty value drops OpenImageIO's timestamp
-        if not output.open(str(tmp), spec) or not output.write_image(data):
-            message = output.geterror().strip().splitlines()
-            output.close()
-            raise ImageError(f"cannot write {path}: {message[0] if message else 'write failed'}")
-        output.close()
 
-    files.write_atomic(path, write)  # looked up at call time: one writer for every file
-    return path
+def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, encoding: Encoding = "auto") -> Path:
+    """Write a linear RGB image (H, W, 3) atomically (see :func:`encode_image`)."""
+    with Outputs(force=force) as out:
+        out.add_image(path, image, encoding=encoding)
+        return out.commit()[0]

@@ -31,7 +31,7 @@ from ..fit.result import FitResult
 from ..inference import laplace as _laplace
 from ..inference.sampler import Chain, load_chain
 from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings
-from ..io.files import check_writable, read_json, write_bytes
+from ..io.files import Outputs, check_writable, read_json
 from ..io.targets import Target, load_target, match_scene
 from ..models.strauss import DEFAULT_TABLE_SIZE
 from ..precision import uses_float64
@@ -459,16 +459,30 @@ def check_report_outputs(
 
 
 def write_report(report: Report, html_path: str | Path, *, force: bool = False) -> list[Path]:
-    """Write the PNGs into REPORT_files/, then REPORT.md, then REPORT.html (each atomic)."""
+    """Write the PNGs into REPORT_files/, REPORT.md and REPORT.html, all or none: each is
+    written in full to a temporary file first, and they are renamed into place together
+    (a full disk or Ctrl-C leaves no part of the report, and REPORT_files/ only if it
+    existed before)."""
     page, markdown, folder = report_paths(html_path)
     check_report_outputs(page, force, list(report.images))
-    folder.mkdir(exist_ok=True)
-    written = []
-    for name, png in report.images.items():
-        write_bytes(folder / name, png, force=force)
-        written.append(folder / name)
-    write_bytes(markdown, report.markdown.encode("utf-8"), force=force)
-    write_bytes(page, report.html.encode("utf-8"), force=force)
+    created = not folder.exists()
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise ReportError(f"cannot create {folder}: {exc.strerror or exc}") from None
+    try:
+        with Outputs(force=force) as out:
+            written = [out.add_bytes(folder / name, png) for name, png in report.images.items()]
+            out.add_bytes(markdown, report.markdown.encode("utf-8"))
+            out.add_bytes(page, report.html.encode("utf-8"))
+            out.commit(final=True)
+    except BaseException:
+        if created:
+            try:
+                folder.rmdir()  # only if empty: nothing of anyone else's is removed
+            except OSError:
+                pass
+        raise
     return [page, markdown] + written
 
 
@@ -535,7 +549,7 @@ def report_from_files(
     if Path(output).suffix.lower() not in (".html", ".htm"):
         raise StraussFitError(f"the report is HTML: give -o a .html name, got {output}")
     check_report_outputs(output, force)
-    loaded_chain = load_chain(chain) if chain else None
+    loaded_chain = load_chain(chain, required=True) if chain else None
     meta = loaded_chain.meta if loaded_chain is not None else {}
     chain_base = Path(chain).parent if chain else None
     if fit:

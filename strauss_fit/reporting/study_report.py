@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import StraussFitError
-from ..io.files import check_writable, write_bytes, write_json, write_text
+from ..io.files import Outputs, check_writable
 from .document import Document
 from .figures import new_figure, png_bytes
 
@@ -624,27 +624,43 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
 
 def write_report(study: dict[str, Any], outdir: str | Path, *, force: bool = False) -> list[Path]:
     """Write study.json, study.md, study.html and the PNG plots into ``outdir`` (created
-    if missing; its parent must exist). Existing files are refused without ``force``."""
+    if missing; its parent must exist), all or none (each file is written in full to a
+    temporary file, then all are renamed together). Existing files are refused without
+    ``force``."""
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise StraussFitError(f"output path is not a folder: {outdir}")
+    created = False
     if not outdir.exists():
         if not outdir.parent.is_dir():
             raise StraussFitError(f"output folder's parent does not exist: {outdir.parent}")
-        outdir.mkdir()
-    for name in FILES:
-        check_writable(outdir / name, force)
-    verdicts = conclusions(study)
-    document = dict(study)
-    document["conclusions"] = verdicts
-    images = plots(study)
-    doc = study_document(study, verdicts, images)
-    written = [write_json(outdir / "study.json", document, force=force)]
-    for name, data in images.items():
-        written.append(write_bytes(outdir / name, data, force=force))
-    written.append(write_text(outdir / "study.md", doc.markdown(), force=force))
-    written.append(write_text(outdir / "study.html", doc.html(TITLE, _STYLE, spaced=True), force=force))
-    return written
+        try:
+            outdir.mkdir()
+        except OSError as exc:
+            raise StraussFitError(f"cannot create {outdir}: {exc.strerror or exc}") from None
+        created = True
+    try:
+        for name in FILES:
+            check_writable(outdir / name, force)
+        verdicts = conclusions(study)
+        document = dict(study)
+        document["conclusions"] = verdicts
+        images = plots(study)
+        doc = study_document(study, verdicts, images)
+        with Outputs(force=force) as out:
+            out.add_json(outdir / "study.json", document)
+            for name, data in images.items():
+                out.add_bytes(outdir / name, data)
+            out.add_text(outdir / "study.md", doc.markdown())
+            out.add_text(outdir / "study.html", doc.html(TITLE, _STYLE, spaced=True))
+            return out.commit(final=True)
+    except BaseException:
+        if created:
+            try:
+                outdir.rmdir()  # only if empty
+            except OSError:
+                pass
+        raise
 
 
 def check_outputs(outdir: str | Path, force: bool) -> None:

@@ -284,12 +284,18 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
         image = read_image(path, encoding="auto").pixels
     except StraussFitError as exc:
         raise w.error(str(exc)) from None
-    return Background("environment", color, image=jnp.asarray(image * scale))
+    bad = int(np.sum(~np.all(np.isfinite(image), axis=-1)))
+    if bad:  # checked here, before any work: a NaN would spread through every render and fit
+        raise w.error(f"environment image {path} has {bad} pixel(s) with NaN or infinite values")
+    image = image * scale
+    if not np.all(np.isfinite(image)):
+        raise w.error(f"scale = {scale:g} makes environment image {path} overflow to infinity")
+    return Background("environment", color, image=jnp.asarray(image))
 
 
 @uses_float64
 def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | str = ".") -> Scene:
-    """Build a :class:`Scene` from a parsed TOML mapping (see README.md, "Scene file")."""
+    """Build a :class:`Scene` from a parsed TOML mapping (see docs/formats.md, scene files)."""
     unknown = sorted(set(data) - _SECTIONS)
     if unknown:
         raise SceneError(f"{source}: unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_SECTIONS))}")

@@ -165,3 +165,60 @@ def test_report_bad_inputs_are_one_line_errors(sampled, capsys, tmp_path, case, 
     assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1, err
     assert pattern in err
     assert not out.exists()
+
+
+def damage(path, case):
+    """Damage the chain file ``path`` in place, as a crash, a bug or a hand edit would."""
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        g = f["mcmc"]
+        if case == "empty-metadata":
+            f["strauss_fit"].attrs["metadata"] = "{}"
+        elif case == "metadata-without-fit":
+            meta = json.loads(f["strauss_fit"].attrs["metadata"])
+            del meta["fit"]
+            f["strauss_fit"].attrs["metadata"] = json.dumps(meta)
+        elif case == "nan-in-chain":
+            g["chain"][5, 3, 1] = np.nan
+        elif case == "iteration-too-large":
+            g.attrs["iteration"] = g["chain"].shape[0] + 50
+        elif case == "accepted-wrong-shape":
+            del g["accepted"]
+            g.create_dataset("accepted", data=np.zeros(3))
+        elif case == "no-random-state":
+            for name in [k for k in g.attrs if k.startswith("random_state_")]:
+                del g.attrs[name]
+
+
+@pytest.mark.parametrize(
+    "case,pattern,commands",
+    [
+        ("empty-metadata", "metadata is damaged ('labels' must be a list", ("report", "resume")),
+        ("metadata-without-fit", "metadata is damaged (no 'fit'", ("report", "resume")),
+        ("nan-in-chain", "1 of its sample values are NaN or infinite", ("report", "resume")),
+        ("iteration-too-large", "steps but holds", ("report", "resume")),
+        ("accepted-wrong-shape", "datasets' shapes disagree", ("report", "resume")),
+        ("no-random-state", "its samples are damaged", ("resume",)),
+    ],
+)
+def test_damaged_chains_are_one_line_errors_for_report_and_resume(sampled, capsys, tmp_path, case, pattern, commands):
+    import shutil
+
+    chain = tmp_path / "chain.h5"
+    shutil.copy(sampled / "chain.h5", chain)
+    damage(chain, case)
+    before = chain.read_bytes()
+    runs = {
+        "report": ["report", "--chain", str(chain), "-o", str(tmp_path / "r.html")],
+        "resume": ["sample", str(sampled / "target.exr"), "--scene", str(sampled / "scene.toml")]
+        + ["-o", str(chain), "--resume", "--max-steps", "500", "--quiet"],
+    }
+    for command in commands:
+        code = main(runs[command])
+        err = capsys.readouterr().err
+        assert code == 2, f"{command}: {err}"
+        assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+        assert pattern in err, f"{command}: {err}"
+    assert chain.read_bytes() == before  # nothing was changed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chain.h5"]

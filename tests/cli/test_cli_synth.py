@@ -37,15 +37,15 @@ def test_full_disk_is_one_line_and_leaves_a_consistent_index(tmp_path, reference
     spec_path, out = reference
     folder = tmp_path / "full"
     calls = {"n": 0}
-    real = strauss_fit.io.files.write_atomic
+    real = strauss_fit.io.files._write_file
 
-    def filling_disk(path, write):
+    def filling_disk(path, data):
         calls["n"] += 1
         if calls["n"] >= 12:
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
-        real(path, write)
+        real(path, data)
 
-    monkeypatch.setattr(strauss_fit.io.files, "write_atomic", filling_disk)
+    monkeypatch.setattr(strauss_fit.io.files, "_write_file", filling_disk)
     code, _, err = run_cli(capsys, "synth", spec_path, "-o", folder, "--quiet")
     assert code == 2
     assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1 and "Traceback" not in err
@@ -159,3 +159,67 @@ def test_force_and_resume_exclude_each_other(tmp_path):
     with pytest.raises(SystemExit) as info:
         main(["synth", str(write_spec(tmp_path)), "-o", str(tmp_path / "o"), "--force", "--resume"])
     assert info.value.code == 2
+
+
+def write_raw_exr(path, pixels):
+    """An EXR holding exactly ``pixels`` (NaN included: the library refuses to write one)."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    data = np.asarray(pixels, dtype=np.float32)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), oiio.ImageSpec(data.shape[1], data.shape[0], 3, oiio.FLOAT))
+    assert out.write_image(data)
+    out.close()
+
+
+BAD_ITEM_SPEC = """
+seed = 3
+
+[[group]]
+name = "g"
+model = "strauss"
+scenes = ["good.toml", "nan-sky.toml"]
+size = [12, 12]
+formats = ["exr"]
+
+[group.parameters]
+smoothness = [0.2, 0.8]
+"""
+
+
+def test_one_bad_scene_fails_its_samples_only_and_resume_does_the_same(tmp_path, capsys):
+    import numpy as np
+
+    from support import SCENES
+
+    sky = np.full((8, 16, 3), 0.5)
+    sky[2, 3] = np.nan
+    write_raw_exr(tmp_path / "sky.exr", sky)
+    scene = (SCENES / "two_lights.toml").read_text().split("[background]")[0]
+    (tmp_path / "good.toml").write_text(scene)
+    (tmp_path / "nan-sky.toml").write_text(scene + '\n[background]\nkind = "environment"\nimage = "sky.exr"\n')
+    spec = write_spec(tmp_path, BAD_ITEM_SPEC)
+    out = tmp_path / "out"
+    for resume in (False, True):
+        code, stdout, err = run_cli(capsys, "synth", spec, "-o", out, *(["--resume"] if resume else []))
+        assert code == 1, err
+        assert "Traceback" not in err
+        # said before any work, then once per sample skipped
+        assert err.startswith("synth: warning: group g: 2 sample(s) will be skipped: ")
+        assert "sky.exr has 1 pixel(s) with NaN or infinite values" in err.splitlines()[0]
+        assert err.count("FAILED") == 2 and "g-0001 FAILED" in err and "g-0003 FAILED" in err
+        assert "2 failed" in stdout and "2 of 4 complete" in stdout
+        index = read_index(out)
+        assert [s["id"] for s in index["samples"]] == ["g-0000", "g-0002"]
+        assert index["pending"] == ["g-0001", "g-0003"]
+        assert sorted(p.name for p in out.iterdir()) == [
+            "g-0000.exr",
+            "g-0000.json",
+            "g-0002.exr",
+            "g-0002.json",
+            "index.json",
+        ]
+        if not resume:
+            first = files_of(out)
+    assert files_of(out) == first  # the resumed run changed nothing that was complete

@@ -1,0 +1,189 @@
+"""Ctrl-C at any moment, for real: the ``strauss-fit`` process gets SIGINT while Python
+starts and imports, while JAX compiles, while the fit runs, between the written files,
+and inside a callback that swallows exceptions (as JAX's garbage-collection hook does).
+Every time: exit status 130, one line "strauss-fit: interrupted", no traceback, no
+output file and no temporary file left.
+
+The processes run side by side (each waits for its own moment), so the whole module
+costs about one fit.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+import strauss_fit as sf
+from strauss_fit.io.images import write_image
+from support import SMALL_MATERIAL, key_and_fill_scene, key_and_fill_toml, noisy_target
+
+COMMAND = Path(sys.executable).parent / "strauss-fit"
+
+#: Runs ``main`` in a fresh process, after arranging for SIGINT to arrive at a chosen point
+#: (from inside the process, so the moment is exact; the signal itself is real).
+HARNESS = """
+import gc, os, signal, sys
+import strauss_fit.io.files as files
+from strauss_fit_cli.main import main
+where = sys.argv[1]
+def press():
+    os.kill(os.getpid(), signal.SIGINT)
+if where == "between-files":
+    real = files._write_file
+    calls = []
+    def write(path, data):
+        real(path, data)
+        calls.append(path)
+        if len(calls) == 1:
+            press()  # the first file is written in full; the others are not yet
+    files._write_file = write
+elif where == "swallowed":
+    import strauss_fit
+    real_fit = strauss_fit.fit
+    def fit(*args, **kwargs):
+        def callback(phase, info):
+            # raised inside a gc callback: Python prints "Exception ignored" and goes on,
+            # as with JAX's _xla_gc_callback
+            gc.callbacks.remove(callback)
+            press()
+        gc.callbacks.append(callback)
+        gc.collect()
+        return real_fit(*args, **kwargs)
+    strauss_fit.fit = fit  # what the fit command calls
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("interrupt-inputs")
+    (folder / "scene.toml").write_text(key_and_fill_toml(24, material=SMALL_MATERIAL))
+    scene = key_and_fill_scene(24, material=SMALL_MATERIAL)
+    material = sf.Material(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.4)
+    write_image(folder / "target.exr", noisy_target(scene, material, 0.01, seed=3).pixels)
+    return folder
+
+
+def fit_argv(inputs: Path, out: Path) -> list[str]:
+    return [
+        "fit",
+        str(inputs / "target.exr"),
+        "--scene",
+        str(inputs / "scene.toml"),
+        "--free",
+        "color,smoothness,metalness",
+        "--quality",
+        "fast",
+        "-o",
+        str(out / "result.json"),
+        "--render-fit",
+        str(out / "fitted.exr"),
+    ]
+
+
+class Run:
+    """A process, the moment at which it gets SIGINT (seconds after its start, or when a
+    line on its stderr starts with a prefix), and what came of it."""
+
+    def __init__(self, argv: list[str], out: Path, *, after: float | None = None, on_line: str | None = None):
+        self.out = out
+        out.mkdir()
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.after, self.on_line = after, on_line
+        self.err_lines: list[str] = []
+        self.out_text: list[str] = []
+        self.sent = threading.Event()
+        self.readers = [
+            threading.Thread(target=self._read, daemon=True),
+            threading.Thread(target=lambda: self.out_text.append(self.process.stdout.read()), daemon=True),
+        ]
+        for reader in self.readers:
+            reader.start()
+        if after is not None:
+            threading.Timer(after, self._press).start()
+
+    def _press(self) -> None:
+        if not self.sent.is_set() and self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        self.sent.set()
+
+    def _read(self) -> None:
+        for line in self.process.stderr:
+            self.err_lines.append(line)
+            if self.on_line is not None and line.startswith(self.on_line):
+                self._press()
+
+    def finish(self, timeout: float = 240.0) -> tuple[int, str, str]:
+        self.process.wait(timeout=timeout)
+        for reader in self.readers:
+            reader.join(timeout=10)
+        return self.process.returncode, "".join(self.out_text), "".join(self.err_lines)
+
+
+LATE = """
+import os, signal, sys
+import strauss_fit.io.files as files
+from strauss_fit_cli.main import main
+real = files.Outputs.commit
+def commit(self, *, final=False):
+    done = real(self, final=final)
+    os.kill(os.getpid(), signal.SIGINT)  # a moment too late
+    return done
+files.Outputs.commit = commit
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_at_any_moment_exits_130_and_writes_nothing(inputs, tmp_path):
+    if not COMMAND.exists():
+        pytest.skip(f"the strauss-fit command is not installed beside {sys.executable}")
+    runs = {}
+    # importing the library and JAX (before about 20 ms, Python itself is still starting:
+    # a SIGINT then ends the process before any of our code runs, and nothing is written)
+    for delay in (0.1, 0.4, 1.2):
+        out = tmp_path / f"start-{delay}"
+        runs[f"{delay} s after the start"] = Run([str(COMMAND), *fit_argv(inputs, out)], out, after=delay)
+    for moment, prefix in (
+        ("while JAX compiles the first guess", "... computing the first guess"),
+        ("while the fit runs", "... fitting"),
+    ):
+        out = tmp_path / moment.replace(" ", "-")
+        runs[moment] = Run([str(COMMAND), *fit_argv(inputs, out)], out, on_line=prefix)
+    for moment in ("between-files", "swallowed"):
+        out = tmp_path / moment
+        argv = [sys.executable, "-c", HARNESS, moment, *fit_argv(inputs, out)]
+        runs[moment] = Run(argv, out)
+    # and a moment too late: once the outputs are committed, Ctrl-C changes nothing
+    late = Run([sys.executable, "-c", LATE, *fit_argv(inputs, tmp_path / "late")], tmp_path / "late")
+    code, stdout, stderr = late.finish()
+    assert code in (0, 1) and "interrupted" not in stderr and "wrote" in stdout, stderr
+    assert sorted(p.name for p in late.out.iterdir()) == ["fitted.compare.png", "fitted.exr", "result.json"]
+    for moment, run in runs.items():
+        code, stdout, stderr = run.finish()
+        assert run.sent.is_set() or moment in ("between-files", "swallowed"), f"{moment}: the signal was never sent"
+        assert code == 130, f"{moment}: exit status {code}\n{stderr}"
+        assert stderr.rstrip().endswith("strauss-fit: interrupted"), f"{moment}: {stderr}"
+        assert "Traceback" not in stderr and "Exception ignored" not in stderr, f"{moment}: {stderr}"
+        assert "wrote" not in stdout, moment
+        assert sorted(p.name for p in run.out.iterdir()) == [], f"{moment}: left {list(run.out.iterdir())}"
+
+
+LATE = """
+import os, signal, sys
+import strauss_fit.io.files as files
+from strauss_fit_cli.main import main
+real = files.Outputs.commit
+def commit(self, *, final=False):
+    done = real(self, final=final)
+    os.kill(os.getpid(), signal.SIGINT)  # a moment too late
+    return done
+files.Outputs.commit = commit
+sys.exit(main(sys.argv[1:]))
+"""
