@@ -143,10 +143,18 @@ def progress_printer(quiet: bool, prefix: str = "", stream=None):
     return log
 
 
+def by_quality(setting: str) -> str:
+    """``fast 2, balanced 2, accurate 4``: a setting of every quality preset, read from
+    :data:`~strauss_fit.fit.options.QUALITY_PRESETS` (for help texts, which so always say
+    what the presets use)."""
+    return ", ".join(f"{name} {values[setting]:g}" for name, values in QUALITY_PRESETS.items())
+
+
 def add_quality_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quality",
         choices=tuple(QUALITY_PRESETS),
         default=DEFAULT_QUALITY,
-        help="speed/accuracy preset (default balanced); options given explicitly override it",
+        help=f"speed/accuracy preset (default {DEFAULT_QUALITY}; see docs/benchmarks.md#quality-presets); "
+        "options given explicitly override it",
     )

@@ -5,11 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from strauss_fit.fit.options import QUALITY_PRESETS
-
 from .common import (
     add_evaluator_options,
     add_quality_option,
+    by_quality,
     check_evaluator_options,
     finite_float,
     positive_int,
@@ -51,13 +50,13 @@ def add_parser(subparsers) -> None:
         type=positive_int,
         metavar="N",
         help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: "
-        f"{_by_quality('starts')})",
+        f"{by_quality('starts')})",
     )
     parser.add_argument(
         "--max-steps",
         type=positive_int,
         metavar="N",
-        help=f"solver step limit of the polish (default: from --quality: {_by_quality('max_steps')})",
+        help=f"solver step limit of the polish (default: from --quality: {by_quality('max_steps')})",
     )
     parser.add_argument(
         "--free",
@@ -204,11 +203,6 @@ def comparison_image(target, fitted, mask):
     residual_view = residual / peak * scale if peak > 0 else residual
     gap = np.ones((target.shape[0], 2, 3)) * scale
     return np.concatenate([target, gap, fitted, gap, residual_view], axis=1) / scale
-
-
-def _by_quality(setting: str) -> str:
-    """'fast 2, balanced 2, accurate 4' for a preset setting (for help texts)."""
-    return ", ".join(f"{name} {values[setting]}" for name, values in QUALITY_PRESETS.items())
 
 
 def check_outputs(args: argparse.Namespace) -> Path | None:

@@ -100,10 +100,10 @@ def main(argv: list[str] | None = None) -> int:
             return code
         except KeyboardInterrupt:
             raise
-        except SystemExit:  # argparse: --help, --version, usage errors
+        except SystemExit as exc:  # argparse: --help, --version, usage errors (one line, status 2)
             if interrupts.HANDLER.pending:
                 raise KeyboardInterrupt from None
-            raise
+            return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
         except BaseException as exc:
             # an interrupt that surfaced as another exception (raised inside a library
             # callback and re-wrapped) is still an interrupt

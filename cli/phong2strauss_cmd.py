@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .common import add_quality_option, positive_int
+from .common import add_quality_option, by_quality, image_side, positive_int, progress_printer
 
 FORMATS_HELP = {
     "phong2strauss": "one Phong material as KEY=VALUE pairs (ka kd ks exponent|n|Ns diffuse_color|Cd "
@@ -31,12 +31,14 @@ def add_parser(subparsers) -> None:
             direction,
             help=f"convert {source} materials to {destination} parameters (by fitting sphere renders)",
             description=f"Render each {source} material on the conversion scene (a sphere under three lights, "
-            f"see README.md (Phong ↔ Strauss conversion and the study)) and fit {destination}'s parameters to that "
-            "image, starting from a "
+            f"see docs/conversion.md) and fit {destination}'s parameters to that image, starting from a "
             f"closed-form guess. Writes, per material, the {destination} parameters, the residual of the match "
-            "(RMS and CIEDE2000) and Laplace uncertainties; a material that fails is reported and skipped.",
+            "(RMS and CIEDE2000) and Laplace uncertainties; a material that fails is reported and skipped. "
+            "Results are saved to OUTPUT.partial as they complete: an interrupted run continues with --resume.",
         )
-        parser.add_argument("input", nargs="+", metavar="INPUT", help=FORMATS_HELP[direction])
+        parser.add_argument(
+            "input", nargs="+", metavar="INPUT", help=FORMATS_HELP[direction] + " (several files are read in turn)"
+        )
         parser.add_argument(
             "-o", "--output", required=True, metavar="OUTPUT", help=f"results: {outputs} (by extension)"
         )
@@ -48,7 +50,7 @@ def add_parser(subparsers) -> None:
         )
         parser.add_argument(
             "--size",
-            type=positive_int,
+            type=image_side,
             metavar="N",
             help="render the conversion image N pixels wide (default: the scene's, 64)",
         )
@@ -56,13 +58,22 @@ def add_parser(subparsers) -> None:
             "--starts",
             type=positive_int,
             metavar="N",
-            help="starts per material: the closed-form guess plus N-1 fixed points (default: from --quality, 4)",
+            help="starts per material: the closed-form guess plus N-1 fixed points (default: from --quality: "
+            f"{by_quality('starts')})",
         )
         add_quality_option(parser)
         if direction == "strauss2phong":
             parser.add_argument("--blinn", action="store_true", help="fit Blinn-Phong (half-vector highlight)")
-        parser.add_argument("--force", action="store_true", help="overwrite an existing OUTPUT")
-        parser.add_argument("--quiet", action="store_true", help="no progress lines")
+        mode = parser.add_mutually_exclusive_group()
+        mode.add_argument(
+            "--force", action="store_true", help="overwrite an existing OUTPUT (and start again over OUTPUT.partial)"
+        )
+        mode.add_argument(
+            "--resume",
+            action="store_true",
+            help="continue the interrupted conversion saved in OUTPUT.partial (same inputs and options)",
+        )
+        parser.add_argument("--quiet", action="store_true", help="no progress lines (warnings are still shown)")
         parser.set_defaults(run=run, direction=direction)
 
 
@@ -94,20 +105,36 @@ def _table(results: list[dict], direction: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from strauss_fit.convert.converter import Settings, convert_files
+    from strauss_fit.convert.converter import Settings, convert_files, progress_path
 
-    log = (lambda message: None) if args.quiet else (lambda message: print(message, file=sys.stderr, flush=True))
-    document = convert_files(
-        args.direction,
-        args.input,
-        args.output,
-        scene=args.scene,
-        size=args.size,
-        settings=Settings.preset(args.quality, starts=args.starts),
-        blinn=getattr(args, "blinn", False),
-        force=args.force,
-        log=log,
-    )
+    log = progress_printer(args.quiet)
+
+    def warn(message: str) -> None:
+        print(f"{args.direction}: warning: {message}", file=sys.stderr, flush=True)
+
+    try:
+        document = convert_files(
+            args.direction,
+            args.input,
+            args.output,
+            scene=args.scene,
+            size=args.size,
+            settings=Settings.preset(args.quality, starts=args.starts),
+            blinn=getattr(args, "blinn", False),
+            force=args.force,
+            resume=args.resume,
+            log=log,
+            warn=warn,
+        )
+    except KeyboardInterrupt:
+        partial = progress_path(args.output)
+        if partial.exists():
+            print(
+                f"strauss-fit: {args.direction}: interrupted; the materials converted so far are saved in {partial} "
+                "(continue with --resume)",
+                file=sys.stderr,
+            )
+        raise
     results = document["materials"]
     failed = [r for r in results if r["status"] != "ok"]
     print(_table(results, args.direction))

@@ -11,9 +11,18 @@ import sys
 import time
 from typing import Any
 
+from strauss_fit.fit.options import QUALITY_PRESETS
 from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE, MODES
 
-from .common import add_quality_option, check_evaluator_options, positive_int
+from .common import (
+    add_quality_option,
+    bounded_int,
+    by_quality,
+    check_evaluator_options,
+    finite_float,
+    positive_int,
+    progress_printer,
+)
 
 #: Options that only apply when ``sample`` fits first, with their defaults.
 _FIT_ONLY = {
@@ -55,7 +64,7 @@ def add_parser(subparsers) -> None:
     )
     parser.add_argument(
         "--sigma",
-        type=float,
+        type=finite_float(0.0, open_low=True),
         metavar="S",
         help="noise standard deviation per RGB value, linear units (default: estimated from the "
         "fit's residual, sqrt(RSS/(N-P)))",
@@ -72,19 +81,26 @@ def add_parser(subparsers) -> None:
         "--walkers",
         type=positive_int,
         metavar="N",
-        help="number of walkers, even, >= 2 x parameters (default: max(32, 4 x parameters))",
+        help="number of walkers, even, >= 2 x parameters (default: from --quality: "
+        + ", ".join(
+            f"{name} {'max(32, 4 x parameters)' if values['walkers'] is None else values['walkers']}"
+            for name, values in QUALITY_PRESETS.items()
+        )
+        + ")",
     )
     parser.add_argument(
         "--max-steps",
         type=positive_int,
         metavar="N",
-        help="cap on the chain's total length in steps, earlier runs included (default: from --quality, 10000)",
+        help="cap on the chain's total length in steps, earlier runs included (default: from --quality: "
+        f"{by_quality('sample_max_steps')})",
     )
     parser.add_argument(
         "--min-tau-multiple",
-        type=float,
+        type=finite_float(0.0, open_low=True),
         metavar="K",
-        help="stop when the chain is K autocorrelation times long (default: from --quality: 10, 50 or 100)",
+        help=f"stop when the chain is K autocorrelation times long (default: from --quality: "
+        f"{by_quality('min_tau_multiple')})",
     )
     parser.add_argument(
         "--check-every",
@@ -93,7 +109,13 @@ def add_parser(subparsers) -> None:
         metavar="N",
         help="steps between convergence checks and progress lines (default 100)",
     )
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the walkers (default 0)")
+    parser.add_argument(
+        "--seed",
+        type=bounded_int(0, 2**32 - 1),
+        default=0,
+        metavar="N",
+        help="random seed of the walkers, 0 to 2^32 - 1 (default 0)",
+    )
     parser.add_argument("--resume", action="store_true", help="continue the chain in CHAIN.h5 up to --max-steps")
     parser.add_argument("--force", action="store_true", help="replace an existing CHAIN.h5 and CHAIN.json")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
@@ -113,7 +135,7 @@ def add_parser(subparsers) -> None:
     )
     fitting.add_argument(
         "--table-size",
-        type=int,
+        type=bounded_int(-(2**31), 2**31),
         default=DEFAULT_TABLE_SIZE,
         metavar="N",
         help=f"table entries for the table modes (default {DEFAULT_TABLE_SIZE})",
@@ -212,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
     from strauss_fit import sample
     from strauss_fit.inference.sampler import SamplingInterrupted
 
-    log = (lambda message: None) if args.quiet else (lambda message: print(f"... {message}", file=sys.stderr))
+    log = progress_printer(args.quiet, "... ")
     bar = ProgressBar(args.quiet)
     try:
         result = sample(

@@ -45,10 +45,12 @@ Entry points: :func:`phong_to_strauss` and :func:`strauss_to_phong` convert mate
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib.util
+import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,6 +67,7 @@ from ..fit.solvers import polish
 from ..fit.starts import START_MARGIN, starts
 from ..inference.laplace import problem_laplace
 from ..io.files import check_writable
+from ..io.journal import Journal
 from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
 from ..io.targets import Target
 from ..models.material import Material
@@ -92,6 +95,11 @@ CHUNK = 8
 DEFAULT_SCENE_NAME = "conversion_default.toml"
 #: Angle (α = γ) at which the closed-form Strauss → Phong guess evaluates j and F.
 GUESS_ANGLE_DEG = 30.0
+#: A Strauss rendering whose largest value is at most this is black for Strauss → Phong:
+#: below the first step of an 8-bit sRGB image (code 1 is 3.0e-4 linear). Strauss's
+#: darkest material (C = 0, m = 1, s = 0, what Phong → Strauss gives for kd = ks = 0) is
+#: not exactly black (its off-specular term reaches 7e-5); fitting it ran to the step limit.
+BLACK_LEVEL = 1e-4
 
 
 def default_scene_path() -> Path:
@@ -217,15 +225,21 @@ def phong_guess(material: Material) -> tuple[np.ndarray, float]:
 # --- the batch converter -----------------------------------------------------------------
 
 
+_BALANCED = quality_preset(DEFAULT_QUALITY)
+
+
 @dataclass(frozen=True)
 class Settings:
-    """Solver settings of a conversion (recorded in the output)."""
+    """Solver settings of a conversion (recorded in the output). The defaults of
+    ``starts``, ``max_steps``, ``rtol`` and ``atol`` are the ``balanced`` quality preset
+    (:data:`strauss_fit.fit.options.QUALITY_PRESETS`), the command line's default, so that
+    ``Settings()`` and ``strauss-fit phong2strauss`` agree; :meth:`preset` gives the others."""
 
-    starts: int = 4
+    starts: int = int(_BALANCED["starts"])
     start_steps: int = 40
-    max_steps: int = 100
-    rtol: float = 1e-6
-    atol: float = 1e-8
+    max_steps: int = int(_BALANCED["max_steps"])
+    rtol: float = float(_BALANCED["rtol"])
+    atol: float = float(_BALANCED["atol"])
     chunk: int = CHUNK
 
     @classmethod
@@ -295,6 +309,10 @@ class _Direction:
     extra: Callable[[list[tuple]], dict[str, np.ndarray] | None]
     finish: Callable[..., dict[str, Any]]
     unsolved: Callable[[tuple], dict[str, Any]]
+    #: Targets whose largest value is at most this are black: not fitted (``unsolved``).
+    black_level: float = 0.0
+    #: How an item is made: ``(index, entry) -> item`` (raises for a bad material).
+    prepare: Callable[[int, Entry], tuple] | None = None
 
 
 class Converter:
@@ -392,23 +410,24 @@ class Converter:
     @uses_float64
     def phong_to_strauss(self, entries: list[Entry], progress: Progress | None = None) -> list[dict[str, Any]]:
         """Convert every entry (Phong sources); results in input order."""
-        results: list[dict[str, Any] | None] = [None] * len(entries)
-        report = _Reporter(progress, len(entries))
-        prepared = []
-        for i, entry in enumerate(entries):
-            if entry.error:
-                results[i] = report(entry, _error(entry, entry.error))
-                continue
-            try:
-                guess, notes = strauss_guess(entry.material)
-                notes = [f"closed-form guess: {note}" for note in notes]
-                target = self.phong_target(entry.material)
-                if not np.all(np.isfinite(target)):
-                    raise StraussFitError("the Phong rendering is not finite")
-            except Exception as exc:  # noqa: BLE001 - one bad material never stops the batch
-                results[i] = report(entry, _error(entry, _message(exc)))
-                continue
-            prepared.append((i, entry, guess, notes, target))
+        return [result for _, result in self.iter_phong_to_strauss(entries, progress)]
+
+    @uses_float64
+    def iter_phong_to_strauss(
+        self, entries: list[Entry], progress: Progress | None = None, *, start: int = 0
+    ) -> Iterator[tuple[int, dict[str, Any]]]:
+        """``(index, result)`` for every entry from ``start`` on, in input order, as the
+        results complete (a chunk of :attr:`Settings.chunk` materials at a time)."""
+
+        def prepare(i: int, entry: Entry) -> tuple:
+            material = entry.build()
+            guess, notes = strauss_guess(material)
+            notes = [f"closed-form guess: {note}" for note in notes]
+            target = self.phong_target(material)
+            if not np.all(np.isfinite(target)):
+                raise StraussFitError("the Phong rendering is not finite")
+            return (i, entry, guess, notes, target)
+
         direction = _Direction(
             template=self.strauss,
             max_steps=self.settings.start_steps,
@@ -416,17 +435,55 @@ class Converter:
             extra=lambda items: None,
             finish=lambda item, *solved: self._finish_strauss(item[1], item[2], item[3], *solved),
             unsolved=lambda item: self._black_strauss(item[1], item[2], item[3], item[4]),
+            prepare=prepare,
         )
-        for chunk in _chunks(prepared, self.settings.chunk):
-            for (i, entry, *_), outcome in zip(chunk, self._solve_chunk(chunk, direction)):
-                results[i] = report(entry, outcome)
-        return results  # type: ignore[return-value]
+        return self._stream(entries, direction, progress, start)
+
+    def _stream(
+        self, entries: list[Entry], direction: _Direction, progress: Progress | None, start: int
+    ) -> Iterator[tuple[int, dict[str, Any]]]:
+        """Prepare the entries one by one, solve them :attr:`Settings.chunk` at a time and
+        yield ``(index, result)`` in input order as soon as every earlier one is done (a
+        bad material is an error result; the batch goes on)."""
+        report = _Reporter(progress, len(entries), start)
+        done: dict[int, dict[str, Any]] = {}
+        queue: list[tuple] = []
+        following = start
+
+        def ready() -> Iterator[tuple[int, dict[str, Any]]]:
+            nonlocal following
+            while following in done:
+                yield following, done.pop(following)
+                following += 1
+
+        def solve() -> None:
+            for item, outcome in zip(queue, self._solve_chunk(queue, direction)):
+                done[item[0]] = report(item[1], outcome)
+                item[1].release()
+            queue.clear()
+
+        for i in range(start, len(entries)):
+            entry = entries[i]
+            if entry.error:
+                done[i] = report(entry, _error(entry, entry.error))
+            else:
+                try:
+                    queue.append(direction.prepare(i, entry))
+                except Exception as exc:  # noqa: BLE001 - one bad material never stops the batch
+                    entry.release()
+                    done[i] = report(entry, _error(entry, _message(exc)))
+            if len(queue) >= self.settings.chunk:
+                solve()
+            yield from ready()
+        if queue:
+            solve()
+        yield from ready()
 
     def _solve_chunk(self, chunk: list[tuple], direction: _Direction) -> list[dict[str, Any]]:
         """Solve the starts of every material of ``chunk`` (items ``(i, entry, guess, ...,
         target)``) in one vectorised call, then finish each; a failing chunk is retried
         material by material, so that one bad material never stops the others."""
-        fittable = [k for k, item in enumerate(chunk) if float(np.max(item[4])) > 0]
+        fittable = [k for k, item in enumerate(chunk) if float(np.max(item[4])) > direction.black_level]
         solved: dict[int, tuple] = {}
         if fittable:
             try:
@@ -573,26 +630,48 @@ class Converter:
         self, entries: list[Entry], progress: Progress | None = None, *, blinn: bool = False
     ) -> list[dict[str, Any]]:
         """Convert every entry (Strauss sources) to Phong (Blinn–Phong with ``blinn``)."""
-        results: list[dict[str, Any] | None] = [None] * len(entries)
-        report = _Reporter(progress, len(entries))
+        return [result for _, result in self.iter_strauss_to_phong(entries, progress, blinn=blinn)]
+
+    @uses_float64
+    def iter_strauss_to_phong(
+        self, entries: list[Entry], progress: Progress | None = None, *, blinn: bool = False, start: int = 0
+    ) -> Iterator[tuple[int, dict[str, Any]]]:
+        """``(index, result)`` for every entry from ``start`` on, in input order, as the
+        results complete."""
         template = dataclasses.replace(self.phong_template, blinn=blinn) if blinn else self.phong_template
-        prepared = []
-        for i, entry in enumerate(entries):
-            if entry.error:
-                results[i] = report(entry, _error(entry, entry.error))
-                continue
-            try:
-                opaque = Material(**{**entry.material.to_dict(), "transparency": 0.0})
-                guess, ka = phong_guess(opaque)
-                if blinn:
-                    guess[6] = unit_from_exponent(4.0 * float(exponent_from_unit(guess[6])))
-                target = self.strauss_target(opaque)
-                if not np.all(np.isfinite(target)):
-                    raise StraussFitError("the Strauss rendering is not finite")
-            except Exception as exc:  # noqa: BLE001
-                results[i] = report(entry, _error(entry, _message(exc)))
-                continue
-            prepared.append((i, entry, guess, ka, target))
+
+        def prepare(i: int, entry: Entry) -> tuple:
+            material = entry.build()
+            opaque = Material(**{**material.to_dict(), "transparency": 0.0})
+            guess, ka = phong_guess(opaque)
+            if blinn:
+                guess[6] = unit_from_exponent(4.0 * float(exponent_from_unit(guess[6])))
+            target = self.strauss_target(opaque)
+            if not np.all(np.isfinite(target)):
+                raise StraussFitError("the Strauss rendering is not finite")
+            return (i, entry, guess, ka, target)
+
+        def black(item: tuple) -> dict[str, Any]:
+            i, entry, guess, ka, target = item
+            x = guess.copy()
+            x[0:6] = 0.0  # Phong black: D = S = 0 (the exponent is the guess's, it shows nowhere)
+            return self._phong_result(
+                entry,
+                guess,
+                ka,
+                template,
+                x,
+                target,
+                None,
+                None,
+                {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
+                [
+                    f"the material renders black in the conversion scene (largest value {float(np.max(target)):.2g}, "
+                    f"below {BLACK_LEVEL:g}, an 8-bit image's first step): nothing to fit, Phong black "
+                    "(kd = ks = 0) is returned"
+                ],
+            )
+
         direction = _Direction(
             template=template,
             max_steps=self.settings.max_steps,
@@ -601,26 +680,11 @@ class Converter:
             finish=lambda item, target, scale, extra, *solved: self._finish_phong(
                 item[1], item[2], template, target, scale, extra["ambient_ka"], *solved
             ),
-            unsolved=lambda item: self._phong_result(
-                item[1],
-                item[2],
-                item[3],
-                template,
-                item[2],
-                item[4],
-                None,
-                None,
-                {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
-                [
-                    "the material renders black in the conversion scene: nothing to fit, "
-                    "the closed-form guess is returned"
-                ],
-            ),
+            unsolved=black,
+            black_level=BLACK_LEVEL,
+            prepare=prepare,
         )
-        for chunk in _chunks(prepared, self.settings.chunk):
-            for (i, entry, *_), outcome in zip(chunk, self._solve_chunk(chunk, direction)):
-                results[i] = report(entry, outcome)
-        return results  # type: ignore[return-value]
+        return self._stream(entries, direction, progress, start)
 
     def _phong_starts(self, guess: np.ndarray) -> np.ndarray:
         """The guess, then the exponent ×4 and ÷4, then the highlight halved and the
@@ -757,8 +821,8 @@ def _message(exc: BaseException) -> str:
 class _Reporter:
     """Counts finished materials and passes a one-line summary of each to ``progress``."""
 
-    def __init__(self, progress: Progress | None, total: int):
-        self.progress, self.total, self.done = progress, total, 0
+    def __init__(self, progress: Progress | None, total: int, done: int = 0):
+        self.progress, self.total, self.done = progress, total, done
 
     def __call__(self, entry: Entry, result: dict[str, Any]) -> dict[str, Any]:
         self.done += 1
@@ -829,6 +893,32 @@ def strauss_to_phong(
 DIRECTIONS = ("phong2strauss", "strauss2phong")
 
 
+def progress_path(output: str | Path) -> Path:
+    """The progress file of a conversion writing ``output``: ``OUTPUT.partial`` beside it."""
+    output = Path(output)
+    return output.with_name(output.name + ".partial")
+
+
+def _run_key(direction: str, entries: list[Entry], converter: Converter, settings: Settings, blinn: bool) -> str:
+    """A digest of everything that decides a conversion's results (inputs, scene, settings)."""
+    description = {
+        "direction": direction,
+        "blinn": bool(blinn),
+        "settings": settings.as_dict(),
+        "scene": converter.describe(),
+        "entries": [entry.describe() for entry in entries],
+    }
+    text = json.dumps(description, sort_keys=True, allow_nan=False, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _with_warnings(result: dict[str, Any], entry: Entry) -> dict[str, Any]:
+    """The entry's input warnings at the head of the result's notes."""
+    if entry.warnings:
+        result["notes"] = [f"warning: {w}" for w in entry.warnings] + list(result.get("notes", []))
+    return result
+
+
 @uses_float64
 def convert_files(
     direction: str,
@@ -840,40 +930,84 @@ def convert_files(
     settings: Settings = Settings(),
     blinn: bool = False,
     force: bool = False,
+    resume: bool = False,
     log: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Read the materials of ``inputs`` (inline ``KEY=VALUE`` tokens, JSON, a ``.json``,
-    ``.csv`` or ``.mtl`` file: :mod:`strauss_fit.io.material_tables`), convert them in
+    """Read the materials of ``inputs`` (inline ``KEY=VALUE`` tokens, JSON, or ``.json``,
+    ``.csv`` or ``.mtl`` files: :mod:`strauss_fit.io.material_tables`), convert them in
     ``direction`` (``phong2strauss`` or ``strauss2phong``) on the conversion scene
     (``scene``, at ``size`` pixels), write the results to ``output`` (``.json``, ``.csv``,
     or ``.mtl`` for Strauss → Phong) and return the document written (for JSON; the
-    other formats hold its ``materials``). ``log`` receives progress lines."""
+    other formats hold its ``materials``). ``log`` receives progress lines, ``warn``
+    warnings (inputs that are allowed but almost certainly not meant, materials renamed
+    in a ``.mtl`` output).
+
+    Results are appended to the progress file ``OUTPUT.partial``
+    (:func:`progress_path`, :class:`strauss_fit.io.journal.Journal`) as they complete; the
+    output is written atomically at the end and the progress file removed. After an
+    interruption (Ctrl-C, a killed process, a full disk) ``resume`` continues from the
+    progress file, with the same inputs and options, to the same output an
+    uninterrupted run writes (its ``wall_time_s`` counts every run); without ``resume`` an
+    existing progress file is refused unless ``force``."""
     if direction not in DIRECTIONS:
         raise StraussFitError(f"unknown conversion {direction!r}; expected one of {', '.join(DIRECTIONS)}")
+    if resume and force:
+        raise StraussFitError("--resume continues an interrupted conversion and --force starts again: give one")
     log = log or (lambda message: None)
+    warn = warn or (lambda message: None)
     output_format(output, direction)
     check_writable(output, force)
+    partial = progress_path(output)
+    check_writable(partial, True)
+    if partial.exists() and not (resume or force):
+        raise StraussFitError(
+            f"{partial} holds an interrupted conversion to {output}: continue it with --resume, "
+            "or start again with --force"
+        )
+    if resume and not partial.exists():
+        raise StraussFitError(f"nothing to resume: {partial} does not exist")
     started = time.perf_counter()
     reader = read_phong_input if direction == "phong2strauss" else read_strauss_input
     entries, input_notes, description = reader(inputs)
     for note in input_notes:
         log(f"{direction}: note: {note}")
+    for entry in entries:
+        for warning in entry.warnings:
+            warn(f"{entry.name}: {warning}")
     conversion = conversion_scene(scene, size)
+    converter = Converter(
+        conversion, settings, scene_label=str(scene) if scene else f"data_synth/scenes/{DEFAULT_SCENE_NAME}"
+    )
+    journal = Journal(partial, _run_key(direction, entries, converter, settings, blinn))
+    results: list[dict[str, Any]] = []
+    earlier_s = 0.0
+    if resume:
+        records = journal.open()
+        if [r.get("index") for r in records] != list(range(len(records))) or len(records) > len(entries):
+            raise StraussFitError(f"{partial} is damaged (its results are out of order); start again with --force")
+        results = [r["result"] for r in records]
+        earlier_s = float(records[-1].get("elapsed_s", 0.0)) if records else 0.0
+        log(f"{direction}: resuming: {len(results)} of {len(entries)} material(s) done before")
+    elif force:
+        journal.remove()
     log(
         f"{direction}: {len(entries)} material(s) from {description}; preparing the conversion scene "
         f"({conversion.camera.width}x{conversion.camera.height})"
-    )
-    converter = Converter(
-        conversion, settings, scene_label=str(scene) if scene else f"data_synth/scenes/{DEFAULT_SCENE_NAME}"
     )
 
     def progress(done: int, total: int, message: str) -> None:
         log(f"{direction}: [{done}/{total}] {message}")
 
     if direction == "phong2strauss":
-        results = converter.phong_to_strauss(entries, progress)
+        stream = converter.iter_phong_to_strauss(entries, progress, start=len(results))
     else:
-        results = converter.strauss_to_phong(entries, progress, blinn=blinn)
+        stream = converter.iter_strauss_to_phong(entries, progress, blinn=blinn, start=len(results))
+    for index, result in stream:
+        result = _with_warnings(result, entries[index])
+        results.append(result)
+        elapsed = round(earlier_s + time.perf_counter() - started, 3)
+        journal.append([{"index": index, "elapsed_s": elapsed, "result": result}])  # kept if interrupted later
     failed = [r for r in results if r["status"] != "ok"]
     document = {
         "format": f"strauss-fit {direction}",
@@ -883,8 +1017,10 @@ def convert_files(
         "scene": converter.describe(),
         "settings": settings.as_dict(),
         "summary": {"materials": len(results), "converted": len(results) - len(failed), "errors": len(failed)},
-        "wall_time_s": time.perf_counter() - started,
+        "wall_time_s": earlier_s + time.perf_counter() - started,
         "materials": results,
     }
-    write_results(output, document, direction, force=force)
+    for warning in write_results(output, document, direction, force=force, final=True):
+        warn(warning)
+    journal.remove()
     return document

@@ -135,6 +135,27 @@ def _write_file(path: Path, data: bytes | memoryview) -> None:
         os.fsync(handle.fileno())
 
 
+def _append_file(path: Path, data: bytes) -> None:
+    """Append ``data`` to ``path`` (created if missing) and fsync; on any failure the file
+    is truncated back to its length before (an append is all or nothing)."""
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+    try:
+        size = os.fstat(fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+            os.fsync(fd)
+        except BaseException:
+            try:
+                os.ftruncate(fd, size)
+            except OSError:
+                pass
+            raise
+    finally:
+        os.close(fd)
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

@@ -30,31 +30,95 @@ import csv
 import io
 import json
 import math
-from dataclasses import dataclass, field
+import re
 from pathlib import Path
 from typing import Any
 
 from ..errors import MaterialError, StraussFitError
+from ..models import material as strauss_values
+from ..models import phong as phong_values
 from ..models.material import Material
 from ..models.phong import PhongMaterial
-from .files import write_json, write_text
-from .mtl import format_mtl, format_mtl_material, read_mtl
+from .files import Outputs
+from .mtl import decode_text, format_mtl, format_mtl_material, read_mtl
 
 
-@dataclass
 class Entry:
     """One material to convert: the source material (a :class:`PhongMaterial` for
     Phong → Strauss, a :class:`Material` for Strauss → Phong), its opacity and index of
-    refraction (for a Strauss source: opacity = 1 − t), where it came from, notes, or
-    the error that makes it unusable."""
+    refraction (for a Strauss source: opacity = 1 − t), where it came from, notes,
+    warnings (values that are allowed but almost certainly not meant), or the error that
+    makes it unusable.
 
-    name: str
-    source: str
-    material: Any = None
-    opacity: float = 1.0
-    ior: float = 1.5
-    notes: list[str] = field(default_factory=list)
-    error: str | None = None
+    Read from a file, an entry holds its validated parameters as plain values
+    (``values``, of ``kind`` "phong" or "strauss"): :attr:`material` builds the JAX
+    material when it is first used, :meth:`release` drops it again (reading 50 000
+    materials builds no JAX array)."""
+
+    def __init__(
+        self,
+        name: str,
+        source: str,
+        material: Any = None,
+        opacity: float = 1.0,
+        ior: float = 1.5,
+        notes: list[str] | None = None,
+        error: str | None = None,
+        *,
+        values: dict[str, Any] | None = None,
+        kind: str | None = None,
+        warnings: list[str] | None = None,
+    ):
+        self.name, self.source = name, source
+        self._material = material
+        self.opacity, self.ior = opacity, ior
+        self.notes = list(notes or [])
+        self.error = error
+        self.values, self.kind = values, kind
+        self.warnings = list(warnings or [])
+
+    def __repr__(self) -> str:
+        return f"Entry({self.name!r}, {self.source!r}, error={self.error!r})"
+
+    @property
+    def material(self) -> Any:
+        """The material (built from :attr:`values` on first use)."""
+        if self._material is None and self.values is not None:
+            make = PhongMaterial if self.kind == "phong" else Material
+            self._material = make(**self.values)
+        return self._material
+
+    @material.setter
+    def material(self, value: Any) -> None:
+        self._material = value
+
+    def build(self) -> Any:
+        """The material, built now if it is not yet."""
+        return self.material
+
+    def release(self) -> None:
+        """Drop a material built from :attr:`values` (it is rebuilt when needed)."""
+        if self.values is not None:
+            self._material = None
+
+    def describe(self) -> dict[str, Any]:
+        """Everything that determines the entry's conversion, as plain values."""
+        if self.values is not None:
+            values: Any = self.values
+        elif self._material is not None:
+            values = self._material.to_dict()
+        else:
+            values = None
+        return {
+            "name": self.name,
+            "source": self.source,
+            "values": values,
+            "opacity": self.opacity,
+            "ior": self.ior,
+            "error": self.error,
+            "notes": self.notes,
+            "warnings": self.warnings,
+        }
 
 
 PHONG_ALIASES = {
@@ -176,7 +240,8 @@ def phong_entry(values: dict[str, Any], name: str, source: str) -> Entry:
             raise MaterialError(f"opacity = {opacity:g} is outside its range [0, 1]")
         if ior < 1:
             raise MaterialError(f"ior = {ior:g} is below 1 (Strauss needs n >= 1)")
-        entry.material = PhongMaterial(**params)
+        phong_values.check_values(**params)  # plain Python; the JAX material is built when converted
+        entry.values, entry.kind = params, "phong"
         entry.opacity, entry.ior = float(opacity), float(ior)
     except MaterialError as exc:
         entry.error = str(exc)
@@ -199,10 +264,10 @@ def strauss_entry(values: dict[str, Any], name: str, source: str) -> Entry:
             if key in params:
                 raise MaterialError(f"{raw_key!r} given twice")
             params[key] = _value(key, raw, f"material {key}")
-        material = Material(**params)
-        entry.material = material
-        entry.opacity = 1.0 - float(material.transparency)
-        entry.ior = float(material.ior)
+        strauss_values.check_values(**params)  # plain Python; the JAX material is built when converted
+        entry.values, entry.kind = params, "strauss"
+        entry.opacity = 1.0 - float(params.get("transparency", 0.0))
+        entry.ior = float(params.get("ior", 1.5))
     except MaterialError as exc:
         entry.error = str(exc)
     return entry
@@ -238,8 +303,19 @@ def parse_inline(tokens: list[str]) -> dict[str, Any]:
     return values
 
 
+INPUT_SUFFIXES = (".json", ".csv", ".mtl")
+
+
+def _looks_like_file(token: str) -> bool:
+    return "=" not in token and not token.lstrip().startswith("{")
+
+
 def _is_file_argument(tokens: list[str]) -> bool:
-    return len(tokens) == 1 and "=" not in tokens[0] and not tokens[0].lstrip().startswith("{")
+    """Whether the inputs are files: one token that is no KEY=VALUE, or several tokens
+    that all name files (existing, or with a known suffix)."""
+    if len(tokens) == 1:
+        return _looks_like_file(tokens[0])
+    return all(_looks_like_file(t) and (Path(t).exists() or Path(t).suffix.lower() in INPUT_SUFFIXES) for t in tokens)
 
 
 # --- JSON -------------------------------------------------------------------------------------
@@ -247,9 +323,11 @@ def _is_file_argument(tokens: list[str]) -> bool:
 
 def _json_items(path: Path) -> list[Any]:
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise StraussFitError(f"cannot read {path}: {exc}") from None
+        data = json.loads(decode_text(path.read_bytes(), path, "material file"))
+    except OSError as exc:
+        raise StraussFitError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise StraussFitError(f"cannot read {path}: not valid JSON: {exc}") from None
     if isinstance(data, dict) and isinstance(data.get("materials"), list):
         return data["materials"]
     if isinstance(data, list):
@@ -299,9 +377,9 @@ def _from_json(path: Path, kind: str) -> list[Entry]:
 
 def _from_csv(path: Path, kind: str) -> list[Entry]:
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StraussFitError(f"cannot read {path}: {exc}") from None
+        text = decode_text(path.read_bytes(), path, "material file")
+    except OSError as exc:
+        raise StraussFitError(f"cannot read {path}: {exc.strerror or exc}") from None
     reader = csv.reader(io.StringIO(text))
     rows = [row for row in reader if any(cell.strip() for cell in row)]
     if not rows:
@@ -376,49 +454,65 @@ def _from_csv(path: Path, kind: str) -> list[Entry]:
 # --- entry points -----------------------------------------------------------------------------
 
 
+def _read_file(path: Path, kind: str) -> tuple[list[Entry], list[str]]:
+    if not path.exists():
+        raise StraussFitError(
+            f"input not found: {path} (give a .json, .csv{', .mtl' if kind == 'phong' else ''} file or KEY=VALUE pairs)"
+        )
+    if path.is_dir():
+        raise StraussFitError(f"input is a directory: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        entries, notes = _from_json(path, kind), []
+    elif suffix == ".csv":
+        entries, notes = _from_csv(path, kind), []
+    elif suffix == ".mtl" and kind == "phong":
+        library = read_mtl(path)
+        notes = list(library.notes)
+        entries = []
+        for material in library.materials:
+            entries.append(
+                Entry(
+                    name=material.name,
+                    source=f"{path} line {material.line}",
+                    opacity=material.opacity,
+                    ior=material.ior,
+                    notes=list(material.notes),
+                    error=material.error,
+                    values=material.values,
+                    kind="phong" if material.values is not None else None,
+                    warnings=list(material.warnings),
+                )
+            )
+    else:
+        expected = ".json, .csv or .mtl" if kind == "phong" else ".json or .csv"
+        raise StraussFitError(
+            f"cannot read {path}: unknown input format {suffix or '(no extension)'}; expected {expected}"
+        )
+    if not entries:
+        raise StraussFitError(f"{path} holds no material")
+    return entries, notes
+
+
 def _read(tokens: list[str], kind: str) -> tuple[list[Entry], list[str], str]:
     """Entries, file-level notes and a description of the input."""
     if not tokens:
         raise StraussFitError("no input given")
     if _is_file_argument(tokens):
-        path = Path(tokens[0])
-        if not path.exists():
-            raise StraussFitError(
-                f"input not found: {path} (give a .json, .csv"
-                f"{', .mtl' if kind == 'phong' else ''} file or KEY=VALUE pairs)"
-            )
-        if path.is_dir():
-            raise StraussFitError(f"input is a directory: {path}")
-        suffix = path.suffix.lower()
-        if suffix == ".json":
-            entries, notes = _from_json(path, kind), []
-        elif suffix == ".csv":
-            entries, notes = _from_csv(path, kind), []
-        elif suffix == ".mtl" and kind == "phong":
-            library = read_mtl(path)
-            notes = list(library.notes)
-            entries = []
-            for material in library.materials:
-                source = f"{path} line {material.line}"
-                entries.append(
-                    Entry(
-                        name=material.name,
-                        source=source,
-                        material=material.phong,
-                        opacity=material.opacity,
-                        ior=material.ior,
-                        notes=list(material.notes),
-                        error=material.error,
-                    )
-                )
-        else:
-            expected = ".json, .csv or .mtl" if kind == "phong" else ".json or .csv"
-            raise StraussFitError(
-                f"cannot read {path}: unknown input format {suffix or '(no extension)'}; expected {expected}"
-            )
-        if not entries:
-            raise StraussFitError(f"{path} holds no material")
-        return entries, notes, str(path)
+        entries: list[Entry] = []
+        notes: list[str] = []
+        for token in tokens:
+            path = Path(token)
+            more, file_notes = _read_file(path, kind)
+            entries += more
+            notes += [f"{path}: {note}" for note in file_notes] if len(tokens) > 1 else file_notes
+        return entries, notes, ", ".join(tokens)
+    files = [t for t in tokens if _looks_like_file(t) and Path(t).suffix.lower() in INPUT_SUFFIXES]
+    if files:
+        raise StraussFitError(
+            f"{files[0]!r} is a file but other inputs are not: give material files (one or more), "
+            "or one material as KEY=VALUE pairs"
+        )
     values = parse_inline(tokens)
     name = str(values.pop("name", "material"))
     make = phong_entry if kind == "phong" else strauss_entry
@@ -429,12 +523,12 @@ def _read(tokens: list[str], kind: str) -> tuple[list[Entry], list[str], str]:
 
 
 def read_phong_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
-    """Phong materials from the command line, a JSON, CSV or ``.mtl`` file."""
+    """Phong materials from the command line, or JSON, CSV and ``.mtl`` files (one or more)."""
     return _read(tokens, "phong")
 
 
 def read_strauss_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
-    """Strauss materials from the command line, a JSON or CSV file."""
+    """Strauss materials from the command line, or JSON and CSV files (one or more)."""
     return _read(tokens, "strauss")
 
 
@@ -537,43 +631,82 @@ def format_csv(results: list[dict[str, Any]], direction: str) -> str:
     return buffer.getvalue()
 
 
-def _mtl_name(name: str, used: set[str]) -> str:
-    base = "_".join(name.split()) or "material"
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def _escape(text: str) -> str:
+    """Control characters as ``\\xNN`` (for comments in a written file)."""
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+
+def _mtl_name(name: str, used: set[str]) -> tuple[str, str | None]:
+    """The name under which a material is written to a ``.mtl``: the name itself
+    (``newmtl`` takes the rest of the line, spaces and ``#`` included), so that the
+    ``usemtl`` lines of the matching ``.obj`` still find it — unless the format cannot
+    hold it (empty, control characters, leading or trailing spaces, taken by an earlier
+    material); then a replacement and the reason."""
+    reason = None
+    if not name.strip():
+        reason = "it is empty"
+    elif _CONTROL.search(name):
+        reason = "it holds control characters"
+    elif name != name.strip():
+        reason = "it starts or ends with spaces, which a .mtl reader drops"
+    elif name in used:
+        reason = "an earlier material has the same name"
+    if reason is None:
+        used.add(name)
+        return name, None
+    base = _CONTROL.sub("_", name).strip() or "material"
     candidate, k = base, 2
     while candidate in used:
         candidate, k = f"{base}_{k}", k + 1
     used.add(candidate)
-    return candidate
+    return candidate, reason
 
 
-def format_results_mtl(results: list[dict[str, Any]]) -> str:
-    """A ``.mtl`` library of the converted Phong materials; failed ones become comments."""
-    blocks, used = [], set()
+def format_results_mtl(results: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """A ``.mtl`` library of the converted Phong materials (failed ones become comments),
+    and a warning for every material written under another name than its own."""
+    blocks, used, renamed = [], set(), []
     for result in results:
         if result["status"] != "ok":
-            blocks.append(f"# {result['name']}: not converted: {result.get('message', '')}\n")
+            blocks.append(f"# {_escape(result['name'])}: not converted: {_escape(result.get('message', ''))}\n")
             continue
         residual = result["residual"]
+        name, reason = _mtl_name(result["name"], used)
         comment = (
             f"from Strauss {json.dumps(result['input']['strauss'])}\n"
             f"residual: RMS {residual['rms']:.3g}, CIEDE2000 mean {residual['delta_e2000_mean']:.3g}"
         )
-        blocks.append(
-            format_mtl_material(
-                _mtl_name(result["name"], used), result["phong"], result["opacity"], result["ior"], comment
+        if reason is not None:
+            comment += f"\nrenamed from {_escape(repr(result['name']))}: {reason}"
+            renamed.append(
+                f"material {result['name']!r} is written as {name!r} ({reason}): "
+                "usemtl lines naming the old name will not find it"
             )
-        )
-    return format_mtl(
-        blocks, "written by strauss-fit strauss2phong (see README.md (Phong ↔ Strauss conversion and the study))"
-    )
+        blocks.append(format_mtl_material(name, result["phong"], result["opacity"], result["ior"], comment))
+    text = format_mtl(blocks, "written by strauss-fit strauss2phong (see docs/conversion.md)")
+    return text, renamed
 
 
-def write_results(path: str | Path, document: dict[str, Any], direction: str, *, force: bool = False) -> Path:
-    """Write a conversion's document in the format the extension names (atomic, no
-    overwrite without ``force``)."""
-    fmt = output_format(path, direction)
+def format_results(document: dict[str, Any], direction: str, fmt: str) -> tuple[str, list[str]]:
+    """The text of a conversion's output in format ``fmt`` and warnings about it."""
     if fmt == "json":
-        return write_json(path, document, force=force)
+        return json.dumps(document, indent=2, allow_nan=False) + "\n", []
     if fmt == "csv":
-        return write_text(path, format_csv(document["materials"], direction), force=force)
-    return write_text(path, format_results_mtl(document["materials"]), force=force)
+        return format_csv(document["materials"], direction), []
+    return format_results_mtl(document["materials"])
+
+
+def write_results(
+    path: str | Path, document: dict[str, Any], direction: str, *, force: bool = False, final: bool = False
+) -> list[str]:
+    """Write a conversion's document in the format the extension names (atomic, no
+    overwrite without ``force``); returns warnings (materials renamed in a ``.mtl``)."""
+    fmt = output_format(path, direction)
+    text, warnings = format_results(document, direction, fmt)
+    with Outputs(force=force) as out:
+        out.add_text(path, text)
+        out.commit(final=final)
+    return warnings

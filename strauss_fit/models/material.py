@@ -27,14 +27,30 @@ PARAMETER_NAMES = ("color", "smoothness", "metalness", "transparency", "ior")
 
 
 def _is_concrete(x: Any) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+    """Whether ``x`` holds no traced value (a tuple such as ``(p[0], p[1], p[2])`` inside
+    ``jax.grad`` is traced through its elements)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def _plain_within(value: Any, low: float, high: float | None, sizes: tuple[int, ...]) -> bool:
+    """Whether ``value`` is a plain Python number (size 0) or list/tuple of numbers of a size
+    in ``sizes``, all finite and within [low, high]: the common case, checked without numpy
+    (reading a library of 50 000 materials validates 300 000 values)."""
+    kind = type(value)
+    if kind is float or kind is int:
+        items, size = (value,), 0
+    elif (kind is list or kind is tuple) and all(type(v) is float or type(v) is int for v in value):
+        items, size = value, len(value)
+    else:
+        return False
+    return size in sizes and all(math.isfinite(v) and v >= low and (high is None or v <= high) for v in items)
 
 
 def _check_scalar(name: str, value: Any) -> None:
-    if not _is_concrete(value):
+    low, high = PARAMETER_RANGES[name]
+    if _plain_within(value, low, high, (0,)) or not _is_concrete(value):
         return
     arr = np.asarray(value, dtype=float)
-    low, high = PARAMETER_RANGES[name]
     span = f"[{low:g}, {'inf' if high is None else f'{high:g}'}]"
     if not np.all(np.isfinite(arr)):
         raise MaterialError(f"material {name} must be a finite number in {span}, got {value!r}")
@@ -43,13 +59,29 @@ def _check_scalar(name: str, value: Any) -> None:
 
 
 def _check_color(value: Any) -> None:
-    if not _is_concrete(value):
+    if _plain_within(value, *COLOR_RANGE, (3,)) or not _is_concrete(value):
         return
     arr = np.asarray(value, dtype=float)
     if arr.shape[-1:] != (3,):
         raise MaterialError(f"material color must be an RGB triple, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)) or np.any(arr < COLOR_RANGE[0]) or np.any(arr > COLOR_RANGE[1]):
         raise MaterialError(f"material color = {arr.tolist()} is outside its range [0, 1] per channel")
+
+
+def check_values(
+    color: Any = (1.0, 1.0, 1.0),
+    smoothness: Any = 0.5,
+    metalness: Any = 0.0,
+    transparency: Any = 0.0,
+    ior: Any = 1.5,
+) -> None:
+    """Validate material values as :class:`Material` does, without building JAX arrays
+    (cheap: for reading thousands of materials from a file)."""
+    _check_color(color)
+    _check_scalar("smoothness", smoothness)
+    _check_scalar("metalness", metalness)
+    _check_scalar("transparency", transparency)
+    _check_scalar("ior", ior)
 
 
 def _as_float(value: Any, dtype: Any) -> Array:
@@ -66,7 +98,8 @@ class Material(eqx.Module):
     ``color`` is linear RGB in [0, 1]^3; ``smoothness``, ``metalness`` and ``transparency``
     lie in [0, 1]; ``ior`` (the index of refraction n) is at least 1. Concrete values are
     validated on construction (a :class:`~strauss_fit.errors.MaterialError` names the field
-    and its range); traced values, e.g. inside a fit, are not checked. Leaves may carry
+    and its range); traced values, e.g. inside a fit or ``jax.grad`` — also a tuple
+    holding them, ``Material(color=(p[0], p[1], p[2]))`` — are not checked. Leaves may carry
     leading batch axes (colour ``(..., 3)``, scalars ``(...)``) for ``vmap``.
     """
 
@@ -87,11 +120,7 @@ class Material(eqx.Module):
         *,
         dtype: Any = None,
     ):
-        _check_color(color)
-        _check_scalar("smoothness", smoothness)
-        _check_scalar("metalness", metalness)
-        _check_scalar("transparency", transparency)
-        _check_scalar("ior", ior)
+        check_values(color, smoothness, metalness, transparency, ior)
         self.color = _as_float(color, dtype)
         self.smoothness = _as_float(smoothness, dtype)
         self.metalness = _as_float(metalness, dtype)

@@ -1,7 +1,7 @@
 r"""The Phong lighting model, rendered with the same scenes, cameras and lights as Strauss.
 
 Phong's model is the baseline the Strauss model was designed to replace (see
-``shared/strauss-model.md``): several *dependent* numeric coefficients instead of intuitive
+``docs/model.md``): several *dependent* numeric coefficients instead of intuitive
 parameters in [0, 1]. It is offered here so that both models can render the same scenes and
 be fitted and compared.
 
@@ -79,7 +79,22 @@ PARAMETER_NAMES = ("ka", "kd", "ks", "exponent", "diffuse_color", "specular_colo
 
 
 def _is_concrete(x: Any) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+    """Whether ``x`` holds no traced value (also inside a tuple)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def _plain_within(value: Any, low: float, high: float | None, sizes: tuple[int, ...]) -> bool:
+    """Whether ``value`` is a plain Python number (size 0) or list/tuple of numbers of a size
+    in ``sizes``, all finite and within [low, high]: the common case, checked without numpy
+    (reading a library of 50 000 materials validates 300 000 values)."""
+    kind = type(value)
+    if kind is float or kind is int:
+        items, size = (value,), 0
+    elif (kind is list or kind is tuple) and all(type(v) is float or type(v) is int for v in value):
+        items, size = value, len(value)
+    else:
+        return False
+    return size in sizes and all(math.isfinite(v) and v >= low and (high is None or v <= high) for v in items)
 
 
 def _span(low: float, high: float | None) -> str:
@@ -87,9 +102,9 @@ def _span(low: float, high: float | None) -> str:
 
 
 def _check_number(name: str, value: Any, *, rgb_allowed: bool) -> None:
-    if not _is_concrete(value):
-        return
     low, high = COEFFICIENT_RANGES[name]
+    if _plain_within(value, low, high, (0, 3) if rgb_allowed else (0,)) or not _is_concrete(value):
+        return
     span = _span(low, high)
     arr = np.asarray(value, dtype=float)
     if rgb_allowed and arr.ndim > 1:
@@ -106,13 +121,33 @@ def _check_number(name: str, value: Any, *, rgb_allowed: bool) -> None:
 
 
 def _check_color(name: str, value: Any) -> None:
-    if not _is_concrete(value):
+    if _plain_within(value, 0.0, 1.0, (3,)) or not _is_concrete(value):
         return
     arr = np.asarray(value, dtype=float)
     if arr.shape != (3,):
         raise MaterialError(f"phong {name} must be an RGB triple, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)) or np.any(arr < 0.0) or np.any(arr > 1.0):
         raise MaterialError(f"phong {name} = {arr.tolist()} is outside its range [0, 1] per channel")
+
+
+def check_values(
+    ka: Any = 1.0,
+    kd: Any = 0.7,
+    ks: Any = 0.3,
+    exponent: Any = 20.0,
+    diffuse_color: Any = (1.0, 1.0, 1.0),
+    specular_color: Any = (1.0, 1.0, 1.0),
+    blinn: bool = False,
+) -> None:
+    """Validate Phong values as :class:`PhongMaterial` does, without building JAX arrays
+    (cheap: for reading thousands of materials from a file)."""
+    for name, value in (("ka", ka), ("kd", kd), ("ks", ks)):
+        _check_number(name, value, rgb_allowed=True)
+    _check_number("exponent", exponent, rgb_allowed=False)
+    _check_color("diffuse_color", diffuse_color)
+    _check_color("specular_color", specular_color)
+    if not isinstance(blinn, (bool, np.bool_)):
+        raise MaterialError(f"phong blinn must be true or false, got {blinn!r}")
 
 
 def _as_float(value: Any, dtype: Any) -> Array:
@@ -153,13 +188,7 @@ class PhongMaterial(eqx.Module):
         *,
         dtype: Any = None,
     ):
-        for name, value in (("ka", ka), ("kd", kd), ("ks", ks)):
-            _check_number(name, value, rgb_allowed=True)
-        _check_number("exponent", exponent, rgb_allowed=False)
-        _check_color("diffuse_color", diffuse_color)
-        _check_color("specular_color", specular_color)
-        if not isinstance(blinn, (bool, np.bool_)):
-            raise MaterialError(f"phong blinn must be true or false, got {blinn!r}")
+        check_values(ka, kd, ks, exponent, diffuse_color, specular_color, blinn)
         self.ka = _as_float(ka, dtype)
         self.kd = _as_float(kd, dtype)
         self.ks = _as_float(ks, dtype)

@@ -4,6 +4,7 @@ output format, a batch with a broken material, and one-line errors."""
 import csv
 import io
 import json
+from pathlib import Path
 
 import pytest
 
@@ -98,3 +99,108 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, argv, message):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("strauss-fit: error:") and message in lines[0]
     assert not (tmp_path / "o.json").exists()
+
+
+# --- issue 14: exporters' libraries, names kept, black, presets, resume ---------------------------
+
+DATA = Path(__file__).resolve().parent.parent / "data" / "mtl"
+FAST = ["--size", SIZE]
+
+
+def test_library_default_settings_are_the_command_lines_default(tmp_path, capsys):
+    from strauss_fit.convert.converter import Settings
+    from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS
+
+    assert Settings() == Settings.preset() == Settings.preset(DEFAULT_QUALITY)
+    assert Settings().starts == QUALITY_PRESETS[DEFAULT_QUALITY]["starts"]
+    out = tmp_path / "black.json"
+    code, stdout, err = run(capsys, "strauss2phong", "C=0", "s=0", "m=1", "-o", out, "--size", SIZE)
+    assert code == 0, err
+    document = json.loads(out.read_text())
+    assert document["settings"] == Settings().as_dict()
+    # Strauss's darkest material (what phong2strauss gives for kd = ks = 0) is not fitted:
+    # it renders below an 8-bit image's first step, and Phong black comes back at once
+    result = document["materials"][0]
+    assert result["solver"]["status"] == "not run" and "renders black" in " ".join(result["notes"])
+    assert result["phong"]["kd"] == 0.0 and result["phong"]["ks"] == 0.0
+
+
+def test_exporters_names_survive_a_round_trip_and_usemtl_still_matches(tmp_path, capsys):
+    forward, back = tmp_path / "strauss.json", tmp_path / "phong.mtl"
+    inputs = [DATA / "3dsmax.mtl", DATA / "assimp.mtl"]  # several files; names with spaces and '#'
+    code, _, err = run(capsys, "phong2strauss", *inputs, "-o", forward, *FAST, "--quiet")
+    assert code == 0, err
+    code, _, err = run(capsys, "strauss2phong", forward, "-o", back, *FAST, "--quiet")
+    assert code == 0, err
+    assert "written as" not in err  # nothing renamed
+    names = [m.name for m in read_mtl(back).materials]
+    assert names == ["01 - Default", "02 - Brick Wall", "Glass", "DefaultMaterial", "Material #112", "Material #113"]
+    obj = "mtllib phong.mtl\nusemtl 01 - Default\nf 1 2 3\nusemtl Material #112\nf 1 3 4\n"
+    used = [line.split(None, 1)[1] for line in obj.splitlines() if line.startswith("usemtl")]
+    assert set(used) <= set(names)
+    glass = json.loads(forward.read_text())["materials"][2]
+    assert glass["name"] == "Glass" and glass["strauss"]["transparency"] == pytest.approx(0.9)
+
+
+def test_input_warnings_are_shown_even_when_quiet_and_kept_in_the_output(tmp_path, capsys):
+    out = tmp_path / "blender.json"
+    code, _, err = run(capsys, "phong2strauss", DATA / "blender.mtl", "-o", out, *FAST, "--quiet")
+    assert code == 0, err
+    assert err.startswith("phong2strauss: warning: Wood: line 21: d 0 makes the material fully transparent")
+    wood = json.loads(out.read_text())["materials"][1]
+    assert wood["notes"][0].startswith("warning: line 21: d 0")
+
+
+LIBRARY_OF_24 = "".join(
+    f"newmtl m{i:02d}\nKd {0.1 + 0.8 * (i % 7) / 7:.3f} 0.3 0.2\nKs 0.2 0.2 0.2\nNs {5 + 3 * i}\n" for i in range(24)
+)
+
+
+def without_wall_time(path):
+    document = json.loads(path.read_text())
+    document.pop("wall_time_s")
+    return document
+
+
+def test_a_killed_conversion_resumes_to_what_an_uninterrupted_run_writes(tmp_path, capsys):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    library = tmp_path / "lib.mtl"
+    library.write_text(LIBRARY_OF_24)
+    whole = tmp_path / "whole.json"
+    assert run(capsys, "phong2strauss", library, "-o", whole, *FAST, "--quiet")[0] == 0
+
+    out = tmp_path / "out.json"
+    partial = tmp_path / "out.json.partial"
+    command = Path(sys.executable).parent / "strauss-fit"
+    process = subprocess.Popen(
+        [str(command), "phong2strauss", str(library), "-o", str(out), *map(str, FAST), "--quiet"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        if partial.exists() and partial.read_bytes().count(b"\n") >= 6:  # header + 5 results
+            break
+        time.sleep(0.01)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not out.exists() and partial.exists(), "the conversion finished before it could be killed"
+    with open(partial, "ab") as handle:  # as if killed in the middle of an append
+        handle.write(b'{"index": 99, "elapsed_s": 1.0, "result": {"name": "m')
+    kept = partial.read_bytes().count(b"\n") - 1
+
+    code, _, err = run(capsys, "phong2strauss", library, "-o", out, *FAST, "--quiet")
+    assert code == 2 and "holds an interrupted conversion" in err and "--resume" in err
+    code, _, err = run(capsys, "phong2strauss", library, "-o", out, *FAST, "--starts", "1", "--resume", "--quiet")
+    assert code == 2 and "progress of another run" in err  # other settings
+    code, _, err = run(capsys, "phong2strauss", library, "-o", out, *FAST, "--resume")
+    assert code == 0, err
+    assert f"resuming: {kept} of 24 material(s) done before" in err
+    assert f"[{kept + 1}/24]" in err and "[1/24]" not in err
+    assert not partial.exists()
+    assert without_wall_time(out) == without_wall_time(whole)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lib.mtl", "out.json", "whole.json"]

@@ -133,8 +133,8 @@ def test_sample_reuses_a_fit_result(files, capsys, tmp_path):
 @pytest.mark.parametrize(
     "case,pattern",
     [
-        ("sigma-zero", "sigma must be a finite number > 0"),
-        ("sigma-negative", "sigma must be a finite number > 0"),
+        ("sigma-zero", "argument --sigma: expected a number > 0, got 0"),
+        ("sigma-negative", "argument --sigma: expected a number > 0, got -0.5"),
         ("corrupt-chain", "not an HDF5 file"),
         ("foreign-chain", "not a strauss-fit chain"),
         ("resume-missing", "chain file not found"),
