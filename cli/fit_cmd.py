@@ -211,7 +211,10 @@ def check_outputs(args: argparse.Namespace) -> Path | None:
     from strauss_fit.io.images import check_image_output
 
     compare_path = Path(args.render_fit).with_suffix(".compare.png") if args.render_fit else None
-    check_distinct({"-o": args.output, "--render-fit": args.render_fit, "--render-fit's comparison": compare_path})
+    check_distinct(
+        {"-o": args.output, "--render-fit": args.render_fit, "--render-fit's comparison": compare_path},
+        {"TARGET": args.target, "--scene": args.scene, "--mask": args.mask},
+    )
     check_writable(args.output, args.force)
     if args.render_fit:
         check_image_output(args.render_fit, args.force)

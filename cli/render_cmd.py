@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from strauss_fit.io.images import check_image_output
 
     # every output checked before any work
-    check_distinct({"-o": args.output, "--mask": args.mask})
+    check_distinct({"-o": args.output, "--mask": args.mask}, {"SCENE": args.scene})
     check_image_output(args.output, args.force)
     if args.mask:
         check_image_output(args.mask, args.force)

@@ -50,6 +50,14 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from strauss_fit import report_from_files
+    from strauss_fit.io.files import check_distinct
+    from strauss_fit.reporting.fit_report import report_paths
+
+    page, markdown, _ = report_paths(args.output)
+    check_distinct(
+        {"-o": page, "-o's Markdown": markdown},
+        {"--fit": args.fit, "--chain": args.chain, "--target": args.target, "--scene": args.scene, "--mask": args.mask},
+    )
 
     report, written = report_from_files(
         args.output,

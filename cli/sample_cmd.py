@@ -7,6 +7,7 @@ shows the progress and prints the summary.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from typing import Any
@@ -34,6 +35,8 @@ _FIT_ONLY = {
     "mode": "exact",
     "table_size": DEFAULT_TABLE_SIZE,
 }
+#: Largest --walkers (each walker holds a parameter vector in every stored step).
+MAX_WALKERS = 100_000
 #: Options fixed by an existing chain, which --resume refuses to change.
 _CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed")
 
@@ -79,7 +82,7 @@ def add_parser(subparsers) -> None:
     )
     parser.add_argument(
         "--walkers",
-        type=positive_int,
+        type=bounded_int(1, MAX_WALKERS),
         metavar="N",
         help="number of walkers, even, >= 2 x parameters (default: from --quality: "
         + ", ".join(
@@ -183,13 +186,20 @@ class ProgressBar:
 def _check_options(args: argparse.Namespace):
     """Validate the options; returns the sampling settings (``--quality`` with the options
     given explicitly), the prior ranges and, when sample fits first, the fit options."""
+    from pathlib import Path
+
     from strauss_fit import SampleSettings
     from strauss_fit.errors import StraussFitError
     from strauss_fit.inference.posterior import check_sigma, parse_priors
+    from strauss_fit.io.files import check_distinct
 
     from .fit_cmd import check_fixed_ranges, fit_options, parse_fixed
 
     check_evaluator_options(args)
+    check_distinct(
+        {"-o": args.output, "-o's summary": Path(args.output).with_suffix(".json")},
+        {"TARGET": args.target, "--scene": args.scene, "--mask": args.mask, "--fit": args.fit},
+    )
     if args.sigma is not None:
         check_sigma(args.sigma)
     settings = SampleSettings.preset(
@@ -221,6 +231,9 @@ def _check_options(args: argparse.Namespace):
                 "started with (start a new chain with --force)"
             )
     priors = parse_priors(args.prior)
+    for name, (low, high) in priors.items():  # checked here, before any work
+        if not (math.isfinite(low) and math.isfinite(high)) or not low < high:
+            raise StraussFitError(f"--prior {name}={low:g},{high:g}: expected finite LOW < HIGH")
     options = None
     if not (args.fit or args.resume):
         fixed = parse_fixed(args.fix)

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
+
+from .common import progress_printer
 
 
 def add_parser(subparsers) -> None:
@@ -13,7 +14,7 @@ def add_parser(subparsers) -> None:
         description="Run the intuitive-parameter study — consistency (energy created by novice settings), "
         "independence (Fisher information on the same images), uniformity (image change per equal step) and "
         "expressiveness (conversions both ways) — and write OUTDIR/study.html (self-contained), study.md with "
-        "PNG plots, and study.json with every figure. See README.md (Phong ↔ Strauss conversion and the study).",
+        "PNG plots, and study.json with every figure, all or none. See docs/study.md.",
     )
     parser.add_argument(
         "-o",
@@ -29,7 +30,7 @@ def add_parser(subparsers) -> None:
         help="small (default, a few minutes on two cores), full (thorough, much longer), or tiny "
         "(a smoke test; too small to conclude anything)",
     )
-    parser.add_argument("--seed", type=int, metavar="N", help="seed of every random draw (default 1990)")
+    parser.add_argument("--seed", type=int, metavar="N", help="seed of every random draw, >= 0 (default 1990)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing report in OUTDIR")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.set_defaults(run=run)
@@ -44,11 +45,7 @@ def run(args: argparse.Namespace) -> int:
         raise StraussFitError(f"--seed must be >= 0, got {args.seed}")
     check_outputs(args.output, args.force)
     config = study_config(args.size, args.seed)
-    log = (
-        (lambda message: None)
-        if args.quiet
-        else (lambda message: print(f"study: {message}", file=sys.stderr, flush=True))
-    )
+    log = progress_printer(args.quiet, "study: ")
     log(f"running the '{config.name}' study (seed {config.seed})")
     study = run_study(config, log)
     written = write_report(study, args.output, force=args.force)

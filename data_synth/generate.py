@@ -12,8 +12,9 @@ Per sample, in this order:
    of its files).
 
 A sample is complete exactly when the index lists it. An interruption or a failed write
-(a full disk) at any point leaves the index listing only complete samples and no partial
-file of the sample in progress; the run stops (a full disk stops every later sample too)
+(a full disk) at any point leaves the index listing only complete samples and no file of
+the sample in progress (if the index cannot be updated, the sample's files just written
+are removed again); the run stops (a full disk stops every later sample too)
 and says how many samples are complete. A sample that cannot be made — its scene is not
 usable (an environment map holding NaN), its rendering is not finite — is reported, its
 files are not written and the batch goes on; the run then ends with
@@ -296,7 +297,12 @@ def generate(
                 if progress:
                     progress(Progress(len(entries), len(samples), sample.id, time.perf_counter() - start, str(exc)))
                 continue
-            save()
+            try:
+                save()
+            except _WriteFailed:  # the index cannot list it: its files go too (only listed samples remain)
+                for name in entries.pop(sample.id)["files"].values():
+                    (output / name).unlink(missing_ok=True)
+                raise
             written += 1
             if progress:
                 progress(Progress(len(entries), len(samples), sample.id, time.perf_counter() - start))

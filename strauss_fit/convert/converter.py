@@ -66,7 +66,7 @@ from ..fit.problem import build_problem, render_at
 from ..fit.solvers import polish
 from ..fit.starts import START_MARGIN, starts
 from ..inference.laplace import problem_laplace
-from ..io.files import check_writable
+from ..io.files import check_distinct, check_writable
 from ..io.journal import Journal
 from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
 from ..io.targets import Target
@@ -957,8 +957,12 @@ def convert_files(
     log = log or (lambda message: None)
     warn = warn or (lambda message: None)
     output_format(output, direction)
-    check_writable(output, force)
     partial = progress_path(output)
+    check_distinct(
+        {"-o": output, "-o's progress file": partial},
+        {f"INPUT {token}": token for token in inputs if "=" not in token and not token.lstrip().startswith("{")},
+    )
+    check_writable(output, force)
     check_writable(partial, True)
     if partial.exists() and not (resume or force):
         raise StraussFitError(

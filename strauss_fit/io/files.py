@@ -62,17 +62,28 @@ def check_writable(path: str | Path, force: bool) -> Path:
     return path
 
 
-def check_distinct(paths: dict[str, str | Path | None]) -> None:
-    """Refuse two outputs of one command that name the same file (``{"-o": ..., "--mask":
-    ...}``; None entries are skipped): the second would overwrite the first."""
-    seen: dict[str, str] = {}
-    for option, path in paths.items():
-        if path is None:
-            continue
-        key = os.path.normcase(os.path.abspath(os.fspath(path)))
-        if key in seen:
-            raise StraussFitError(f"{seen[key]} and {option} name the same file {path}: give two different names")
-        seen[key] = option
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    try:
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return os.path.normcase(os.path.abspath(os.fspath(a))) == os.path.normcase(os.path.abspath(os.fspath(b)))
+
+
+def check_distinct(paths: dict[str, str | Path | None], inputs: dict[str, str | Path | None] | None = None) -> None:
+    """Refuse, before any work, two outputs of one command that name the same file
+    (``{"-o": ..., "--mask": ...}``; None entries are skipped: the second would overwrite
+    the first), and an output that names one of the command's ``inputs`` (``--force``
+    would overwrite the input)."""
+    named = [(option, path) for option, path in paths.items() if path is not None]
+    for k, (option, path) in enumerate(named):
+        for other, earlier in named[:k]:
+            if _same_file(path, earlier):
+                raise StraussFitError(f"{other} and {option} name the same file {path}: give two different names")
+        for what, source in (inputs or {}).items():
+            if source is not None and _same_file(path, source):
+                raise StraussFitError(f"{option} {path} is the input {what}: give the output another name")
 
 
 # --- interrupts -------------------------------------------------------------------------------

@@ -471,7 +471,7 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
     doc.heading(TITLE, 1)
     doc.para(
         f"Run '{config['name']}' (seed {config['seed']}), {study['timing']['total_s']:.0f} s. "
-        "Method, definitions and how to read this report: README.md (Phong ↔ Strauss conversion and the study). "
+        "Method, definitions and how to read this report: docs/study.md in the strauss-fit documentation. "
         "Every number below is in study.json."
     )
     doc.heading("Conclusions")

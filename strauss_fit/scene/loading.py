@@ -1,10 +1,10 @@
 """Scenes: camera, lights, background and material, and the TOML scene file.
 
-The file format is documented in README.md ("Scene file"); its minimal contract is fixed in
-``shared/formats.md``. Loading is strict: unknown sections or keys, wrong types, values out
-of range and a scene without any light are reported as one-line
+The file format is documented in ``docs/formats.md`` (scene files). Loading is strict:
+unknown sections or keys, wrong types, values out of range, a scene without any light and
+an environment image holding NaN or infinite values are reported as one-line
 :class:`~strauss_fit.errors.SceneError` messages that name the file, the place and the
-problem.
+problem — before any work is done.
 """
 
 from __future__ import annotations
