@@ -56,18 +56,37 @@ def _unraisable(info) -> None:
     _default_unraisablehook(info)
 
 
-def install() -> None:
+def install() -> tuple | None:
     """Install the recording handler (main thread only; a no-op if SIGINT is ignored, as
-    for a background job started by a non-interactive shell)."""
+    for a background job started by a non-interactive shell). Returns what it replaced,
+    for :func:`restore`."""
     if threading.current_thread() is not threading.main_thread():
-        return
+        return None
     try:
-        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-            return
+        previous = signal.getsignal(signal.SIGINT)
+        if previous is signal.SIG_IGN:
+            return None
         signal.signal(signal.SIGINT, HANDLER)
     except (ValueError, OSError):  # pragma: no cover - no signals here
-        return
+        return None
+    global _default_unraisablehook
+    hook = sys.unraisablehook
+    if hook is not _unraisable:
+        _default_unraisablehook = hook  # what other unraisable exceptions still go to
     sys.unraisablehook = _unraisable
+    return previous, hook
+
+
+def restore(previous: tuple | None) -> None:
+    """Put back the SIGINT handler and unraisable hook :func:`install` replaced."""
+    if previous is None or threading.current_thread() is not threading.main_thread():
+        return
+    handler, hook = previous
+    try:
+        signal.signal(signal.SIGINT, handler if handler is not None else signal.SIG_DFL)
+    except (ValueError, OSError):  # pragma: no cover
+        pass
+    sys.unraisablehook = hook
 
 
 def arm() -> None:

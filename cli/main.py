@@ -85,7 +85,7 @@ def _error(message: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     from .common import EscapingStream
 
-    interrupts.install()
+    previous = interrupts.install()
     stdout, stderr = sys.stdout, sys.stderr
     sys.stdout, sys.stderr = EscapingStream(stdout), EscapingStream(stderr)
     try:
@@ -130,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
             except (OSError, ValueError):
                 pass
         sys.stdout, sys.stderr = stdout, stderr
+        if argv is not None:  # called from Python (tests, scripts): leave the process as it was
+            interrupts.restore(previous)
 
 
 if __name__ == "__main__":

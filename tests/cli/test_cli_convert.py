@@ -204,3 +204,14 @@ def test_a_killed_conversion_resumes_to_what_an_uninterrupted_run_writes(tmp_pat
     assert not partial.exists()
     assert without_wall_time(out) == without_wall_time(whole)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lib.mtl", "out.json", "whole.json"]
+
+
+def test_control_characters_from_a_library_are_escaped_on_the_terminal(tmp_path, capsys):
+    library = tmp_path / "esc.mtl"
+    library.write_bytes(b"newmtl red\x1b[31m alert\nKd 0.5 0.5\nd 0\n")
+    code, out, err = run(capsys, "phong2strauss", library, "-o", tmp_path / "o.json", "--size", SIZE)
+    assert code == 1  # its one material is broken: reported, the output written
+    assert "\x1b" not in out + err
+    assert "red\\x1b[31m alert" in out and "red\\x1b[31m alert" in err
+    # the output file keeps the name exactly (JSON escapes it)
+    assert json.loads((tmp_path / "o.json").read_text())["materials"][0]["name"] == "red\x1b[31m alert"
