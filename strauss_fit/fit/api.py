@@ -11,8 +11,11 @@ the material-independent part of the rendering is prepared once), the closed-for
 (:mod:`strauss_fit.fit.guess`), which parameters the image constrains
 (:mod:`strauss_fit.fit.identifiability`), the starts and the scan over n
 (:mod:`strauss_fit.fit.starts`), the solves and the bound-aware polish
-(:mod:`strauss_fit.fit.solvers`), the Laplace uncertainties
-(:mod:`strauss_fit.inference.laplace`) and the result (:mod:`strauss_fit.fit.result`).
+(:mod:`strauss_fit.fit.solvers`), the verdict on whether the model reproduces the target
+(:mod:`strauss_fit.fit.diagnosis`, against the target's noise from
+:mod:`strauss_fit.inference.noise`), the uncertainties (:mod:`strauss_fit.inference.laplace`:
+the noise sandwich when the noise is known, else the Laplace approximation) and the result
+(:mod:`strauss_fit.fit.result`).
 
 Only what the scene constrains is fitted; held parameters keep the scene file's
 ``[material]`` values and the result says why. The decision is taken at the first guess
@@ -33,12 +36,17 @@ import numpy as np
 
 from ..color import delta_e_2000
 from ..errors import StraussFitError
-from ..inference.laplace import problem_laplace
+from ..inference import laplace
+from ..inference.equivalence import equivalence_ranges
+from ..inference.laplace import problem_laplace, problem_sandwich
+from ..inference.noise import NoiseModel, describe_noise
 from ..io.targets import Target
 from ..models.material import PARAMETER_NAMES, Material
 from ..precision import uses_float64
 from ..render.strauss import Prepared, RenderPlan, plan_render
+from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene
+from .diagnosis import Diagnosis, diagnose, reachable_maximum, uncertainty_warnings
 from .guess import initial_guess
 from .identifiability import (
     MAX_DECISIONS,
@@ -52,7 +60,7 @@ from .identifiability import (
     newly_held,
     reference_noise_level,
 )
-from .options import FitOptions
+from .options import MISMATCH_LOSS, VISIBLE_DELTA_E, FitOptions
 from .parameters import (
     MATERIAL_SIZES,
     all_intensities,
@@ -63,26 +71,30 @@ from .parameters import (
     material_with,
     value_of,
 )
-from .problem import Problem, build_problem, coarse_problem, shade_full
+from .problem import EXPOSURE, Problem, build_problem, coarse_problem, shade_full
 from .result import FitResult
 from .solvers import SOLVERS, Solved, solve
 
 
 def candidate_names(scene: Scene, options: FitOptions) -> list[str]:
-    """The parameters a fit may free: the material's, and the light intensities with
-    ``fit_lights``."""
+    """The parameters a fit may free: the material's, the light intensities with
+    ``fit_lights`` and the global exposure with ``fit_exposure``."""
     names = list(PARAMETER_NAMES)
     if options.fit_lights:
         names += light_parameter_names(scene.lights)
+    if options.fit_exposure:
+        names.append(EXPOSURE)
     return names
 
 
 def parse_fixed(options: FitOptions, allowed: list[str]) -> dict[str, Any]:
-    """``options.fixed`` as a dict, checking the names."""
+    """``options.fixed`` as a dict, checking the names (the exposure may always be fixed)."""
     fixed = {}
     for name, value in options.fixed:
-        if name not in allowed:
+        if name not in allowed and name != EXPOSURE:
             raise StraussFitError(f"cannot fix unknown parameter {name!r}; known: {', '.join(allowed)}")
+        if name == EXPOSURE and not (np.isfinite(float(value)) and float(value) > 0):
+            raise StraussFitError(f"the exposure must be a positive number, got {value}")
         fixed[name] = value
     return fixed
 
@@ -108,6 +120,7 @@ class Round:
     plan: RenderPlan
     material: Material
     scene: Scene
+    exposure: float
 
 
 @uses_float64
@@ -118,7 +131,8 @@ def fit(
     *,
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
-    """Fit the material (and optionally light intensities) of ``scene`` to ``target``.
+    """Fit the material (and optionally light intensities and the exposure) of ``scene``
+    to ``target``.
 
     ``scene`` must already match the target's size
     (:func:`strauss_fit.io.targets.match_scene`). ``options`` defaults to the ``balanced``
@@ -128,16 +142,19 @@ def fit(
     """
     say = progress or (lambda message: None)
     started = time.perf_counter()
+    options.validate()
+    release_compiled_code_if_needed()
     if options.solver not in SOLVERS:
         raise StraussFitError(f"unknown solver {options.solver!r}; expected one of {', '.join(SOLVERS)}")
     if options.starts < 1:
         raise StraussFitError(f"the number of starts must be at least 1, got {options.starts}")
     candidates = candidate_names(scene, options)
     fixed = parse_fixed(options, candidates)
+    exposure = float(fixed.get(EXPOSURE, 1.0))
     base_values = {**scene.material.to_dict(), **{k: v for k, v in fixed.items() if k in MATERIAL_SIZES}}
     material = Material.from_dict(base_values)
-    lights = lights_with(scene.lights, {k: jnp.asarray(float(v)) for k, v in fixed.items() if k not in MATERIAL_SIZES})
-    scene = eqx.tree_at(lambda s: s.lights, scene, lights)
+    light_values = {k: jnp.asarray(float(v)) for k, v in fixed.items() if k not in MATERIAL_SIZES and k != EXPOSURE}
+    scene = eqx.tree_at(lambda s: s.lights, scene, lights_with(scene.lights, light_values))
     scene = eqx.tree_at(lambda s: s.material, scene, material)
 
     if options.free is not None:
@@ -149,12 +166,12 @@ def fit(
     probe_plan = plan_render(scene, material, transparent=False)
     prepared_cache: dict = {}  # one prepared scene per render plan, for every problem of this fit
     guess_problem, prepared_full, index = build_problem(
-        scene, target, ["color"], material, probe_plan, options, cache=prepared_cache
+        scene, target, ["color"], material, probe_plan, options, cache=prepared_cache, exposure=exposure
     )
     say("computing the first guess")
     direct = guess_problem.prepared.direct
     guess = initial_guess(
-        np.asarray(guess_problem.target),
+        np.asarray(guess_problem.target) / exposure,
         np.ones(index.size, dtype=bool),
         None if direct is None else np.asarray(direct.cos_alpha),
         None if direct is None else np.asarray(direct.cos_beta),
@@ -165,13 +182,21 @@ def fit(
             **{n: float(v) for n, v in zip(light_parameter_names(scene.lights), all_intensities(scene.lights))},
         },
     )
+    guess[EXPOSURE] = exposure
+    used_mask = np.zeros(target.pixels.shape[:2], dtype=bool)
+    used_mask.reshape(-1)[index] = True
+    noise = describe_noise(target.pixels, used_mask, encoding=target.encoding, path=target.path, given=options.noise)
+    # the robust losses scale residuals by each value's noise: at the target's level, the
+    # only one there is before a fit
+    noise_sigma = noise.sigma_at(target.pixels) if noise.known else None
+    loss = "linear" if options.loss == "auto" else options.loss
 
     sigma_ref = reference_noise(target, options)
     say("deciding which parameters the image constrains")
     decision = decide_free(scene, target, options, material, guess, candidates, fixed, sigma_ref, cache=prepared_cache)
     solve_started = time.perf_counter()
     kept: Round | None = None  # the fit that stands
-    tried = [decision_key(decision, material, scene.lights)]
+    tried = [decision_key(decision, material, scene.lights, exposure)]
     best_rss = np.inf
     for attempt in range(MAX_DECISIONS):
         if not decision.free and kept is not None:
@@ -184,7 +209,17 @@ def fit(
         transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
         plan = plan_render(scene, material, transparent=transparent)
         problem, prepared_full, index = build_problem(
-            scene, target, decision.free, material, plan, options, sigma_ref, cache=prepared_cache
+            scene,
+            target,
+            decision.free,
+            material,
+            plan,
+            options,
+            sigma_ref,
+            cache=prepared_cache,
+            loss=loss,
+            noise_sigma=noise_sigma,
+            exposure=exposure,
         )
         solved = solve(
             problem, guess, options, say, coarse_problem(problem, prepared_full, index), exact_first=attempt > 0
@@ -201,7 +236,7 @@ def fit(
         ):
             say("the refit was worse: keeping the fit before it")
             break
-        kept = Round(decision, problem, prepared_full, index, solved, plan, material, scene)
+        kept = Round(decision, problem, prepared_full, index, solved, plan, material, scene, exposure)
         best_rss = min(solved.rss, best_rss)
         if options.free is not None or attempt == MAX_DECISIONS - 1:
             break
@@ -212,7 +247,7 @@ def fit(
         # from there if the answer is new.
         fitted = {
             **guess,
-            **{name: value_of(name, material, scene.lights) for name in decision.held},
+            **{name: value_of(name, material, scene.lights, exposure) for name in decision.held},
             **jsonable(problem.layout.split(solved.x)),
         }
         pinned = np.asarray(solved.problem.pinned)
@@ -237,7 +272,16 @@ def fit(
         hold_ior_without_significant_transparency(again, solved)
         held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
         hold_jointly_dead_at_fit(
-            again, decision, fitted, solved, material, scene.lights, sigma_ref, held_values, reasons_at_optimum
+            again,
+            decision,
+            fitted,
+            solved,
+            material,
+            scene.lights,
+            sigma_ref,
+            held_values,
+            reasons_at_optimum,
+            exposure,
         )
         again.held.update(reasons_at_optimum)
         next_material = material_with(material, {k: v for k, v in held_values.items() if k in MATERIAL_SIZES})
@@ -245,27 +289,130 @@ def fit(
             lambda s: s.lights,
             scene,
             lights_with(
-                scene.lights, {k: jnp.asarray(float(v)) for k, v in held_values.items() if k not in MATERIAL_SIZES}
+                scene.lights,
+                {k: jnp.asarray(float(v)) for k, v in held_values.items() if k not in MATERIAL_SIZES and k != EXPOSURE},
             ),
         )
+        next_exposure = float(held_values.get(EXPOSURE, exposure))
         # a decision is new if it frees other parameters or holds one at another value
         # (a mirror's metalness held at 1 rather than at the scene's 0, say)
-        key = decision_key(again, next_material, next_scene.lights)
+        key = decision_key(again, next_material, next_scene.lights, next_exposure)
         if key in tried:
             break
         tried.append(key)
         say(f"at the optimum the image constrains {', '.join(again.free) or 'nothing'}: fitting again from there")
         decision, guess, material, scene = again, {**fitted, **held_values}, next_material, next_scene
-    decision, prepared_full, index, solved = kept.decision, kept.prepared_full, kept.index, kept.solved
-    plan, material, scene = kept.plan, kept.material, kept.scene
+        exposure = next_exposure
+    outcome = _conclude(kept, target, options, noise, loss, say)
+    visible = float(np.mean(outcome.delta_e)) >= VISIBLE_DELTA_E
+    if options.loss == "auto" and outcome.diagnosis.verdict == "mismatch" and visible and MISMATCH_LOSS != loss:
+        say(f"the model cannot reproduce the target: fitting again with the {MISMATCH_LOSS} loss")
+        refit = _refit_with_loss(kept, target, options, MISMATCH_LOSS, noise_sigma, sigma_ref, say)
+        outcome = _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
+        kept = refit
     solve_time = time.perf_counter() - solve_started
+    return _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time)
+
+
+def _refit_with_loss(
+    kept: Round,
+    target: Target,
+    options: FitOptions,
+    loss: str,
+    noise_sigma: np.ndarray | None,
+    sigma_ref: float,
+    say: Callable[[str], None],
+) -> Round:
+    """The kept round's fit again under another loss, from its optimum (same free and
+    held parameters)."""
+    problem, prepared_full, index = build_problem(
+        kept.scene,
+        target,
+        kept.decision.free,
+        kept.material,
+        kept.plan,
+        options,
+        sigma_ref,
+        loss=loss,
+        noise_sigma=noise_sigma,
+        exposure=kept.exposure,
+    )
+    layout = problem.layout
+    start = {
+        **kept.material.to_dict(),
+        **{n: float(v) for n, v in zip(light_parameter_names(kept.scene.lights), all_intensities(kept.scene.lights))},
+        EXPOSURE: kept.exposure,
+        **jsonable(layout.split(kept.solved.x)),
+    }
+    solved = solve(problem, start, options, say, coarse_problem(problem, prepared_full, index), exact_first=True)
+    return Round(
+        kept.decision, problem, prepared_full, index, solved, kept.plan, kept.material, kept.scene, kept.exposure
+    )
+
+
+@dataclass
+class _Outcome:
+    """The fitted images of a round and what they say about the fit."""
+
+    model: np.ndarray
+    full: np.ndarray
+    delta_e: np.ndarray
+    diagnosis: Diagnosis
+
+
+def _conclude(
+    kept: Round, target: Target, options: FitOptions, noise: NoiseModel, loss: str, say: Callable[[str], None]
+) -> _Outcome:
+    """The fitted image of ``kept`` and the verdict on it (:func:`diagnose`)."""
+    solved, scene, plan = kept.solved, kept.scene, kept.plan
+    problem, layout = solved.problem, solved.problem.layout
+    fitted_values = layout.split(solved.x)
+    fitted_material = material_with(kept.material, fitted_values)
+    fitted_lights = lights_with(scene.lights, fitted_values)
+    exposure = float(fitted_values[EXPOSURE]) if EXPOSURE in layout.names else kept.exposure
+    full_fit = np.asarray(shade_full(fitted_material, kept.prepared_full, fitted_lights, scene, plan)).reshape(-1, 3)
+    if exposure != 1.0:
+        full_fit = full_fit * exposure
+    model = full_fit[kept.index]  # the fitted radiance at the pixels used
+    delta_e = delta_e_2000(model, np.asarray(problem.target))
+    hit = np.asarray(kept.prepared_full.hit).reshape(-1, 1)
+    full = np.where(hit, full_fit, np.asarray(kept.prepared_full.miss_radiance).reshape(-1, 3) * exposure)
+    say("comparing the fit with the target's noise")
+    free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
+    pinned = np.asarray(problem.pinned)
+    diagnosis = diagnose(
+        problem,
+        model,
+        noise,
+        parameters=int((~pinned).sum()),
+        delta_e_mean=float(np.mean(delta_e)),
+        at_bound=[label for label, p in zip(layout.labels(), pinned) if p],
+        reach=None if free_lights else reachable_maximum(problem),
+    )
+    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis)
+
+
+def _result(
+    kept: Round,
+    outcome: _Outcome,
+    fixed: dict[str, Any],
+    target: Target,
+    options: FitOptions,
+    noise: NoiseModel,
+    sigma_ref: float,
+    fits_done: int,
+    started: float,
+    solve_time: float,
+) -> FitResult:
+    """The :class:`FitResult` of the round that stands."""
+    decision, solved, scene, plan, material = kept.decision, kept.solved, kept.scene, kept.plan, kept.material
     held = {
-        name: {"value": value_of(name, material, scene.lights), "reason": reason}
+        name: {"value": value_of(name, material, scene.lights, kept.exposure), "reason": reason}
         for name, reason in decision.held.items()
     }
     for name, value in fixed.items():
         held[name] = {"value": value, "reason": "fixed by the user (--fix)"}
-    problem, x_best, rss = solved.problem, solved.x, solved.rss
+    problem, x_best = solved.problem, solved.x
     layout, pinned, status = problem.layout, np.asarray(solved.problem.pinned), solved.status
     starts, spread = solved.starts, solved.spread
     notes = [
@@ -274,18 +421,41 @@ def fit(
         for label, value in spread.items()
         if value > 0.05
     ]
-    uncertainty, correlation, _ = problem_laplace(problem, x_best, rss, None, solved.information)
+    model, diagnosis = outcome.model, outcome.diagnosis
+    residual = model - np.asarray(problem.target)
+    rss = float(np.sum(residual**2))
+    laplace_sd, laplace_corr, laplace_cov = problem_laplace(
+        problem, x_best, rss, None, solved.information if problem.loss == "linear" else None
+    )
+    if noise.known:
+        uncertainty, correlation, covariance, extra = problem_sandwich(problem, x_best, noise.sigma_at(model).ravel())
+        method = {
+            "name": "noise sandwich",
+            "noise_source": noise.source,
+            "conditional_on_model": False,
+            "meaning": (
+                "how far the fitted values would move with fresh noise: the spread around the best Strauss "
+                "approximation of this image"
+                + (
+                    ", not around the true material (the model cannot reproduce the target)"
+                    if diagnosis.verdict == "mismatch"
+                    else ""
+                )
+            ),
+            **extra,
+        }
+    else:
+        uncertainty, correlation, covariance = laplace_sd, laplace_corr, laplace_cov
+        method = {
+            "name": "laplace",
+            "noise_source": "residual",
+            "conditional_on_model": True,
+            "meaning": "σ² (JᵀJ)⁻¹ with σ² = RSS/(N − P): valid only if the model reproduces the target",
+        }
     fitted_values = layout.split(x_best)
     fitted_material = material_with(material, fitted_values)
     fitted_lights = lights_with(scene.lights, fitted_values)
-    full_fit = np.asarray(shade_full(fitted_material, prepared_full, fitted_lights, scene, plan)).reshape(-1, 3)
-    model = full_fit[index]  # the fitted radiance at the pixels used
-    residual = model - np.asarray(problem.target)
-    delta_e = delta_e_2000(model, np.asarray(problem.target))
-    full = np.where(
-        np.asarray(prepared_full.hit).reshape(-1, 1), full_fit, np.asarray(prepared_full.miss_radiance).reshape(-1, 3)
-    )
-
+    exposure = float(fitted_values[EXPOSURE]) if EXPOSURE in layout.names else kept.exposure
     if status != "successful":
         notes.append(f"the solver ended with status '{status}'")
     for name in layout.names:
@@ -295,7 +465,41 @@ def fit(
         )
         value = np.atleast_1d(np.asarray(fitted_values[name]))
         if np.any(np.isclose(value, lo, atol=1e-6)) or np.any(np.isclose(value, hi, atol=1e-6)):
-            notes.append(f"{name} sits on its bound; its Laplace deviation is not a symmetric interval there")
+            notes.append(f"{name} sits on its bound; its deviation is not a symmetric interval there")
+    equivalence = None
+    if options.equivalence and layout.size:
+        equivalence = equivalence_ranges(problem, x_best, delta_e=options.equivalence_de)
+    free_covariance = None
+    if pinned.any():  # what the pinned entries' deviations would be, were they free
+        variance = (
+            float(np.mean(noise.sigma_at(model) ** 2)) if noise.known else rss / max(residual.size - layout.size, 1)
+        )
+        free_covariance = laplace.covariance(
+            laplace.information(np.asarray(laplace.jacobian(problem, jnp.asarray(x_best)))), variance
+        )
+    warnings = diagnosis.warnings + uncertainty_warnings(
+        layout,
+        np.zeros((layout.size, layout.size)) if covariance is None else covariance,
+        np.asarray(x_best),
+        pinned,
+        free_covariance,
+        equivalence,
+    )
+    noise_typical = noise.typical(model) if noise.known else None
+    residual_stats = {
+        "rms": float(np.sqrt(np.mean(residual**2))),
+        "max_abs": float(np.max(np.abs(residual))),
+        "delta_e2000_mean": float(np.mean(outcome.delta_e)),
+        "delta_e2000_p95": float(np.percentile(outcome.delta_e, 95)),
+        "sum_of_squares": rss,
+        "noise": None if noise_typical is None else noise_typical.tolist(),
+        "noise_source": noise.source,
+        "chi2_per_dof": diagnosis.chi2_per_dof,
+        "chi2_expected_sd": diagnosis.expected_sd,
+        "verdict": diagnosis.verdict,
+        "per_channel": diagnosis.per_channel,
+        "regions": diagnosis.regions,
+    }
     return FitResult(
         material=fitted_material,
         free=list(layout.names),
@@ -303,13 +507,7 @@ def fit(
         lights={n: float(v) for n, v in zip(light_parameter_names(fitted_lights), all_intensities(fitted_lights))},
         uncertainty=uncertainty,
         correlation=correlation,
-        residual={
-            "rms": float(np.sqrt(np.mean(residual**2))),
-            "max_abs": float(np.max(np.abs(residual))),
-            "delta_e2000_mean": float(np.mean(delta_e)),
-            "delta_e2000_p95": float(np.percentile(delta_e, 95)),
-            "sum_of_squares": rss,
-        },
+        residual=residual_stats,
         solver={
             "name": options.solver,
             "steps": solved.steps,
@@ -318,12 +516,13 @@ def fit(
             "polish_steps": solved.polish_steps,
             "attempts": fits_done,
             "at_bound": [label for label, p in zip(layout.labels(), pinned) if p],
+            "loss": problem.loss,
         },
         starts=starts,
         start_spread=spread,
         wall_time_s=time.perf_counter() - started,
         compile_and_solve={"solve_s": solve_time},
-        pixels_used=int(index.size),
+        pixels_used=int(kept.index.size),
         notes=notes,
         settings={
             **options.as_dict(),
@@ -333,9 +532,17 @@ def fit(
             "mask_excluded": target.masked_out_count,
             "depth": scene.depth,
             "traced": {"reflection": plan.reflect, "transmission": plan.transmit},
+            "noise_model": noise.to_dict(),
         },
-        fitted_image=full.reshape(target.pixels.shape),
-        mask=np.asarray(prepared_full.hit),
+        fitted_image=outcome.full,
+        mask=np.asarray(kept.prepared_full.hit),
         problem=problem,
         x=x_best,
+        warnings=warnings,
+        exposure=exposure,
+        equivalence=equivalence,
+        uncertainty_method=method,
+        uncertainty_laplace=laplace_sd,
+        used_index=kept.index,
+        standardized_residual=diagnosis.standardized,
     )

@@ -118,18 +118,20 @@ def structural_reasons(
 
 def deviation_scale(name: str, value: np.ndarray | float) -> np.ndarray:
     """The scale a deviation of parameter ``name`` at ``value`` is judged against: 0.5 for
-    n, the value itself (at least 1e-3) for a light intensity, 1 for values in [0, 1]
-    (also used by :mod:`strauss_fit.inference.summaries`)."""
+    n, the value itself (at least 1e-3) for a light intensity or the exposure, 1 for values
+    in [0, 1] (also used by :mod:`strauss_fit.inference.summaries`)."""
     value = np.asarray(value, dtype=float)
     if name == "ior":
         return np.full(value.shape, 0.5)
-    if "intensity" in name:
+    if "intensity" in name or name == "exposure":
         return np.maximum(np.abs(value), 1e-3)
     return np.ones(value.shape)
 
 
 def _HOLD_ORDER(name: str) -> int:
-    order = ("ior", "transparency", "metalness", "intensity", "smoothness", "color")
+    # the exposure is held first of all: it is the user's extra unknown, and it trades off
+    # with the colour's brightness (and with the lights) whenever the image cannot tell them apart
+    order = ("exposure", "ior", "transparency", "metalness", "intensity", "smoothness", "color")
     return next((i for i, key in enumerate(order) if key in name), len(order))
 
 
@@ -299,6 +301,7 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
     """
     values: dict[str, Any] = {}
     reasons: dict[str, str] = {}
+    _mirror_holds_metalness(again, before, fitted)
     for name in again.held:
         if name in before.held:
             reasons[name] = before.held[name]  # held before, at the value it still has
@@ -326,6 +329,31 @@ def held_at_optimum(again: Decision, before: Decision, fitted: dict[str, Any]) -
             values[name] = fitted[name]
             reasons[name] = f"{again.held[name]}; held at the value the fit reached"
     return values, reasons
+
+
+def _mirror_holds_metalness(again: Decision, before: Decision, fitted: dict[str, Any]) -> None:
+    """The mirror's canonical choice, whichever of the pair the analysis held: when the fit
+    pinned metalness on its upper bound, the analysis (which does not hold a pinned parameter that
+    the data push against) holds the colour instead; for a mirror the degeneracy is the same
+    m·(C − 1), so hold metalness and free the colour, as :func:`held_at_optimum` expects.
+    Updates ``again`` in place."""
+    if not (
+        again.partner.get("color") == "metalness"
+        and "metalness" in again.free
+        and "color" in before.free
+        and "metalness" in before.free
+        and float(fitted["smoothness"]) >= MIRROR_SMOOTHNESS
+        # pinned at 1: a metal mirror; at 0 the colour is invisible (a plastic mirror),
+        # and holding it, as the analysis did, is the answer
+        and float(fitted["metalness"]) >= 0.5
+    ):
+        return
+    reason = again.held.pop("color").replace("trades off with metalness", "trades off with color")
+    again.partner.pop("color")
+    order = [name for name in before.free if name in again.free or name == "color"]
+    again.free[:] = [name for name in order if name != "metalness"]
+    again.held["metalness"] = reason
+    again.partner["metalness"] = "color"
 
 
 def hold_ior_without_significant_transparency(again: Decision, solved: Solved) -> None:
@@ -367,6 +395,7 @@ def hold_jointly_dead_at_fit(
     sigma: float,
     values: dict[str, Any],
     reasons: dict[str, str],
+    exposure: float = 1.0,
 ) -> None:
     """Hold the parameters that the image ignores at the optimum at the fitted values
     instead of the scene's, when putting them back to the scene's values would change the
@@ -381,7 +410,7 @@ def hold_jointly_dead_at_fit(
     x = np.array(solved.x, dtype=float)
     for name in dead:
         offset, size = layout.offsets[layout.names.index(name)], layout.sizes[layout.names.index(name)]
-        x[offset : offset + size] = np.atleast_1d(np.asarray(value_of(name, material, lights), dtype=float))
+        x[offset : offset + size] = np.atleast_1d(np.asarray(value_of(name, material, lights, exposure), dtype=float))
     cost = float(np.asarray(costs(solved.problem, jnp.asarray(x[None])))[0])
     if cost * float(solved.problem.residual_scale) ** 2 <= solved.rss + sigma**2:
         return
@@ -395,11 +424,14 @@ def hold_jointly_dead_at_fit(
         )
 
 
-def decision_key(decision: Decision, material: Material, lights: Lights) -> tuple:
+def decision_key(decision: Decision, material: Material, lights: Lights, exposure: float = 1.0) -> tuple:
     """What makes two decisions the same fit: the free names and the held values."""
     values = tuple(
         sorted(
-            (name, tuple(np.round(np.atleast_1d(np.asarray(value_of(name, material, lights), dtype=float)), 6)))
+            (
+                name,
+                tuple(np.round(np.atleast_1d(np.asarray(value_of(name, material, lights, exposure), dtype=float)), 6)),
+            )
             for name in decision.held
         )
     )

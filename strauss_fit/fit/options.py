@@ -11,6 +11,7 @@ preset.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,24 +20,54 @@ from ..models.strauss import DEFAULT_TABLE_SIZE
 from .identifiability import DEFAULT_THRESHOLD
 
 #: Settings of each ``--quality`` preset: for fits (``starts``, ``max_steps``, ``rtol``,
-#: ``atol``) and for sampling (``walkers``, ``min_tau_multiple``, ``sample_max_steps``).
+#: ``atol``, ``equivalence``) and for sampling (``walkers``, ``min_tau_multiple``, ``sample_max_steps``).
 #: ``None``: automatic. Derived by benchmarks/tradeoff.py (2026-11-29); the numbers that
 #: picked each value are in README.md, "Quality presets".
 QUALITY_PRESETS: dict[str, dict[str, float | int | None]] = {
     "fast": dict(
-        starts=2, max_steps=20, rtol=1e-2, atol=1e-4, walkers=None, min_tau_multiple=10.0, sample_max_steps=2000
+        starts=2,
+        max_steps=20,
+        rtol=1e-2,
+        atol=1e-4,
+        equivalence=False,
+        walkers=None,
+        min_tau_multiple=10.0,
+        sample_max_steps=2000,
     ),
     "balanced": dict(
-        starts=2, max_steps=320, rtol=1e-4, atol=1e-6, walkers=None, min_tau_multiple=50.0, sample_max_steps=10000
+        starts=2,
+        max_steps=320,
+        rtol=1e-4,
+        atol=1e-6,
+        equivalence=False,
+        walkers=None,
+        min_tau_multiple=50.0,
+        sample_max_steps=10000,
     ),
     "accurate": dict(
-        starts=4, max_steps=610, rtol=1e-8, atol=1e-10, walkers=128, min_tau_multiple=100.0, sample_max_steps=50000
+        starts=4,
+        max_steps=610,
+        rtol=1e-8,
+        atol=1e-10,
+        equivalence=True,
+        walkers=128,
+        min_tau_multiple=100.0,
+        sample_max_steps=50000,
     ),
 }
 #: The preset used when none is named (the command line's default, and ``FitOptions()``).
 DEFAULT_QUALITY = "balanced"
+#: The loss an ``"auto"`` fit switches to when the model cannot reproduce the target
+#: (measured on the physically based targets by ``benchmarks/external.py``).
+MISMATCH_LOSS = "huber"
+#: ... and only when the linear fit's mean CIEDE2000 reaches this (one just-noticeable
+#: difference): a mismatch nobody can see (the rim of a Lambertian sphere from a renderer
+#: that integrates over each pixel) leaves nothing for another loss to improve.
+VISIBLE_DELTA_E = 1.0
+#: What ``FitOptions.edge_pixels`` accepts.
+EDGE_PIXELS = ("exclude", "include")
 #: The preset settings that are fit settings (the others are sampling settings).
-FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol")
+FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol", "equivalence")
 
 
 def quality_preset(name: str) -> dict[str, Any]:
@@ -70,6 +101,29 @@ class FitOptions:
     fit_lights: bool = False
     reference_noise: float | None = None
     threshold: float = DEFAULT_THRESHOLD
+    #: Also fit one global exposure: a scale on all rendered radiance (every light and the
+    #: background together), the usual unknown of a photograph or a foreign render.
+    fit_exposure: bool = False
+    #: The target's noise standard deviation (linear units; one value or R, G, B) when
+    #: known; None: from the target's sidecar, else estimated from the image
+    #: (:func:`strauss_fit.inference.noise.describe_noise`).
+    noise: float | tuple[float, float, float] | None = None
+    #: What the solver minimises (:data:`~strauss_fit.fit.problem.LOSSES`): ``"linear"``
+    #: least squares, ``"perceptual"`` (cube-root), ``"huber"``, ``"cauchy"``; ``"auto"``:
+    #: linear, then, if the model cannot reproduce the target visibly, refitted with
+    #: :data:`MISMATCH_LOSS` (chosen by ``benchmarks/external.py``, see docs/fitting.md).
+    loss: str = "auto"
+    #: ``"exclude"``: fit only pixels whose whole footprint shows the sphere (a partly
+    #: covered silhouette pixel of an anti-aliased image or a photograph mixes in the
+    #: background); ``"include"``: every pixel whose centre shows it (chosen by
+    #: ``benchmarks/silhouette.py``, see docs/fitting.md).
+    edge_pixels: str = "exclude"
+    #: Also compute each free parameter's perceptual equivalence range
+    #: (:func:`strauss_fit.inference.equivalence.equivalence_ranges`): on in the
+    #: ``accurate`` preset.
+    equivalence: bool = bool(_BALANCED["equivalence"])
+    #: Its threshold, a mean CIEDE2000 (1: one just-noticeable difference).
+    equivalence_de: float = 1.0
 
     @classmethod
     def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> FitOptions:
@@ -94,5 +148,32 @@ class FitOptions:
             "fit_lights": self.fit_lights,
             "reference_noise": self.reference_noise,
             "threshold": self.threshold,
+            "fit_exposure": self.fit_exposure,
+            "noise": list(self.noise) if isinstance(self.noise, tuple) else self.noise,
+            "loss": self.loss,
+            "edge_pixels": self.edge_pixels,
+            "equivalence": self.equivalence,
+            "equivalence_de": self.equivalence_de,
             "precision": "float64",
         }
+
+    def validate(self) -> None:
+        """Raise :class:`~strauss_fit.errors.StraussFitError` naming the first bad setting."""
+        from .problem import LOSSES
+
+        if self.loss not in ("auto", *LOSSES):
+            raise StraussFitError(f"unknown loss {self.loss!r}; expected one of auto, {', '.join(LOSSES)}")
+        if self.edge_pixels not in EDGE_PIXELS:
+            raise StraussFitError(f"edge_pixels must be one of {', '.join(EDGE_PIXELS)}, got {self.edge_pixels!r}")
+        if self.noise is not None:
+            values = self.noise if isinstance(self.noise, tuple) else (self.noise,)
+            if len(values) not in (1, 3) or not all(math.isfinite(v) and v > 0 for v in map(float, values)):
+                raise StraussFitError(
+                    f"the noise level must be one positive number or three (R, G, B), got {self.noise}"
+                )
+        if not (math.isfinite(float(self.equivalence_de)) and self.equivalence_de > 0):
+            raise StraussFitError(f"the equivalence threshold must be a positive CIEDE2000, got {self.equivalence_de}")
+        if self.reference_noise is not None and not (
+            math.isfinite(float(self.reference_noise)) and self.reference_noise > 0
+        ):
+            raise StraussFitError(f"the reference noise must be a positive number, got {self.reference_noise}")

@@ -6,7 +6,8 @@ MINUIT, which reach the bounds at finite θ):
 
 - a value in [0, 1] (colour channels, smoothness, metalness, transparency):
   :math:`x = (1 + \sin\theta)/2`;
-- a value with only a lower bound ``low`` (index of refraction ≥ 1, light intensity ≥ 0):
+- a value with only a lower bound ``low`` (index of refraction ≥ 1, light intensity and
+  the global exposure ≥ 0):
   :math:`x = \mathrm{low} - 1 + \sqrt{\theta^2 + 1}`.
 
 Uncertainties are always computed for the physical values, never for θ.
@@ -45,7 +46,7 @@ def light_parameter_names(lights: Lights) -> list[str]:
 def _kind_and_low(name: str) -> tuple[str, float]:
     if name == "ior":
         return LOWER_BOUNDED, 1.0
-    if name.endswith("intensity") or "_intensity_" in name:
+    if name.endswith("intensity") or "_intensity_" in name or name == "exposure":
         return LOWER_BOUNDED, 0.0
     return UNIT_INTERVAL, 0.0
 
@@ -188,10 +189,13 @@ def all_intensities(lights: Lights) -> list[float]:
     return values
 
 
-def value_of(name: str, material: Material, lights: Lights) -> Any:
-    """The current value of parameter ``name`` (a material parameter or a light intensity)."""
+def value_of(name: str, material: Material, lights: Lights, exposure: float = 1.0) -> Any:
+    """The current value of parameter ``name`` (a material parameter, a light intensity,
+    or the global ``exposure``)."""
     if name in MATERIAL_SIZES:
         return material.to_dict()[name]
+    if name == "exposure":
+        return float(exposure)
     return dict(zip(light_parameter_names(lights), all_intensities(lights)))[name]
 
 

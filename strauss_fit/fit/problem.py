@@ -31,6 +31,7 @@ from ..errors import StraussFitError
 from ..io.targets import Target
 from ..models.material import Material
 from ..precision import uses_float64
+from ..render.coverage import fully_covered
 from ..render.strauss import Prepared, RenderPlan, prepare, shade_prepared, take_pixels
 from ..scene.lights import Lights
 from ..scene.loading import Scene
@@ -59,6 +60,16 @@ class Problem(eqx.Module):
     residual_scale: Array
     layout: Layout = eqx.field(static=True)
     plan: RenderPlan = eqx.field(static=True)
+    #: How residuals enter the cost (:data:`LOSSES`); "linear" is plain least squares.
+    loss: str = eqx.field(static=True, default="linear")
+    #: Per value (N, 3): the reference noise over each value's own noise level, for the
+    #: robust losses (which act on noise-scaled residuals); None = the reference noise.
+    weights: Array | None = None
+    #: The perceptual loss's offset ε and slope normalisation (see :func:`loss_residual`).
+    loss_offset: Array | None = None
+    loss_norm: Array | None = None
+    #: The global exposure (one scale on all rendered radiance) when it is held; None = 1.
+    exposure: Array | None = None
 
     def physical(self, theta: Array) -> Array:
         """Physical values of θ, with pinned entries (at a bound, see
@@ -73,16 +84,75 @@ class Problem(eqx.Module):
         values = self.layout.split(x)
         material = material_with(self.material, values)
         prepared = scaled(self.prepared, lights_with(self.lights, values))
-        return shade_prepared(material, prepared, self.scene, self.plan)
+        radiance = shade_prepared(material, prepared, self.scene, self.plan)
+        exposure = values.get(EXPOSURE, self.exposure)
+        return radiance if exposure is None else radiance * exposure
 
     def residual_physical(self, x: Array) -> Array:
+        """Model minus target at the usable pixels, flattened (N·3,): what χ² is made of."""
         return (self.render_physical(x) - self.target).ravel()
 
+    def objective_residual(self, x: Array) -> Array:
+        """The residuals the solver minimises the squares of, at physical ``x``: the
+        :attr:`loss` applied to model minus target, divided by ``residual_scale`` (the
+        reference noise times sqrt(N)), so that tolerances do not depend on image size or
+        brightness. For the linear loss, :meth:`residual_physical` / ``residual_scale``."""
+        if self.loss == "linear":
+            return self.residual_physical(x) / self.residual_scale
+        return loss_residual(self, self.render_physical(x)).ravel() / self.residual_scale
+
     def residual(self, theta: Array, _args: Any = None) -> Array:
-        """What the solver minimises: residuals divided by ``residual_scale`` (the
-        reference noise times sqrt(N)), so that tolerances do not depend on image size
-        or brightness."""
-        return self.residual_physical(self.physical(theta)) / self.residual_scale
+        """:meth:`objective_residual` at the unconstrained θ (what optimistix calls)."""
+        return self.objective_residual(self.physical(theta))
+
+
+#: The global exposure's parameter name: one scale on all rendered radiance (every light
+#: and the background together), the usual unknown of a photograph or a foreign render.
+EXPOSURE = "exposure"
+
+#: The losses a fit can minimise (:func:`loss_residual`).
+LOSSES = ("linear", "perceptual", "huber", "cauchy")
+#: Huber's and Cauchy's tuning constants on the noise-scaled residual z (95 % efficiency
+#: at Gaussian noise).
+HUBER_K = 1.345
+CAUCHY_C = 2.385
+#: Below this |z| the Cauchy transform is replaced by its limit z (its square root has an
+#: infinite slope at 0 that the chain rule would multiply by 0).
+_CAUCHY_SMALL = 1e-6
+
+
+def loss_residual(problem: Problem, model: Array) -> Array:
+    r"""Loss-transformed residuals (N, 3), in units of the reference noise σ_ref, whose
+    squares sum to the cost (times ``residual_scale``², as for the linear loss).
+
+    - ``perceptual``: :math:`(f(I) - f(T))/f'(L)` with :math:`f(x) = \sqrt[3]{x + ε}`,
+      the cube root of CIELAB's lightness, so that differences in dark regions count as
+      the eye sees them rather than by their linear size; ε = ``loss_offset`` (a
+      thousandth of the target's 98th percentile L, which keeps the slope finite at 0)
+      and f'(L) = ``loss_norm``, so that a bright pixel's residual is about its linear one.
+    - ``huber`` / ``cauchy``: on the noise-scaled residual :math:`z = (I - T)/σ` (σ each
+      value's own noise: ``weights`` = σ_ref/σ), the value :math:`ψ(z)σ_{ref}` with
+      :math:`ψ(z)^2/2 = ρ(z)`: Huber's ρ (quadratic up to |z| = 1.345, then linear) or
+      Cauchy's :math:`ρ = (c^2/2)\log(1 + (z/c)^2)`, c = 2.385. The few values the model
+      cannot reproduce (a highlight's core, an edge) then weigh less than their squares,
+      while values within the noise weigh as in least squares.
+    """
+    difference = model - problem.target
+    if problem.loss == "perceptual":
+        offset, norm = problem.loss_offset, problem.loss_norm
+        return (jnp.cbrt(model + offset) - jnp.cbrt(problem.target + offset)) / norm
+    weights = 1.0 if problem.weights is None else problem.weights
+    reference = problem.residual_scale / jnp.sqrt(problem.target.size)  # σ_ref
+    z = difference * weights / reference
+    if problem.loss == "huber":
+        large = jnp.abs(z) > HUBER_K
+        safe = jnp.where(large, jnp.abs(z), HUBER_K)
+        psi = jnp.where(large, jnp.sign(z) * jnp.sqrt(2 * HUBER_K * safe - HUBER_K**2), z)
+    else:  # cauchy
+        small = jnp.abs(z) < _CAUCHY_SMALL
+        safe = jnp.where(small, 1.0, z)
+        psi = jnp.where(small, z, jnp.sign(safe) * CAUCHY_C * jnp.sqrt(jnp.log1p((safe / CAUCHY_C) ** 2)))
+    return psi * reference
 
 
 def scaled(prepared: Prepared, lights: Lights) -> Prepared:
@@ -136,7 +206,7 @@ def render_at(problem: Any, x: Array) -> Array:
 @eqx.filter_jit
 def costs(problem: Problem, xs: Array) -> Array:
     """The normalised cost Σ(r/scale)² at each row of physical points ``xs`` (K, P)."""
-    return jax.vmap(lambda x: jnp.sum((problem.residual_physical(x) / problem.residual_scale) ** 2))(xs)
+    return jax.vmap(lambda x: jnp.sum(problem.objective_residual(x) ** 2))(xs)
 
 
 @uses_float64
@@ -149,25 +219,32 @@ def build_problem(
     options: FitOptions,
     reference_noise: float = 1.0,
     cache: dict | None = None,
+    *,
+    loss: str = "linear",
+    noise_sigma: np.ndarray | None = None,
+    exposure: float | None = None,
 ) -> tuple[Problem, Prepared, np.ndarray]:
     """The :class:`Problem` for the free ``names``, the full prepared image and the
     flat indices of the pixels used.
 
-    Of ``options`` only ``mode`` and ``table_size`` matter. ``cache`` (a dict owned by one
-    :func:`strauss_fit.fit.api.fit` call) keeps the prepared scene per render plan:
-    preparing depends only on the camera, the background, where the lights are and the
-    plan — not on the material or the lights' intensities, which is all that changes
-    between the problems of one fit."""
+    Of ``options`` only ``mode``, ``table_size`` and ``edge_pixels`` matter. ``cache`` (a
+    dict owned by one :func:`strauss_fit.fit.api.fit` call) keeps the prepared scene per
+    render plan: preparing depends only on the camera, the background, where the lights
+    are and the plan — not on the material or the lights' intensities, which is all that
+    changes between the problems of one fit. ``loss`` (:data:`LOSSES`), ``noise_sigma``
+    (the noise level of every value of the image, (H, W, 3), for the robust losses) and
+    ``exposure`` (a held global exposure other than 1) shape the residual."""
     key = (plan, options.mode, options.table_size)
     if cache is not None and key in cache:
         prepared_full, index, prepared, pixels = cache[key]
     else:
         prepared_full = prepare_float64(unit_intensity_scene(scene), plan, options.mode, options.table_size)
-        hit = np.asarray(prepared_full.hit)
-        used = hit & target.usable
+        used = used_pixels(scene, target, np.asarray(prepared_full.hit), options.edge_pixels)
         if not used.any():
             raise StraussFitError(
-                f"target {target.path} has no usable sphere pixels (all masked, clipped or outside the sphere)"
+                f"target {target.path} has no usable sphere pixels (all masked, clipped or outside the sphere"
+                + (", or on the silhouette" if options.edge_pixels == "exclude" else "")
+                + ")"
             )
         index = np.flatnonzero(used.ravel())
         pixels = jnp.asarray(target.pixels.reshape(-1, 3)[index])
@@ -176,6 +253,21 @@ def build_problem(
         prepared = take_pixels_jit(prepared_full, jnp.asarray(index))
         if cache is not None:
             cache[key] = prepared_full, index, prepared, pixels
+    extra: dict[str, Any] = {}
+    if loss != "linear":
+        if loss not in LOSSES:
+            raise StraussFitError(f"unknown loss {loss!r}; expected one of {', '.join(LOSSES)}")
+        extra["loss"] = loss
+        if loss == "perceptual":
+            level = max(float(np.percentile(np.asarray(pixels), 98)), 1e-12)
+            offset = PERCEPTUAL_OFFSET * level
+            extra["loss_offset"] = jnp.asarray(offset)
+            extra["loss_norm"] = jnp.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)
+        elif noise_sigma is not None:
+            sigma = np.asarray(noise_sigma, dtype=np.float64).reshape(-1, 3)[index]
+            extra["weights"] = jnp.asarray(reference_noise / np.maximum(sigma, 1e-300))
+    if exposure is not None and float(exposure) != 1.0:
+        extra["exposure"] = jnp.asarray(float(exposure))
     problem = Problem(
         prepared=prepared,
         target=pixels,
@@ -187,8 +279,26 @@ def build_problem(
         residual_scale=jnp.asarray(reference_noise * np.sqrt(pixels.size)),
         layout=Layout(tuple(names)),
         plan=plan,
+        **extra,
     )
     return problem, prepared_full, index
+
+
+def used_pixels(scene: Scene, target: Target, hit: np.ndarray, edge_pixels: str = "exclude") -> np.ndarray:
+    """(H, W) bool: the pixels a fit uses — on the sphere (``hit``: the ray through the
+    centre hits it), usable in ``target`` (not masked out or clipped) and, with
+    ``edge_pixels="exclude"``, wholly covered by the sphere
+    (:func:`strauss_fit.render.coverage.fully_covered`)."""
+    used = np.asarray(hit) & target.usable
+    if edge_pixels == "exclude":
+        used &= fully_covered(scene.camera)
+    return used
+
+
+#: The perceptual loss's offset ε as a fraction of the target's 98th percentile: small
+#: enough not to flatten dark regions (CIELAB's own linear toe is at 0.9 % of white), large
+#: enough that the cube root's slope stays finite at black.
+PERCEPTUAL_OFFSET = 1e-3
 
 
 def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray) -> Problem | None:
@@ -204,4 +314,5 @@ def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray)
         prepared=take_pixels_jit(prepared_full, jnp.asarray(index[subset])),
         target=problem.target[subset],
         residual_scale=problem.residual_scale * np.sqrt(subset.size / index.size),
+        weights=None if problem.weights is None else problem.weights[subset],
     )

@@ -36,6 +36,11 @@ _FIELDS = {
     "timing": "compile_and_solve",
     "notes": "notes",
     "settings": "settings",
+    "warnings": "warnings",
+    "exposure": "exposure",
+    "uncertainty_method": "uncertainty_method",
+    "uncertainty_laplace": "uncertainty_laplace",
+    "equivalence": "equivalence",
 }
 
 
@@ -72,6 +77,22 @@ class FitResult:
     #: Other top-level keys of the JSON (``target``, ``scene``, ``mask``, ``encoding``
     #: recorded by the command line), written back by :meth:`to_json` after the rest.
     extra: dict[str, Any] = field(default_factory=dict)
+    #: What the verdict found (``{"code", "message"}``, see :mod:`strauss_fit.fit.diagnosis`).
+    warnings: list[dict[str, str]] = field(default_factory=list)
+    #: The global exposure: fitted with ``fit_exposure``, else the held value (1 unless fixed).
+    exposure: float | None = None
+    #: How :attr:`uncertainty` was computed and what it means (``name``: "noise sandwich" or
+    #: "laplace"; ``conditional_on_model``: true when it is valid only if the model is right).
+    uncertainty_method: dict[str, Any] = field(default_factory=dict)
+    #: The Laplace deviations from RSS/(N − P), kept for comparison when :attr:`uncertainty`
+    #: is the noise sandwich.
+    uncertainty_laplace: dict[str, Any] = field(default_factory=dict)
+    #: Perceptual equivalence ranges per free parameter (``fit(..., equivalence=True)``).
+    equivalence: dict[str, Any] | None = None
+    #: Flat indices of the pixels the fit used, and the residual there in noise units
+    #: (RMS over channels; None when the noise is unknown), for the comparison image.
+    used_index: np.ndarray | None = None
+    standardized_residual: np.ndarray | None = None
 
     @property
     def at_bound(self) -> list[str]:
@@ -79,10 +100,17 @@ class FitResult:
         return list(self.solver.get("at_bound", []))
 
     def value(self, name: str) -> Any:
-        """The fitted or held value of a material parameter or a light intensity."""
+        """The fitted or held value of a material parameter, a light intensity or the exposure."""
         if name in PARAMETER_NAMES:
             return self.material.to_dict()[name]
+        if name == "exposure":
+            return 1.0 if self.exposure is None else self.exposure
         return self.lights[name]
+
+    @property
+    def verdict(self) -> str | None:
+        """``"consistent"``, ``"mismatch"`` or ``"undetermined"`` (see :mod:`strauss_fit.fit.diagnosis`)."""
+        return self.residual.get("verdict")
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = self.material.to_dict()
@@ -102,8 +130,15 @@ class FitResult:
                 "timing": self.compile_and_solve,
                 "notes": self.notes,
                 "settings": self.settings,
+                "warnings": self.warnings,
+                "uncertainty_method": self.uncertainty_method,
+                "uncertainty_laplace": self.uncertainty_laplace,
             }
         )
+        if self.exposure is not None:
+            out["exposure"] = self.exposure
+        if self.equivalence is not None:
+            out["equivalence"] = self.equivalence
         out.update(self.extra)
         return out
 
@@ -124,7 +159,17 @@ class FitResult:
             material_values = {k: data[k] for k in PARAMETER_NAMES}
             lights = {str(k): float(v) for k, v in (data.get("lights") or {}).items()}
             fields = {attribute: data[key] for key, attribute in _FIELDS.items() if key in data}
-            for name in ("held", "uncertainty", "correlation", "residual", "solver", "start_spread", "settings"):
+            for name in (
+                "held",
+                "uncertainty",
+                "correlation",
+                "residual",
+                "solver",
+                "start_spread",
+                "settings",
+                "uncertainty_method",
+                "uncertainty_laplace",
+            ):
                 if not isinstance(fields.get(name, {}), dict):
                     raise TypeError(repr(name))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:

@@ -143,8 +143,8 @@ def polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_s
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
     code = _result_code(solution.result)
     x = problem.physical(solution.value)
-    jac = jax.jacfwd(problem.residual_physical)(x) / problem.residual_scale
-    residual = problem.residual_physical(x) / problem.residual_scale  # = problem.residual(solution.value)
+    jac = jax.jacfwd(problem.objective_residual)(x)
+    residual = problem.objective_residual(x)  # = problem.residual(solution.value)
     return solution.value, jnp.sum(residual**2), solution.stats["num_steps"], code, jac.T @ residual, jac.T @ jac
 
 

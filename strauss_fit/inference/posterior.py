@@ -275,20 +275,26 @@ def problem_from_fit(scene: Scene, target: Target, fit: FitResult | dict[str, An
     scene = eqx.tree_at(lambda s: s.material, scene, material)
     transparent = "transparency" in free or float(material_values["transparency"]) > 0
     plan = plan_render(scene, material, transparent=transparent)
+    # results written before edge pixels were left out (no "edge_pixels" setting) used them
     options = FitOptions(
-        mode=settings.get("mode", "exact"), table_size=int(settings.get("table_size", FitOptions.table_size))
+        mode=settings.get("mode", "exact"),
+        table_size=int(settings.get("table_size", FitOptions.table_size)),
+        edge_pixels=settings.get("edge_pixels", "include"),
     )
+    exposure = 1.0 if fit.exposure is None else float(fit.exposure)
     for name in free:
-        if name not in material_values and name not in lights:
+        if name not in material_values and name not in lights and name != "exposure":
             raise PosteriorError(f"the fit result frees {name!r}, which this scene does not have")
-    problem, _, index = build_problem(scene, target, free, material, plan, options)
+    problem, _, index = build_problem(
+        scene, target, free, material, plan, options, exposure=None if "exposure" in free else exposure
+    )
     used = fit.pixels_used
     if used is not None and int(used) != index.size:
         raise PosteriorError(
             f"the fit result used {used} pixels but {target.path} has {index.size} usable sphere "
             "pixels: it was made for another target, mask or scene"
         )
-    values = {**material_values, **lights}
+    values = {**material_values, **lights, "exposure": exposure}
     x_hat = problem.layout.join(values)
     labels = problem.layout.labels()
     pinned = np.array([label in fit.at_bound for label in labels])

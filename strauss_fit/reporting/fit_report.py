@@ -492,12 +492,13 @@ def write_report(report: Report, html_path: str | Path, *, force: bool = False) 
 @uses_float64
 def render_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """The fitted image (H, W, 3) of a fit result — the scene rendered with the result's
-    material and light intensities — and the mask of the pixels the fit used (on the
-    sphere and usable in ``target``). ``scene`` must match the target's size."""
+    material, light intensities and exposure — and the mask of the pixels the fit used
+    (:func:`strauss_fit.fit.problem.used_pixels`). ``scene`` must match the target's size."""
     import equinox as eqx
     import jax.numpy as jnp
 
     from ..fit.parameters import lights_with
+    from ..fit.problem import used_pixels
     from ..render.strauss import render
 
     fit = FitResult.from_json(fit)
@@ -511,7 +512,10 @@ def render_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) ->
         table_size=int(settings.get("table_size", DEFAULT_TABLE_SIZE)),
         dtype=jnp.float64,
     )
-    return np.asarray(image), np.asarray(hit) & target.usable
+    exposure = 1.0 if fit.exposure is None else float(fit.exposure)
+    # results written before edge pixels were left out (no "edge_pixels" setting) used them
+    used = used_pixels(scene, target, np.asarray(hit), settings.get("edge_pixels", "include"))
+    return np.asarray(image) * exposure, used
 
 
 def _recorded(path: str | None, base: Path | None) -> str | None:

@@ -60,6 +60,13 @@ def pixel_centres(width: int, height: int, dtype) -> tuple[Array, Array]:
 def primary_rays(camera: Camera, dtype) -> Rays:
     """One ray per pixel through its centre, shape (height, width, 3)."""
     x, y = pixel_centres(camera.width, camera.height, dtype)
+    return rays_through(camera, x, y, dtype)
+
+
+def rays_through(camera: Camera, x: Array, y: Array, dtype) -> Rays:
+    """Rays through image-plane points (x, y) ∈ [−1, 1]² (any matching shapes; pixel
+    centres, or points inside a pixel's footprint as for coverage), shape (..., 3)."""
+    x, y = jnp.asarray(x, dtype=dtype), jnp.asarray(y, dtype=dtype)
     if camera.projection == "orthographic":
         origin = jnp.stack([x, y, jnp.full_like(x, ORTHOGRAPHIC_ORIGIN_Z)], axis=-1)
         direction = jnp.broadcast_to(jnp.asarray([0.0, 0.0, -1.0], dtype=dtype), origin.shape)

@@ -1,0 +1,361 @@
+r"""Can the model reproduce the target? The verdict of a fit, where it fails and why.
+
+A fit always finds *some* best Strauss material; whether that material reproduces the
+target is a separate question, answered against the target's noise
+(:class:`strauss_fit.inference.noise.NoiseModel`, which does not come from the fit's own
+residual): with σ each value's noise at the fitted radiance,
+
+.. math:: \chi^2/\mathrm{dof} = \frac{1}{N - P}\sum_i \left(\frac{I_i - T_i}{\sigma_i}\right)^2,
+
+whose expected value is 1 with a spread of :math:`\sqrt{2/\mathrm{dof}}` when the model is
+right, widened by the noise level's own relative uncertainty ε (:math:`2ε` on χ²/dof). The
+verdict is *consistent* when :math:`z = (\chi^2/\mathrm{dof} - 1)/\mathrm{spread} \le 3`,
+otherwise *mismatch*; *undetermined* when the noise is unknown.
+
+Where: the used pixels fall into regions — the *highlight* of a light (within
+:data:`HIGHLIGHT_CORE_DEG` of its mirror direction, and its *wings* out to
+:data:`HIGHLIGHT_WING_DEG`), the *rim* (the view grazing the surface, N·V below
+:data:`RIM_COS`) and the *body* (the rest) — each with its own χ²/dof and mean signed
+residual in noise units (positive: the target is brighter than the fit).
+
+Why, as warnings with stable codes (``docs/formats.md``):
+
+- ``model-mismatch`` — the residual is inconsistent with the noise; the message says
+  where, and how visible (CIEDE2000) the difference is;
+- ``highlight-out-of-reach`` — somewhere the target is brighter than any Strauss material
+  can be under the scene's lights (:func:`reachable_maximum`): the lights (or the exposure)
+  are stronger than the scene says, or the surface is a physically based metal whose
+  highlight concentrates more light than r_s ≤ 1 allows;
+- ``color-at-bound`` — a channel of C is pinned at 1: the diffuse term would need more;
+- ``highlight-too-narrow`` / ``highlight-too-wide`` — the target's highlight is brighter at
+  its core and darker in its wings than the fit (or the reverse): Strauss ties the lobe's
+  width and strength to the one smoothness s;
+- ``noise-unknown`` — the noise could not be measured, so no verdict: the ± then assume the
+  model is right.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..inference.noise import NoiseModel
+from .parameters import Layout
+
+#: z of χ²/dof above which the model is said not to reproduce the target.
+MISMATCH_Z = 3.0
+#: Highlight regions: angle to a light's mirror direction (degrees).
+HIGHLIGHT_CORE_DEG = 10.0
+HIGHLIGHT_WING_DEG = 25.0
+#: Rim: N·V below this (the view within 17° of grazing).
+RIM_COS = 0.3
+#: A pixel is out of reach when the target exceeds the reachable maximum by this factor
+#: plus three noise deviations.
+REACH_MARGIN = 1.02
+#: Smoothness values of the materials whose brightest values bound what any material can
+#: reach: dense towards 1, where the highlight narrows and its peak r_j approaches 1.
+_ENVELOPE_SMOOTHNESS = tuple(np.r_[np.linspace(0.0, 0.9, 19), 1 - np.geomspace(0.08, 1e-5, 24), 1.0])
+
+
+@dataclass
+class Diagnosis:
+    """The verdict and its evidence (see the module docstring)."""
+
+    verdict: str
+    chi2_per_dof: float | None = None
+    expected_sd: float | None = None
+    z: float | None = None
+    per_channel: list[dict[str, float]] = field(default_factory=list)
+    regions: dict[str, dict[str, Any]] = field(default_factory=dict)
+    warnings: list[dict[str, str]] = field(default_factory=list)
+    #: (N,) RMS over channels of the residual in noise units at the used pixels (NaN
+    #: when the noise is unknown), for the map in the comparison image.
+    standardized: np.ndarray | None = None
+
+    def warn(self, code: str, message: str) -> None:
+        self.warnings.append({"code": code, "message": message})
+
+
+def chi2_statistics(z2: np.ndarray, parameters: int, relative_stderr: np.ndarray) -> tuple[float, int, float, float]:
+    """χ²/dof of squared noise-scaled residuals ``z2`` (N, C), its degrees of freedom, its
+    expected spread √(2/dof) widened by the noise level's relative uncertainty ε (per
+    channel, each carrying 1/C of χ²: 2·√Σε²/C) and z = (χ²/dof − 1)/spread."""
+    dof = max(z2.size - parameters, 1)
+    chi2 = float(np.sum(z2) / dof)
+    eps = np.asarray(relative_stderr, dtype=float)
+    spread = math.sqrt(2.0 / dof + (2.0 * float(np.sqrt(np.sum(eps**2))) / z2.shape[1]) ** 2)
+    return chi2, dof, spread, (chi2 - 1.0) / spread
+
+
+@eqx.filter_jit
+def _brightest(problem: Any, xs: Array) -> Array:
+    return jnp.max(jax.vmap(problem.render_physical)(xs), axis=0)
+
+
+def reachable_maximum(problem: Any) -> np.ndarray:
+    """(N, 3): at each used pixel, the brightest value any Strauss material reaches under
+    the problem's lights (their fixed intensities, and a held exposure): the maximum over
+    white opaque materials (C = 1, t = 0) of every smoothness, plastic and metal. Brighter
+    colours do not exist (C ≤ 1) and every term grows with C; transparency only trades
+    reflected light for what is seen through the sphere: where the scene traces
+    transmission, the brightest background radiance is added."""
+    layout = Layout(("color", "smoothness", "metalness", "transparency"))
+    probe = dataclasses.replace(
+        problem, layout=layout, pinned=jnp.zeros(layout.size, dtype=bool), pinned_values=jnp.zeros(layout.size)
+    )
+    rows = [[1.0, 1.0, 1.0, s, m, 0.0] for s in _ENVELOPE_SMOOTHNESS for m in (0.0, 1.0)]
+    brightest = np.asarray(_brightest(probe, jnp.asarray(rows)))
+    if problem.plan.transmit:
+        # light through a transparent sphere is the background's, weighted by at most 1
+        # and added to what the surface reflects: bounded by the brightest background
+        seen = [problem.prepared.miss_radiance, problem.prepared.reflected_radiance]
+        brightest = brightest + max(float(np.max(np.asarray(v))) for v in seen if v is not None)
+    return brightest
+
+
+def pixel_regions(prepared: Any) -> dict[str, np.ndarray]:
+    """Boolean masks (N,) of the used pixels of a prepared scene: the highlight (core), its
+    wings, the rim and the body (see the module docstring)."""
+    normal, to_eye = np.asarray(prepared.normal), np.asarray(prepared.to_eye)
+    cos_view = np.sum(normal * to_eye, axis=-1)
+    count = cos_view.shape[0]
+    core = np.zeros(count, dtype=bool)
+    wings = np.zeros(count, dtype=bool)
+    if prepared.direct is not None:
+        lit = np.asarray(prepared.direct.lit)
+        cos_beta = np.where(lit, np.asarray(prepared.direct.cos_beta), 0.0).reshape(count, -1)
+        nearest = np.max(cos_beta, axis=-1)
+        core = nearest > math.cos(math.radians(HIGHLIGHT_CORE_DEG))
+        wings = ~core & (nearest > math.cos(math.radians(HIGHLIGHT_WING_DEG)))
+    rim = (cos_view < RIM_COS) & ~core & ~wings
+    return {"highlight": core, "highlight wings": wings, "rim": rim, "body": ~(core | wings | rim)}
+
+
+def diagnose(
+    problem: Any,
+    model: np.ndarray,
+    noise: NoiseModel,
+    *,
+    parameters: int,
+    delta_e_mean: float,
+    at_bound: list[str],
+    reach: np.ndarray | None,
+) -> Diagnosis:
+    """The verdict for the fitted radiance ``model`` (N, 3) at the used pixels of
+    ``problem`` (whose ``target`` it is compared with), ``parameters`` fitted values,
+    the fit's mean CIEDE2000, the labels the fit pinned on a bound, and ``reach`` (N, 3),
+    the :func:`reachable_maximum` (None when lights or exposure were fitted: then any
+    brightness is reachable)."""
+    target = np.asarray(problem.target)
+    regions = pixel_regions(problem.prepared)
+    diagnosis = Diagnosis("undetermined")
+    color_at_one = [label[-1] for label in at_bound if label.startswith("color_") and label.endswith(("r", "g", "b"))]
+    color_at_one = [c for c in color_at_one if _pinned_at_one(problem, "color_" + c)]
+    if not noise.known:
+        sigma = None
+        diagnosis.warn(
+            "noise-unknown",
+            "the target's noise could not be measured ("
+            + "; ".join(noise.notes)
+            + "): no verdict on whether the model reproduces the target, and the ± assume it does; "
+            "give the noise level (--noise)",
+        )
+    else:
+        sigma = noise.sigma_at(model)
+        z = (target - model) / sigma
+        z2 = z**2
+        chi2, dof, spread, zscore = chi2_statistics(z2, parameters, noise.relative_stderr)
+        diagnosis.chi2_per_dof, diagnosis.expected_sd, diagnosis.z = chi2, spread, zscore
+        diagnosis.standardized = np.sqrt(np.mean(z2, axis=-1))
+        diagnosis.per_channel = [
+            {"channel": c, "chi2_per_dof": float(np.sum(z2[:, i]) / max(z2.shape[0] - parameters / 3, 1))}
+            for i, c in enumerate("rgb")
+        ]
+        total = float(np.sum(z2))
+        for name, mask in regions.items():
+            if mask.any():
+                diagnosis.regions[name] = {
+                    "pixels": int(mask.sum()),
+                    "chi2_per_dof": float(np.mean(z2[mask])),
+                    "share_of_chi2": float(np.sum(z2[mask]) / total) if total > 0 else 0.0,
+                    "mean_z": np.mean(z[mask], axis=0).round(4).tolist(),
+                }
+        diagnosis.verdict = "mismatch" if zscore > MISMATCH_Z else "consistent"
+        if diagnosis.verdict == "mismatch":
+            diagnosis.warn("model-mismatch", _mismatch_message(diagnosis, regions, delta_e_mean))
+            _lobe_shape(diagnosis)
+    if reach is not None:
+        _out_of_reach(diagnosis, target, reach, sigma)
+    if color_at_one:
+        names = ", ".join({"r": "red", "g": "green", "b": "blue"}[c] for c in color_at_one)
+        diagnosis.warn(
+            "color-at-bound",
+            f"C is pinned at 1 in the {names} channel{'s' if len(color_at_one) > 1 else ''}: the target is brighter "
+            "there than a white Strauss surface under the scene's lights, so the colour cannot follow it; the lights "
+            "or the exposure are probably stronger than the scene says (try --fit-exposure)",
+        )
+    return diagnosis
+
+
+def _pinned_at_one(problem: Any, label: str) -> bool:
+    """Whether the entry ``label`` is pinned at 1 (not at 0: a channel at 0 is a colour
+    without that primary, not a bound the target pushes against)."""
+    index = problem.layout.labels().index(label)
+    return bool(np.asarray(problem.pinned)[index]) and float(np.asarray(problem.pinned_values)[index]) >= 1.0
+
+
+def _mismatch_message(diagnosis: Diagnosis, regions: dict[str, np.ndarray], delta_e_mean: float) -> str:
+    ratio = math.sqrt(max(diagnosis.chi2_per_dof or 0.0, 0.0))
+    where = sorted(
+        (
+            (info["share_of_chi2"] / max(info["pixels"] / sum(r.sum() for r in regions.values()), 1e-12), name, info)
+            for name, info in diagnosis.regions.items()
+        ),
+        key=lambda item: -item[0],
+    )
+    worst = where[0] if where else None
+    location = ""
+    if worst is not None and worst[0] > 1.5:
+        _, name, info = worst
+        location = (
+            f"; it concentrates in the {name} ({100 * info['share_of_chi2']:.0f} % of χ² on "
+            f"{100 * info['pixels'] / sum(r.sum() for r in regions.values()):.0f} % of the pixels)"
+        )
+    visible = (
+        "below one just-noticeable difference, so the fit still looks right"
+        if delta_e_mean < 1
+        else "a visible difference"
+    )
+    return (
+        f"the Strauss model cannot reproduce this target: the residual is {ratio:.3g} times the noise "
+        f"(χ²/dof {diagnosis.chi2_per_dof:.4g}, expected 1 ± {diagnosis.expected_sd:.2g}){location}; "
+        f"mean CIEDE2000 {delta_e_mean:.2g}, {visible}"
+    )
+
+
+def _lobe_shape(diagnosis: Diagnosis) -> None:
+    core, wings = diagnosis.regions.get("highlight"), diagnosis.regions.get("highlight wings")
+    if core is None or wings is None:
+        return
+    core_z, wing_z = float(np.mean(core["mean_z"])), float(np.mean(wings["mean_z"]))
+    if core_z > 2 and wing_z < -1:
+        diagnosis.warn(
+            "highlight-too-narrow",
+            f"the target's highlight is brighter at its core (mean residual +{core_z:.2g} σ) and darker in its "
+            f"wings ({wing_z:.2g} σ) than the fit: it is narrower for its strength than a Strauss lobe, whose "
+            "width and peak are both set by the one smoothness s",
+        )
+    elif core_z < -2 and wing_z > 1:
+        diagnosis.warn(
+            "highlight-too-wide",
+            f"the target's highlight is dimmer at its core ({core_z:.2g} σ) and brighter in its wings "
+            f"(+{wing_z:.2g} σ) than the fit: it is wider for its strength than a Strauss lobe, whose width "
+            "and peak are both set by the one smoothness s",
+        )
+
+
+def _out_of_reach(diagnosis: Diagnosis, target: np.ndarray, reach: np.ndarray, sigma: np.ndarray | None) -> None:
+    margin = 0.0 if sigma is None else 3.0 * np.nan_to_num(sigma)
+    beyond = target > reach * REACH_MARGIN + margin
+    if not beyond.any():
+        return
+    pixels = int(np.any(beyond, axis=-1).sum())
+    ratio = target / np.maximum(reach, 1e-300)
+    worst = np.unravel_index(np.argmax(np.where(beyond, ratio, 0.0)), ratio.shape)
+    diagnosis.warn(
+        "highlight-out-of-reach",
+        f"{pixels} pixel(s) of the target are brighter than any Strauss material can be under the scene's lights "
+        f"(up to {ratio[worst]:.3g} times the brightest reachable value, {target[worst]:.4g} against "
+        f"{reach[worst]:.4g}): the lights or the exposure are stronger than the scene says (try --fit-exposure "
+        "or --fit-lights), or the surface concentrates more light into its highlight than r_s ≤ 1 allows "
+        "(a physically based metal)",
+    )
+
+
+#: Correlations above this between free parameters are said in the table.
+STRONG_CORRELATION = 0.95
+#: A parameter whose deviation exceeds this fraction of its scale is "barely constrained"
+#: (the identifiability analysis's threshold).
+WEAK_FRACTION = 0.05
+
+
+def uncertainty_warnings(
+    layout: Layout,
+    covariance: np.ndarray,
+    x: np.ndarray,
+    pinned: np.ndarray,
+    free_covariance: np.ndarray | None,
+    equivalence: dict[str, Any] | None = None,
+) -> list[dict[str, str]]:
+    """What the ± alone would hide, as warnings for the table and the report:
+
+    - ``strong-correlation``: two free entries correlate beyond :data:`STRONG_CORRELATION`
+      (the image pins their combination, not each);
+    - ``weakly-constrained``: a free entry's deviation exceeds :data:`WEAK_FRACTION` of its
+      scale (:func:`~strauss_fit.fit.identifiability.deviation_scale`);
+    - ``flat-at-bound``: an entry pinned at a bound (deviation 0 there) whose deviation,
+      were it free (``free_covariance``: the same covariance with nothing pinned), would
+      exceed that fraction: the cost is nearly flat, and the bound, not the image, sets it.
+
+    ``equivalence`` (:func:`strauss_fit.inference.equivalence.equivalence_ranges`), when
+    computed, is quoted."""
+    from .identifiability import deviation_scale
+
+    labels = layout.labels()
+    owner = [name for name, size in zip(layout.names, layout.sizes) for _ in range(size)]
+    channel = {f"color_{c}": i for i, c in enumerate("rgb")}
+    sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    scale = np.array([float(deviation_scale(n, v)) for n, v in zip(owner, x)])
+
+    def seen(k: int) -> str:
+        if not equivalence or owner[k] not in equivalence:
+            return ""
+        pair = equivalence[owner[k]]
+        low, high = pair[channel[labels[k]]] if labels[k] in channel else pair
+        return f"; it looks the same (mean CIEDE2000 within the threshold) from {low:.3g} to {high:.3g}"
+
+    out: list[dict[str, str]] = []
+    free = ~np.asarray(pinned, dtype=bool)
+    norm = np.outer(sd, sd)
+    corr = np.divide(covariance, norm, out=np.zeros_like(covariance), where=norm > 0)
+    pairs = [
+        f"{labels[i]} and {labels[j]} ({corr[i, j]:+.3f})"
+        for i in range(len(labels))
+        for j in range(i + 1, len(labels))
+        if free[i] and free[j] and owner[i] != owner[j] and abs(corr[i, j]) > STRONG_CORRELATION
+    ]
+    if pairs:
+        out.append(
+            {
+                "code": "strong-correlation",
+                "message": f"{'; '.join(pairs)} trade off: the image pins a combination, and each ± holds only "
+                "with its partner at its fitted value",
+            }
+        )
+    for k in np.flatnonzero(free & (sd > WEAK_FRACTION * scale)):
+        out.append(
+            {
+                "code": "weakly-constrained",
+                "message": f"{labels[k]} is barely constrained (± {sd[k]:.2g}, over {WEAK_FRACTION:.0%} of its "
+                f"scale){seen(k)}",
+            }
+        )
+    if free_covariance is not None:
+        loose = np.sqrt(np.maximum(np.diag(free_covariance), 0.0))
+        for k in np.flatnonzero(~free & (loose > WEAK_FRACTION * scale)):
+            out.append(
+                {
+                    "code": "flat-at-bound",
+                    "message": f"{labels[k]} sits on its bound {x[k]:.3g} with deviation 0 there, but the cost is "
+                    f"nearly flat (free, it would be ± {loose[k]:.2g}): the bound, not the image, sets it{seen(k)}",
+                }
+            )
+    return out

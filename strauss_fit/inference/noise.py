@@ -1,0 +1,1198 @@
+r"""Noise level of a target image that does not come from the model's own residual.
+
+NumPy + SciPy only (no JAX): it runs on the target image before any model exists.
+Four sources of a per-channel noise level:
+
+1. :func:`estimate_noise` — the standard deviation of additive white noise, per channel,
+   estimated from the image itself with a high-pass residual and a robust, iteratively
+   clipped scale (see "Method" below). Returns a :class:`NoiseEstimate` with the number of
+   pixels used, a standard error, and checks that say whether the noise (and not the image
+   content) sets the value.
+2. :func:`estimate_noise_model` — signal-dependent (Poisson–Gaussian) noise,
+   Var[x] = a·x + b per channel (Foi et al. 2008 style), with a significance test of a.
+3. :func:`noise_from_sensor` — the per-pixel σ of the project's synthetic sensor
+   (Var = E/gain + read_noise²).
+4. :func:`quantisation_sigma` — the per-pixel noise floor of 8-bit sRGB coding
+   (bin width in linear units / √12), and :func:`combine_with_quantisation`.
+
+:func:`mismatch_verdict` turns a fit's residual and a noise level into χ²/dof, its
+expected spread and the decision.
+
+Method (estimate_noise)
+-----------------------
+Residual. The image is correlated with a high-pass kernel K of unit L2 norm, so that for
+white noise of standard deviation σ the residual r = K ⋆ x has standard deviation σ too.
+The default kernel ("d2") is Immerkær's 3×3 operator, the tensor product of second
+differences, ``outer([1, -2, 1], [1, -2, 1]) / 6``: its response to smooth content is
+h⁴·∂⁴f/∂x²∂y² + O(h⁶) — it ignores anything that is at most linear in x or at most linear
+in y — so smooth curved shading leaves almost nothing. A 4×4 kernel of third differences
+("d3", ``outer([1,-3,3,-1], [1,-3,3,-1]) / 20``) is computed as a check (below).
+
+Footprint. r is kept only where the whole kernel footprint lies inside the usable mask
+after an extra erosion by ``margin`` pixels (partly covered silhouette pixels, pixels next
+to clipped ones).
+
+Robust scale. Start from MAD: s = median|r| / 0.6745 (r has zero mean). Then iterate to a
+fixed point:
+
+- flag positions where |r| > ``clip``·s in ANY channel (sharp highlights, the silhouette,
+  edges of a pattern seen through the sphere give coherent runs of large residuals, in
+  every channel at once) and dilate the flags by ``dilate`` positions (their weaker
+  neighbours are contaminated too);
+- window test (``window`` > 0): flag positions where the mean of (r/s)² over the kept
+  positions of the (2·window+1)² neighbourhood, channels pooled, exceeds
+  1 + 4·√(κ/n_local) (κ = 2Σρ², ρ the residual's spatial autocorrelation): content below
+  the clip level but spatially coherent (a moiré ring);
+- s = RMS of the remaining residuals divided by the variance factor of a normal truncated
+  at clip·s.
+
+A constant (:data:`_CALIBRATION_TABLE`, 0.2–0.8 %) removes the bias left by dropping the
+neighbours of clean outliers; it was measured on pure Gaussian noise. The clipped RMS has
+1.3× (vs the raw MAD) to 1.6× (vs the clipped MAD) smaller variance, and unlike a median
+of |r| it does not collapse to 0 on discrete (8-bit) data where most residuals are 0.
+
+Standard error. SE = c·σ/√n, n the residual positions used and c measured on pure noise
+(:data:`_CALIBRATION_TABLE`; c ≈ 1.47 for d2, larger than the i.i.d. 1/√2 because the
+residuals of overlapping footprints are correlated: σ from n positions is worth about
+n/4 independent values).
+
+Checks (``resolved``). Two signatures of content, either makes a channel unresolved:
+
+- the kernels disagree: white noise gives the same σ through every unit-norm kernel,
+  smooth content leaks much less through d3 than through d2 (tolerance ``check_tolerance``
+  times the SE of the difference, measured on pure noise, plus ``check_rel``);
+- the channels correlate: the sensor's noise is independent between R, G and B, while
+  image content (a pattern, an edge, a highlight) appears in all channels at the same
+  places. A correlation of the kept residuals beyond ``correlation_z`` standard errors
+  (SE ≈ √(κ/2n)) flags both channels. This is what catches aliased patterns (a checker
+  seen through glass at 64×64), which look like noise to any single-channel statistic.
+
+Unresolved: ``sigma`` is (for additive content) an upper bound; do not use it as a noise
+level. ``details["sigma_rank1"]`` holds a content-corrected guess from a one-factor model
+of the 3×3 channel covariance (experimental).
+
+8-bit targets. ``censor=(0, 1)`` leaves out positions whose local level (a box mean that
+is uncorrelated with the residual, so the selection does not bias it) is within
+``censor_margin``·σ of code 0 or 255, where the noise is truncated.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from scipy import ndimage, special
+
+from ..color import srgb_decode, srgb_encode
+from ..errors import StraussFitError
+
+
+class NoiseEstimationError(StraussFitError):
+    """The noise level cannot be estimated from this input."""
+
+
+# --------------------------------------------------------------------------------------
+# kernels
+# --------------------------------------------------------------------------------------
+
+
+def _outer(v: list[float]) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    k = np.outer(v, v)
+    return k / np.sqrt(np.sum(k * k))
+
+
+#: High-pass kernels of unit L2 norm (white noise of σ gives residuals of σ).
+KERNELS: dict[str, np.ndarray] = {
+    # Immerkær (1996): tensor product of second differences (the default)
+    "d2": _outer([1, -2, 1]),
+    # tensor product of third differences (smooth content leaks less, footprint 4×4)
+    "d3": _outer([1, -3, 3, -1]),
+    # finest diagonal Haar sub-band (Donoho's HH), undecimated
+    "haar": np.array([[1.0, -1.0], [-1.0, 1.0]]) / 2.0,
+    # 5-point Laplacian
+    "lap": np.array([[0.0, 1.0, 0.0], [1.0, -4.0, 1.0], [0.0, 1.0, 0.0]]) / np.sqrt(20.0),
+}
+
+#: (kernel, robust, window): (bias multiplier, SE factor), measured by ``calibrate.py`` on
+#: 160 × 3 channels of 96×96 N(0, 1) noise inside a disk. The unclipped estimators
+#: ("mad_raw", "mean_abs") are consistent by construction (1.0); the clipped ones lose
+#: 0.2–0.8 % to the dilation around clean outliers. SE = factor·σ/√n_pixels: larger than the
+#: i.i.d. MAD value 1.17 because residuals of overlapping footprints are correlated. The
+#: factors carry ~3 % sampling error.
+_CALIBRATION_TABLE: dict[tuple[str, str, int], tuple[float, float]] = {
+    ("d2", "clipped", 0): (1.0058, 1.469),
+    ("d2", "clipped", 3): (1.0059, 1.467),
+    ("d2", "mad", 0): (1.0025, 1.773),
+    ("d2", "mad", 3): (1.0026, 1.864),
+    ("d3", "clipped", 0): (1.0077, 1.673),
+    ("d3", "clipped", 3): (1.0082, 1.701),
+    ("d3", "mad", 0): (1.0044, 2.118),
+    ("d3", "mad", 3): (1.0036, 2.020),
+    ("haar", "clipped", 0): (1.0037, 1.092),
+    ("haar", "clipped", 3): (1.0036, 1.129),
+    ("haar", "mad", 0): (1.0009, 1.523),
+    ("haar", "mad", 3): (1.0024, 1.505),
+    ("lap", "clipped", 0): (1.0025, 1.015),
+    ("lap", "clipped", 3): (1.0016, 0.969),
+    ("lap", "mad", 0): (1.0011, 1.349),
+    ("lap", "mad", 3): (1.0014, 1.333),
+    ("d2", "mad_raw", 0): (1.0000, 1.649),
+    ("d3", "mad_raw", 0): (1.0000, 2.005),
+    ("haar", "mad_raw", 0): (1.0000, 1.442),
+    ("lap", "mad_raw", 0): (1.0000, 1.294),
+    ("d2", "mean_abs", 0): (1.0000, 1.415),
+}
+_CALIBRATION: dict[tuple[str, str, int], float] = {}
+_SE_FACTOR: dict[tuple[str, str, int], float] = {}
+#: Standard deviation of (σ_d3 − σ_d2)·√n/σ on pure noise (default settings), for the check.
+_CHECK_SD_FACTOR = 0.566
+
+
+def _load_calibration() -> None:
+    for key, (bias, se) in _CALIBRATION_TABLE.items():
+        _CALIBRATION[key] = bias
+        _SE_FACTOR[key] = se
+        if key[1] in ("mad_raw", "mean_abs"):  # no clipping: the window is irrelevant
+            _CALIBRATION[(key[0], key[1], 3)] = bias
+            _SE_FACTOR[(key[0], key[1], 3)] = se
+
+
+_load_calibration()
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------
+
+
+def _as_image(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3:
+        raise NoiseEstimationError(f"image must be (H, W) or (H, W, C), got shape {np.shape(image)}")
+    return img
+
+
+def _as_mask(mask: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    if mask is None:
+        return np.ones(shape, dtype=bool)
+    m = np.asarray(mask)
+    if m.shape != shape:
+        raise NoiseEstimationError(f"usable_mask has shape {m.shape} but the image is {shape}")
+    return m.astype(bool)
+
+
+def _check_finite(img: np.ndarray, usable: np.ndarray) -> None:
+    bad = ~np.all(np.isfinite(img), axis=-1) & usable
+    if bad.any():
+        raise NoiseEstimationError(
+            f"{int(bad.sum())} usable pixel(s) hold NaN or infinite values; mark them unusable or fix the image"
+        )
+
+
+def _erode(mask: np.ndarray, margin: int) -> np.ndarray:
+    if margin <= 0:
+        return mask
+    return ndimage.binary_erosion(mask, structure=np.ones((3, 3), bool), iterations=margin, border_value=0)
+
+
+def _valid_positions(usable: np.ndarray, kshape: tuple[int, int]) -> np.ndarray:
+    """Top-left positions (H-kh+1, W-kw+1) whose kh×kw footprint lies inside ``usable``."""
+    kh, kw = kshape
+    H, W = usable.shape
+    if H < kh or W < kw:
+        return np.zeros((max(H - kh + 1, 0), max(W - kw + 1, 0)), bool)
+    c = np.cumsum(np.cumsum(np.pad(usable.astype(np.int64), ((1, 0), (1, 0))), 0), 1)
+    s = c[kh:, kw:] - c[:-kh, kw:] - c[kh:, :-kw] + c[:-kh, :-kw]
+    return s == kh * kw
+
+
+def _correlate_valid(img: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Valid-mode correlation of every channel: (H-kh+1, W-kw+1, C)."""
+    kh, kw = kernel.shape
+    H, W, C = img.shape
+    out = np.zeros((H - kh + 1, W - kw + 1, C))
+    clean = np.where(np.isfinite(img), img, 0.0)
+    for a in range(kh):
+        for b in range(kw):
+            if kernel[a, b] != 0:
+                out += kernel[a, b] * clean[a : a + H - kh + 1, b : b + W - kw + 1]
+    return out
+
+
+def _truncated_variance_factor(k: float) -> float:
+    """E[z² | |z| ≤ k] for z ~ N(0, 1)."""
+    p = math.erf(k / math.sqrt(2.0))
+    phi = math.exp(-0.5 * k * k) / math.sqrt(2 * math.pi)
+    return 1.0 - 2.0 * k * phi / p
+
+
+def _truncated_median_factor(k: float) -> float:
+    """median(|z| given |z| ≤ k) for z ~ N(0, 1)."""
+    p = math.erf(k / math.sqrt(2.0))
+    return math.sqrt(2.0) * special.erfinv(0.5 * p)
+
+
+MAD_CONSTANT = 0.6744897501960817  # Φ⁻¹(3/4)
+
+
+def _scale_once(r: np.ndarray, robust: str) -> np.ndarray:
+    """Per-channel scale of the residual rows r (n, C), no clipping."""
+    if robust == "mean_abs":
+        return np.sqrt(np.pi / 2) * np.mean(np.abs(r), axis=0)
+    s = np.median(np.abs(r), axis=0) / MAD_CONSTANT
+    zero = s <= 0
+    if zero.any():  # discrete data: more than half the residuals are exactly 0
+        s = np.where(zero, np.sqrt(np.mean(r * r, axis=0)), s)
+    return s
+
+
+@dataclass
+class _Robust:
+    sigma: np.ndarray  # (C,)
+    kept: np.ndarray  # bool positions
+    n_valid: int
+    n_kept: int
+    iterations: int
+    window_flagged: int = 0
+
+
+def kernel_kappa(kernel: np.ndarray) -> float:
+    """Var[mean of (r/σ)² over n positions] ≈ κ/n for white noise: κ = 2·Σ ρ(lag)², ρ the
+    autocorrelation of the residual (overlapping footprints make neighbours correlated).
+    d2: 7.56, d3: 10.67, haar: 4.5, lap: 3.38."""
+    kh, kw = kernel.shape
+    padded = np.pad(kernel, ((kh - 1, kh - 1), (kw - 1, kw - 1)))
+    ac = np.array(
+        [[np.sum(kernel * padded[i : i + kh, j : j + kw]) for j in range(2 * kw - 1)] for i in range(2 * kh - 1)]
+    )
+    ac = ac / np.sum(kernel * kernel)
+    return float(2.0 * np.sum(ac * ac))
+
+
+def _robust_scale(
+    res: np.ndarray,
+    valid: np.ndarray,
+    robust: str,
+    clip: float,
+    dilate: int,
+    window: int = 0,
+    window_k: float = 4.0,
+    kappa: float = 7.6,
+    max_iter: int = 30,
+    tol: float = 1e-4,
+) -> _Robust:
+    """Iteratively clipped scale of residual images ``res`` (h, w, C) over ``valid`` (h, w).
+
+    Two rejections, iterated to a fixed point with the scale s (C,):
+    - position level: |r| > clip·s in any channel, dilated by ``dilate`` (sharp features);
+    - window level (``window`` > 0): the mean of (r/s)² over the kept positions of the
+      (2·window+1)² neighbourhood, all channels pooled, exceeds 1 + window_k·√(κ/n_local)
+      (content that is below the clip level but spatially coherent: a moiré ring, a
+      refracted pattern; also a noise level that varies across the image).
+    """
+    z = res
+    rows = z[valid]
+    n_valid = rows.shape[0]
+    C = z.shape[-1]
+    s = _scale_once(rows, "mad" if robust != "mean_abs" else "mean_abs")
+    if robust in ("mad_raw", "mean_abs") or not np.all(s > 0):
+        return _Robust(s, valid, n_valid, n_valid, 0)
+    kept = valid
+    it = 0
+    tf = _truncated_variance_factor(clip)
+    structure = np.ones((2 * dilate + 1, 2 * dilate + 1), bool) if dilate > 0 else None
+    n_window_flagged = 0
+    for it in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
+        flagged = np.any(np.abs(z) > clip * s, axis=-1) & valid
+        if structure is not None and flagged.any():
+            flagged = ndimage.binary_dilation(flagged, structure=structure)
+        kept = valid & ~flagged
+        if window > 0:
+            size = 2 * window + 1
+            q = np.where(kept, np.mean((z / s) ** 2, axis=-1) / tf, 0.0)
+            cnt = ndimage.uniform_filter(kept.astype(np.float64), size=size, mode="constant") * size * size
+            tot = ndimage.uniform_filter(q, size=size, mode="constant") * size * size
+            local = tot / np.maximum(cnt, 1.0)
+            n_local = np.maximum(cnt, 1.0) * C
+            wflag = kept & (cnt >= size) & (local > 1.0 + window_k * np.sqrt(kappa / n_local))
+            n_window_flagged = int(wflag.sum())
+            kept = kept & ~wflag
+        rows = z[kept]
+        if rows.shape[0] < 10:
+            break
+        if robust == "clipped":
+            s_new = np.sqrt(np.mean(rows * rows, axis=0) / tf)
+        else:  # "mad": median of the kept |r|, corrected for the truncation
+            s_new = np.median(np.abs(rows), axis=0) / _truncated_median_factor(clip)
+            zero = s_new <= 0
+            if zero.any():
+                s_new = np.where(zero, np.sqrt(np.mean(rows * rows, axis=0) / tf), s_new)
+        done = np.all(np.abs(s_new - s) <= tol * np.maximum(s, 1e-300))
+        s = s_new
+        if done or not np.all(s > 0):
+            break
+    return _Robust(s, kept, n_valid, int(kept.sum()), it, n_window_flagged)
+
+
+# --------------------------------------------------------------------------------------
+# additive noise, per channel
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class NoiseEstimate:
+    """Per-channel standard deviation of additive white noise, estimated from the image.
+
+    ``sigma`` (C,): the estimate (image content leaking through the kernel included).
+    ``stderr`` (C,): its standard error from the noise alone (not the content bias).
+    ``n_pixels``: residual positions used (after erosion, clipping and dilation).
+    ``n_candidates``: positions whose footprint lay inside the eroded usable mask.
+    ``sigma_check`` (C,): the same estimate through the third-difference kernel.
+    ``resolved`` (C,): True when both kernels agree, i.e. the noise and not the image
+    content sets ``sigma``; False means ``sigma`` is only an upper bound on the noise
+    (e.g. a noise-free rendering: the value is the content floor).
+    """
+
+    sigma: np.ndarray
+    stderr: np.ndarray
+    n_pixels: int
+    n_candidates: int
+    sigma_check: np.ndarray
+    resolved: np.ndarray
+    method: str
+    details: dict = field(default_factory=dict)
+    #: (h, w) residual positions used (top-left of the kernel footprint), for diagnostics
+    used_positions: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def relative_stderr(self) -> np.ndarray:
+        return self.stderr / np.where(self.sigma > 0, self.sigma, np.nan)
+
+    def to_dict(self) -> dict:
+        return {
+            "sigma": self.sigma.tolist(),
+            "stderr": self.stderr.tolist(),
+            "n_pixels": self.n_pixels,
+            "n_candidates": self.n_candidates,
+            "sigma_check": self.sigma_check.tolist(),
+            "resolved": self.resolved.tolist(),
+            "method": self.method,
+            "details": self.details,
+        }
+
+
+def _box_levels(img: np.ndarray, kshape: tuple[int, int]) -> np.ndarray:
+    """Mean of each residual position's footprint grown by one pixel on every side, per
+    channel, on the residual grid. The box weight is constant over the footprint and the
+    kernel sums to 0, so for white noise this level is uncorrelated with the residual:
+    selecting positions by it does not bias the residual's scale."""
+    kh, kw = kshape
+    padded = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    box = np.ones((kh + 2, kw + 2)) / ((kh + 2) * (kw + 2))
+    return _correlate_valid(padded, box)
+
+
+def _kernel_estimate(
+    img: np.ndarray,
+    usable: np.ndarray,
+    kernel: str,
+    robust: str,
+    clip: float,
+    dilate: int,
+    window: int,
+    censor: tuple[float, float] | None = None,
+    sigma_hint: np.ndarray | None = None,
+    censor_margin: float = 2.0,
+) -> tuple[np.ndarray | None, _Robust | None, np.ndarray | None]:
+    """Calibrated scale through one kernel. ``censor`` = (low, high): values are clipped to
+    this range by the encoding (8-bit: (0, 1)); positions whose local level lies within
+    ``censor_margin``·σ of either end are left out (the noise there is truncated: at 2σ
+    2.3 % of the values are clipped), σ iterated twice."""
+    k = KERNELS[kernel]
+    valid = _valid_positions(usable, k.shape)
+    if valid.size == 0 or valid.sum() == 0:
+        return None, None, None
+    res = _correlate_valid(img, k)
+    kappa = kernel_kappa(k)
+    calib = _CALIBRATION.get((kernel, robust, window), 1.0)
+    rob = _robust_scale(res, valid, robust, clip, dilate, window=window, kappa=kappa)
+    sigma = rob.sigma * calib if sigma_hint is None else sigma_hint
+    if censor is not None:
+        lo, hi = censor
+        level = _box_levels(img, k.shape)
+        for _ in range(2):
+            near = np.any((level < lo + censor_margin * sigma) | (level > hi - censor_margin * sigma), axis=-1)
+            v = valid & ~near
+            if v.sum() < 10:
+                break
+            rob = _robust_scale(res, v, robust, clip, dilate, window=window, kappa=kappa)
+            rob.n_valid = int(valid.sum())
+            sigma = rob.sigma * calib
+    return rob.sigma * calib, rob, res
+
+
+#: Fewest residual positions an estimate is made from.
+MIN_PIXELS = 50
+
+
+def _channel_correlation(res: np.ndarray, kept: np.ndarray, kappa: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Correlation matrix of the kept residuals across channels, its z-scores against
+    independent noise (SE ≈ √(κ/2n): the residuals are spatially correlated) and the
+    covariance matrix (truncation-corrected)."""
+    r = res[kept]
+    n = max(r.shape[0], 1)
+    cov = r.T @ r / n
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov / np.outer(sd, sd)
+    z = corr / np.sqrt(kappa / 2.0 / n)
+    np.fill_diagonal(z, 0.0)
+    return corr, z, cov
+
+
+def _rank1_noise(cov: np.ndarray) -> np.ndarray:
+    """Noise variances of a one-factor model cov = λλᵀ + diag(ψ) (3 channels, closed form):
+    λ_i² = c_ij c_ik / c_jk. Content that has the same spatial pattern in every channel
+    (a refracted or reflected pattern of two colours, a white highlight) is one factor."""
+    C = cov.shape[0]
+    if C != 3:
+        return np.full(C, np.nan)
+    lam2 = np.empty(3)
+    for i, (j, k) in enumerate(((1, 2), (0, 2), (0, 1))):
+        den = cov[j, k]
+        lam2[i] = cov[i, j] * cov[i, k] / den if den != 0 else np.nan
+    psi = np.diag(cov) - np.clip(lam2, 0.0, np.diag(cov))
+    return np.sqrt(np.maximum(psi, 0.0))
+
+
+def estimate_noise(
+    image: np.ndarray,
+    usable_mask: np.ndarray | None = None,
+    *,
+    kernel: str = "d2",
+    robust: Literal["clipped", "mad", "mad_raw", "mean_abs"] = "clipped",
+    clip: float = 3.5,
+    dilate: int = 1,
+    window: int = 3,
+    margin: int = 1,
+    censor: tuple[float, float] | None = None,
+    censor_margin: float = 2.0,
+    check: bool = True,
+    check_tolerance: float = 3.0,
+    check_rel: float = 0.05,
+    correlation_z: float = 4.0,
+    min_pixels: int = MIN_PIXELS,
+) -> NoiseEstimate:
+    """Per-channel standard deviation of additive white noise in ``image`` (H, W[, C]).
+
+    ``usable_mask`` (H, W): pixels that may be used (e.g. the sphere, minus clipped
+    pixels). It is eroded by ``margin`` pixels and a residual is used only where the
+    kernel's whole footprint lies inside it. Non-finite values inside it are an error.
+    ``censor=(0, 1)`` for 8-bit targets: leave out positions whose local level is within
+    ``censor_margin``·σ of a code range end (noise truncated at code 0 or 255).
+    See the module docstring for the method; ``robust="mad_raw"`` and ``"mean_abs"``
+    (Immerkær's original mean |r|) are the unclipped alternatives kept for comparison.
+
+    ``resolved`` is False for a channel when (a) the d2 and d3 kernels disagree, or (b) its
+    residual correlates with another channel's (|z| > ``correlation_z``): independent
+    noise does not correlate across channels, image content does. Then ``sigma`` is an
+    upper bound, and ``details["sigma_rank1"]`` a content-corrected guess (one-factor
+    model of the channel covariance; validated only on two-colour patterns).
+
+    Raises :class:`NoiseEstimationError` when fewer than ``min_pixels`` residual positions
+    are usable, or when the residual is identically zero (a constant image, or a noise-free
+    image without any variation the kernel sees: its noise cannot be measured).
+    """
+    img = _as_image(image)
+    H, W, C = img.shape
+    usable = _as_mask(usable_mask, (H, W))
+    _check_finite(img, usable)
+    usable = _erode(usable & np.all(np.isfinite(img), axis=-1), margin)
+    if kernel not in KERNELS:
+        raise NoiseEstimationError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
+    if robust not in ("clipped", "mad", "mad_raw", "mean_abs"):
+        raise NoiseEstimationError(f"unknown robust scale {robust!r}")
+    k = KERNELS[kernel]
+    valid = _valid_positions(usable, k.shape) if usable.any() else np.zeros((0, 0), bool)
+    n_cand = int(valid.sum())
+    if n_cand < min_pixels:
+        raise NoiseEstimationError(
+            f"only {n_cand} pixel(s) have their whole {k.shape[0]}×{k.shape[1]} neighbourhood inside the usable "
+            f"mask (eroded by {margin}); need at least {min_pixels}"
+        )
+    raw = _correlate_valid(img, k)[valid]
+    scale = np.max(np.abs(img[usable]), axis=0)
+    flat = np.max(np.abs(raw), axis=0) <= 1e-12 * np.maximum(scale, 1e-300)  # zero up to float rounding
+    if flat.any():
+        zero = [int(c) for c in np.flatnonzero(flat)]
+        raise NoiseEstimationError(
+            f"the high-pass residual is identically zero in channel(s) {zero}: the image is constant (or "
+            "linear) over the usable pixels, so its noise cannot be measured; give the noise level"
+        )
+    sigma, rob, res = _kernel_estimate(
+        img, usable, kernel, robust, clip, dilate, window, censor, censor_margin=censor_margin
+    )
+    if rob.n_kept < min_pixels:
+        raise NoiseEstimationError(
+            f"only {rob.n_kept} residual positions are left after rejecting content "
+            f"(of {n_cand}); need at least {min_pixels}"
+        )
+    se = _SE_FACTOR.get((kernel, robust, window), 1.6) * sigma / np.sqrt(max(rob.n_kept, 1))
+    sigma_check = np.full(C, np.nan)
+    kernels_agree = np.ones(C, bool)
+    independent = np.ones(C, bool)
+    details = {
+        "kernel": kernel,
+        "robust": robust,
+        "clip": clip,
+        "dilate": dilate,
+        "window": window,
+        "margin": margin,
+        "censor": censor,
+        "iterations": rob.iterations,
+        "rejected_fraction": 1.0 - rob.n_kept / max(rob.n_valid, 1),
+        "window_rejected_fraction": rob.window_flagged / max(rob.n_valid, 1),
+    }
+    if check:
+        other = "d3" if kernel != "d3" else "d2"
+        s2, rob2, _ = _kernel_estimate(
+            img,
+            usable,
+            other,
+            robust if robust in ("clipped", "mad") else "clipped",
+            clip,
+            dilate,
+            window,
+            censor,
+            sigma_hint=sigma if censor else None,
+            censor_margin=censor_margin,
+        )
+        if s2 is not None and rob2.n_kept >= min_pixels:
+            sigma_check = s2
+            n = min(rob.n_kept, rob2.n_kept)
+            sd = _CHECK_SD_FACTOR * np.maximum(sigma, s2) / np.sqrt(n)
+            kernels_agree = (
+                (np.abs(s2 - sigma) <= check_tolerance * sd + check_rel * np.maximum(sigma, s2))
+                & (sigma > 0)
+                & (s2 > 0)
+            )
+            details["check_kernel"] = other
+        else:
+            kernels_agree = np.zeros(C, bool)
+            details["check_kernel"] = None
+        if C > 1 and np.all(sigma > 0):
+            corr, z, cov = _channel_correlation(res, rob.kept, kernel_kappa(k))
+            hit = np.abs(z) > correlation_z
+            independent = ~np.any(hit, axis=1)
+            details["channel_correlation"] = corr.tolist()
+            details["channel_correlation_z"] = z.tolist()
+            if not independent.all():
+                tf = _truncated_variance_factor(clip) if robust == "clipped" else 1.0
+                details["sigma_rank1"] = (
+                    _rank1_noise(cov / tf) * _CALIBRATION.get((kernel, robust, window), 1.0)
+                ).tolist()
+    resolved = kernels_agree & independent
+    details["kernels_agree"] = kernels_agree.tolist()
+    details["channels_independent"] = independent.tolist()
+    return NoiseEstimate(
+        sigma=sigma,
+        stderr=se,
+        n_pixels=rob.n_kept,
+        n_candidates=n_cand,
+        sigma_check=sigma_check,
+        resolved=resolved,
+        method=f"{kernel}/{robust}/w{window}",
+        details=details,
+        used_positions=rob.kept,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# signal-dependent noise: Poisson–Gaussian, Var = a·x + b
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class PoissonGaussian:
+    """Per-channel Var[x] = a·x + b (a: shot-noise slope = 1/gain; b: read-noise variance).
+
+    ``a``, ``b``, ``a_stderr``, ``b_stderr`` (C,). ``signal_dependent`` (C,): a is
+    significantly > 0 (a / SE(a) > ``z``). ``bins`` holds, per channel, the binned
+    (mean level, variance, SE of variance, count) the line was fitted to."""
+
+    a: np.ndarray
+    b: np.ndarray
+    a_stderr: np.ndarray
+    b_stderr: np.ndarray
+    signal_dependent: np.ndarray
+    chi2_dof: np.ndarray
+    n_pixels: int
+    channels_independent: np.ndarray | None = None
+    bins: list = field(default_factory=list)
+
+    def variance(self, values: np.ndarray) -> np.ndarray:
+        """Var at the level ``values`` (…, C), the level clipped at 0."""
+        v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
+        return self.a * v + self.b
+
+    def sigma_map(self, values: np.ndarray) -> np.ndarray:
+        """Per-pixel σ at the level ``values`` (…, C): use the model render (or a smoothed
+        target) as the level, not the noisy target, where possible."""
+        return np.sqrt(self.variance(values))
+
+    def to_dict(self) -> dict:
+        return {
+            "a": self.a.tolist(),
+            "b": self.b.tolist(),
+            "a_stderr": self.a_stderr.tolist(),
+            "b_stderr": self.b_stderr.tolist(),
+            "signal_dependent": self.signal_dependent.tolist(),
+            "chi2_dof": self.chi2_dof.tolist(),
+            "n_pixels": self.n_pixels,
+            "channels_independent": None if self.channels_independent is None else self.channels_independent.tolist(),
+        }
+
+
+def _fit_line(x: np.ndarray, y: np.ndarray, se: np.ndarray) -> tuple[float, float, float, float, float]:
+    """Weighted line y = a x + b with a, b ≥ 0. Returns a, b, se_a, se_b, chi2/dof."""
+    w = 1.0 / se**2
+    X = np.stack([x, np.ones_like(x)], axis=1)
+    A = X.T @ (w[:, None] * X)
+    try:
+        cov = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(A)
+    a, b = cov @ (X.T @ (w * y))
+    if a < 0 or b < 0:
+        # one-parameter fits on the boundary; keep the better one that is admissible
+        cands = []
+        b0 = np.sum(w * y) / np.sum(w)  # a = 0
+        if b0 >= 0:
+            cands.append((np.sum(w * (y - b0) ** 2), 0.0, b0, 0.0, 1.0 / math.sqrt(np.sum(w))))
+        a0 = np.sum(w * x * y) / np.sum(w * x * x)  # b = 0
+        if a0 >= 0:
+            cands.append((np.sum(w * (y - a0 * x) ** 2), a0, 0.0, 1.0 / math.sqrt(np.sum(w * x * x)), 0.0))
+        if not cands:
+            cands.append((np.sum(w * y * y), 0.0, 0.0, 0.0, 0.0))
+        chi2, a, b, sa, sb = min(cands)
+        # the SE of a parameter at its bound is still that of the unconstrained fit (for the test)
+        sa = sa if sa > 0 else math.sqrt(cov[0, 0])
+        sb = sb if sb > 0 else math.sqrt(cov[1, 1])
+    else:
+        sa, sb = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+        chi2 = np.sum(w * (y - a * x - b) ** 2)
+    dof = max(len(x) - 2, 1)
+    red = chi2 / dof
+    if red > 1:  # the bins scatter more than noise: content leaks in; widen (Birge ratio)
+        sa, sb = sa * math.sqrt(red), sb * math.sqrt(red)
+    return float(a), float(b), float(sa), float(sb), float(red)
+
+
+def estimate_noise_model(
+    image: np.ndarray,
+    usable_mask: np.ndarray | None = None,
+    *,
+    kernel: str = "d2",
+    clip: float = 3.5,
+    dilate: int = 1,
+    window: int = 3,
+    margin: int = 1,
+    n_bins: int | None = None,
+    min_per_bin: int = 300,
+    z: float = 3.0,
+    iterations: int = 4,
+    quantisation: Literal[None, "srgb8"] = None,
+    censor: tuple[float, float] | None = None,
+    correlation_z: float = 4.0,
+) -> PoissonGaussian:
+    """Fit Var[x] = a·x + b per channel from the image itself (Foi et al. 2008 style).
+
+    For every residual position: the high-pass residual r (unit-norm kernel K) and the
+    level μ = Σ K²·x (the same weights the residual's variance is a mean over, so
+    Var[r] = a·μ + b exactly for a smooth image). Positions are binned by μ (equal counts).
+    First pass: each bin's variance from the MAD of its residuals (no clipping). Then,
+    ``iterations`` times: the residuals are divided by the current model's σ(μ) and
+    cleaned exactly as in :func:`estimate_noise` (clip, dilate, window test), so bright,
+    noisier pixels are not rejected as content; each bin's variance is the truncated
+    second moment of its kept residuals; a line is fitted by weighted least squares
+    (weights from the model's predicted SE), a and b clamped ≥ 0.
+
+    ``signal_dependent``: a / SE(a) > ``z``. ``chi2_dof`` of the line fit (> 1: the bins
+    scatter more than noise allows — content, or a noise that is not a·x + b; the SEs are
+    then widened by √chi2_dof).
+
+    ``quantisation="srgb8"``: subtract each bin's mean 8-bit quantisation variance
+    (:func:`quantisation_sigma`) before the fit (sRGB-decoded 8-bit targets).
+    ``censor=(0, 1)``: leave out positions whose local level is within 2σ(level) of an end
+    of the code range (as in :func:`estimate_noise`). ``channels_independent``: the
+    normalised residuals do not correlate across channels (|z| ≤ ``correlation_z``);
+    False means image content leaks into the bins.
+    """
+    img = _as_image(image)
+    H, W, C = img.shape
+    usable = _as_mask(usable_mask, (H, W))
+    _check_finite(img, usable)
+    usable = _erode(usable & np.all(np.isfinite(img), axis=-1), margin)
+    if kernel not in KERNELS:
+        raise NoiseEstimationError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
+    k = KERNELS[kernel]
+    valid = _valid_positions(usable, k.shape)
+    n_valid = int(valid.sum())
+    if n_valid < 200:
+        raise NoiseEstimationError(f"only {n_valid} usable residual positions; need at least 200 to fit a noise model")
+    res = _correlate_valid(img, k)
+    scale = np.max(np.abs(img[usable]), axis=0)
+    if np.any(np.max(np.abs(res[valid]), axis=0) <= 1e-12 * np.maximum(scale, 1e-300)):
+        raise NoiseEstimationError(
+            "the high-pass residual is identically zero in a channel: the noise cannot be measured"
+        )
+    level = _correlate_valid(img, k * k)  # Σ K² x, weights sum to 1
+    box = _box_levels(img, k.shape) if censor is not None else None
+    if quantisation == "srgb8":
+        qvar = _correlate_valid(quantisation_sigma(img) ** 2, k * k)
+    elif quantisation is None:
+        qvar = np.zeros_like(level)
+    else:
+        raise NoiseEstimationError(f"unknown quantisation {quantisation!r}; expected None or 'srgb8'")
+    nb = n_bins or int(np.clip(n_valid // min_per_bin, 3, 20))
+    se_factor = _SE_FACTOR.get((kernel, "clipped", window), 1.6)
+    calib = _CALIBRATION.get((kernel, "clipped", window), 1.0)
+    tf = _truncated_variance_factor(clip)
+    kappa = kernel_kappa(k)
+
+    a = np.zeros(C)
+    b = np.zeros(C)
+    out_bins: list = []
+    stats = np.zeros((3, C))
+    kept = valid
+    for it in range(iterations + 1):
+        if it == 0:
+            kept = valid
+            scale = np.ones(C)
+        else:
+            sd = np.sqrt(np.maximum(a * np.maximum(level, 0) + b + qvar, 1e-300))
+            v = valid
+            if box is not None:
+                v = valid & ~np.any((box < censor[0] + 2 * sd) | (box > censor[1] - 2 * sd), axis=-1)
+                if v.sum() < 200:
+                    raise NoiseEstimationError("fewer than 200 positions are far enough from the code range's ends")
+            rob = _robust_scale(res / sd, v, "clipped", clip, dilate, window=window, kappa=kappa)
+            kept = rob.kept
+            scale = rob.sigma
+        out_bins = []
+        for c in range(C):
+            mu = level[..., c][kept]
+            rr = res[..., c][kept]
+            qv = qvar[..., c][kept]
+            edges = np.quantile(mu, np.linspace(0, 1, nb + 1))
+            idx = np.clip(np.searchsorted(edges, mu, side="right") - 1, 0, nb - 1)
+            xs, vs, ns, qs = [], [], [], []
+            for i in range(nb):
+                sel = idx == i
+                n = int(sel.sum())
+                if n < 30:
+                    continue
+                r_i = rr[sel]
+                if it == 0:
+                    v = (np.median(np.abs(r_i)) / MAD_CONSTANT) ** 2
+                    if v <= 0:
+                        v = np.mean(r_i**2)
+                else:
+                    # truncated second moment (the kept residuals are within clip·σ(μ))
+                    v = np.mean(r_i**2) / tf * calib**2
+                xs.append(float(np.mean(mu[sel])))
+                vs.append(float(v - np.mean(qv[sel])))
+                ns.append(n)
+                qs.append(float(np.mean(qv[sel])))
+            if len(xs) < 3:
+                raise NoiseEstimationError("too few populated level bins to fit a noise model")
+            xs, vs, ns, qs = map(np.asarray, (xs, vs, ns, qs))
+            # SE of each bin's variance: from the model's prediction once there is a model
+            # (weights from the noisy bin values themselves would favour low-variance bins)
+            total = np.maximum(a[c] * np.maximum(xs, 0) + b[c] + qs, 1e-300) if it else np.maximum(vs + qs, 1e-300)
+            se_v = 2 * (se_factor if it else 1.7) * total / np.sqrt(ns)
+            ac, bc, sa, sb, chi = _fit_line(xs, vs, se_v)
+            a[c], b[c] = ac, bc
+            stats[:, c] = sa, sb, chi
+            out_bins.append(
+                {
+                    "level": xs.tolist(),
+                    "variance": vs.tolist(),
+                    "variance_se": se_v.tolist(),
+                    "count": ns.tolist(),
+                    "normalised_scale": float(scale[c]),
+                }
+            )
+    sig = (a / np.where(stats[0] > 0, stats[0], np.inf)) > z
+    independent = np.ones(C, bool)
+    if C > 1:
+        sd = np.sqrt(np.maximum(a * np.maximum(level, 0) + b + qvar, 1e-300))
+        _, zc, _ = _channel_correlation(res / sd, kept, kappa)
+        independent = ~np.any(np.abs(zc) > correlation_z, axis=1)
+    return PoissonGaussian(
+        a=a.copy(),
+        b=b.copy(),
+        a_stderr=stats[0].copy(),
+        b_stderr=stats[1].copy(),
+        signal_dependent=sig,
+        chi2_dof=stats[2].copy(),
+        n_pixels=int(kept.sum()),
+        channels_independent=independent,
+        bins=out_bins,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# sensor description
+# --------------------------------------------------------------------------------------
+
+
+def noise_from_sensor(
+    values: np.ndarray,
+    gain: float,
+    read_noise: float,
+    exposure: float = 1.0,
+    *,
+    values_are: Literal["recorded", "radiance"] = "recorded",
+) -> np.ndarray:
+    r"""Per-pixel σ of the project's synthetic sensor, in recorded units.
+
+    Sensor: E = exposure·L, S = Poisson(gain·max(E, 0))/gain (gain 0: S = E),
+    O = S + N(0, read_noise²), so Var[O] = max(E, 0)/gain + read_noise².
+
+    ``values_are="recorded"``: ``values`` are the recorded image O (the target, or a model
+    of it in the same units) and are the plug-in estimate of E (clipped at 0; exposure is
+    already in them and is not used). ``"radiance"``: ``values`` are radiance L and
+    E = exposure·L. With the noisy target as the plug-in, E[σ²] is still exact (Var is
+    linear in E, clipping at 0 aside) but each pixel's σ is noisy; a model render or a
+    smoothed target is a better plug-in.
+    """
+    if not (np.isfinite(gain) and gain >= 0):
+        raise NoiseEstimationError(f"gain must be a finite number >= 0, got {gain!r}")
+    if not (np.isfinite(read_noise) and read_noise >= 0):
+        raise NoiseEstimationError(f"read_noise must be a finite number >= 0, got {read_noise!r}")
+    if not (np.isfinite(exposure) and exposure > 0):
+        raise NoiseEstimationError(f"exposure must be a finite number > 0, got {exposure!r}")
+    v = np.asarray(values, dtype=np.float64)
+    e = np.maximum(v * (exposure if values_are == "radiance" else 1.0), 0.0)
+    var = (e / gain if gain > 0 else 0.0) + read_noise**2
+    return np.sqrt(var) * np.ones_like(v)
+
+
+# --------------------------------------------------------------------------------------
+# 8-bit sRGB quantisation
+# --------------------------------------------------------------------------------------
+
+
+def quantisation_sigma(linear_values: np.ndarray, bits: int = 8) -> np.ndarray:
+    """Per-value σ of the sRGB quantisation error, in linear units.
+
+    The code k = round(255·encode(x)) covers the linear interval
+    [decode((k − ½)/255), decode((k + ½)/255)] (clamped to [0, 1]); the rounding error is
+    uniform over it (for a signal that varies, or noise, across codes), so
+    σ_q = width/√12. At the level x this is ≈ decode'(encode(x))/(255·√12): from
+    8.8e-5 below linear 0.0031 (slope 1/12.92) to 2.6e-3 at 1.0.
+    """
+    levels = 2**bits - 1
+    k = np.round(srgb_encode(linear_values) * levels)
+    lo = srgb_decode(np.clip((k - 0.5) / levels, 0.0, 1.0))
+    hi = srgb_decode(np.clip((k + 0.5) / levels, 0.0, 1.0))
+    return (hi - lo) / np.sqrt(12.0)
+
+
+def combine_with_quantisation(
+    sigma: np.ndarray | float,
+    linear_values: np.ndarray,
+    usable_mask: np.ndarray | None = None,
+    *,
+    sigma_from_image: bool = True,
+) -> np.ndarray:
+    """Per-pixel σ of an 8-bit sRGB target: noise and quantisation in quadrature.
+
+    ``sigma`` (C,) or a per-pixel map: the noise level. When it was estimated from the
+    8-bit image itself (``sigma_from_image``), it already includes the quantisation noise,
+    pooled over the pixels it used; that pooled part (mean σ_q² over ``usable_mask``) is
+    taken out first, σ_n² = max(σ² − ⟨σ_q²⟩, 0), and each pixel's own σ_q² added back.
+    A given or sensor σ (``sigma_from_image=False``) is combined as σ² + σ_q²."""
+    vals = np.asarray(linear_values, dtype=np.float64)
+    sq = quantisation_sigma(vals)
+    s2 = np.asarray(sigma, dtype=np.float64) ** 2
+    if sigma_from_image:
+        m = np.ones(vals.shape[:2], bool) if usable_mask is None else np.asarray(usable_mask, bool)
+        pooled = np.mean(sq[m] ** 2, axis=0) if m.any() else 0.0
+        s2 = np.maximum(s2 - pooled, 0.0)
+    return np.sqrt(s2 + sq**2)
+
+
+# --------------------------------------------------------------------------------------
+# the verdict the fit draws from it
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class Verdict:
+    """χ²/dof of a fit's residual against a known noise, with its expected spread."""
+
+    chi2_dof: float
+    dof: int
+    expected_sd: float
+    z: float
+    consistent: bool
+    per_channel: list = field(default_factory=list)
+
+
+def mismatch_verdict(
+    residual: np.ndarray,
+    sigma: np.ndarray,
+    usable: np.ndarray,
+    n_params: int,
+    *,
+    sigma_rel_se: np.ndarray | float = 0.0,
+    z_threshold: float = 3.0,
+) -> Verdict:
+    """χ²/dof = Σ (r/σ)² / (N − P) over the usable pixels and channels, against its expected
+    spread: √(2/dof) from the noise alone, widened by the noise level's own uncertainty
+    (a relative SE ε of σ is ≈ 2ε on σ², hence on χ²/dof; per-channel ε (C,) are taken as
+    independent, each channel carrying 1/C of χ², a scalar ε as common to all channels).
+    ``sigma``: (C,) or a per-pixel map (H, W, C). ``consistent`` when
+    (χ²/dof − 1)/spread < ``z_threshold`` (one-sided: χ²/dof well below 1 means the noise
+    level was over-estimated, which is reported by z but is not a model mismatch).
+    ``per_channel``: the same per channel (chi2_dof, expected_sd, z)."""
+    res = np.asarray(residual, np.float64)
+    r = res[usable]
+    s = np.broadcast_to(np.asarray(sigma, np.float64), res.shape)[usable]
+    z2 = (r / s) ** 2
+    if z2.ndim == 1:
+        z2 = z2[:, None]
+    n_rows, C = z2.shape
+    dof = max(z2.size - n_params, 1)
+    chi = float(z2.sum() / dof)
+    eps = np.asarray(sigma_rel_se, np.float64)
+    eps_c = np.broadcast_to(eps, (C,)) if eps.ndim else np.full(C, float(eps))
+    sigma_part = 2 * float(eps) if eps.ndim == 0 else 2 * float(np.sqrt(np.sum(eps_c**2))) / C
+    sd = math.sqrt(2.0 / dof + sigma_part**2)
+    zval = (chi - 1.0) / sd
+    per = []
+    for c in range(C):
+        dof_c = max(n_rows - n_params / C, 1.0)
+        chi_c = float(z2[:, c].sum() / dof_c)
+        sd_c = math.sqrt(2.0 / dof_c + (2 * float(eps_c[c])) ** 2)
+        per.append({"chi2_dof": chi_c, "expected_sd": sd_c, "z": (chi_c - 1.0) / sd_c})
+    return Verdict(chi, dof, sd, float(zval), bool(zval < z_threshold), per)
+
+
+# --------------------------------------------------------------------------------------
+# the noise model a fit uses
+# --------------------------------------------------------------------------------------
+
+#: Relative rounding of stored floating-point values (EXR, TIFF, PFM), by pixel type: the
+#: floor of a noise-free render's noise.
+STORAGE_PRECISION = {"half": 2.0**-11, "float": 2.0**-24, "double": 2.0**-53}
+#: Fewest residual positions for a signal-dependent (Poisson–Gaussian) model from the image:
+#: on smaller images (a 24 × 24 sphere has ~300) its slope test fires on chance structure.
+MIN_PIXELS_SIGNAL_DEPENDENT = 2000
+#: Where :func:`describe_noise` got the level from.
+NOISE_SOURCES = ("given", "sensor", "image", "unknown")
+
+
+@dataclass
+class NoiseModel:
+    r"""The noise of a target image, per value: :math:`\mathrm{Var} = a·\max(L, 0) + b`
+    per channel (a: the shot-noise slope, 1/gain; b: additive noise), plus the 8-bit sRGB
+    quantisation at the level L when ``quantised``, plus the storage precision
+    (``storage`` × |L|)². :meth:`sigma_at` evaluates it at a level — the fitted model's
+    radiance, the best estimate of the true one.
+
+    ``source``: ``"given"`` (the user's value), ``"sensor"`` (the target's sidecar: the
+    synthetic sensor that made it, or a renderer's measured noise), ``"image"`` (estimated
+    from the image itself, model-free: :func:`estimate_noise`), ``"unknown"`` (it could not
+    be estimated: a noise-free image, or content the estimator cannot separate from
+    noise; then :meth:`sigma_at` gives NaN). ``relative_stderr`` (3,): the level's own
+    uncertainty (0 when given or from a sensor)."""
+
+    source: str
+    a: np.ndarray
+    b: np.ndarray
+    quantised: bool = False
+    storage: float = 0.0
+    relative_stderr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    notes: list[str] = field(default_factory=list)
+    details: dict = field(default_factory=dict)
+
+    @property
+    def known(self) -> bool:
+        return self.source != "unknown"
+
+    @property
+    def signal_dependent(self) -> bool:
+        return bool(np.any(self.a > 0))
+
+    def sigma_at(self, level: np.ndarray) -> np.ndarray:
+        """σ per value at the radiance ``level`` (..., 3) (NaN when the noise is unknown)."""
+        level = np.asarray(level, dtype=np.float64)
+        if not self.known:
+            return np.full(level.shape, np.nan)
+        variance = self.a * np.maximum(level, 0.0) + self.b + (self.storage * level) ** 2
+        if self.quantised:
+            variance = variance + quantisation_sigma(np.clip(level, 0.0, 1.0)) ** 2
+        return np.sqrt(variance)
+
+    def typical(self, level: np.ndarray) -> np.ndarray:
+        """(3,) the root-mean-square σ per channel over the values ``level`` (N, 3)."""
+        return np.sqrt(np.mean(self.sigma_at(level) ** 2, axis=0))
+
+    def to_dict(self) -> dict:
+        return {
+            "source": self.source,
+            "shot_slope": self.a.tolist(),
+            "additive_sd": np.sqrt(self.b).tolist(),
+            "quantised": self.quantised,
+            "storage_precision": self.storage,
+            "relative_stderr": np.asarray(self.relative_stderr, dtype=float).tolist(),
+            "notes": list(self.notes),
+        }
+
+
+def _triple(value: float | tuple | list | np.ndarray) -> np.ndarray:
+    return np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+
+
+def storage_precision(path: str | None) -> float:
+    """The relative rounding of a floating-point image file's values (0 for 8-bit and
+    unknown files: their floor is the quantisation)."""
+    from pathlib import Path
+
+    if not path or not Path(path).is_file():
+        return 0.0
+    try:
+        import OpenImageIO as oiio
+
+        image = oiio.ImageInput.open(str(path))
+        if image is None:
+            oiio.geterror()  # read (and drop) the error, or OpenImageIO prints it at exit
+            return 0.0
+        try:
+            basetype = image.spec().format.basetype
+        finally:
+            image.close()
+    except Exception:  # a header we cannot read only loses the floor
+        return 0.0
+    names = {oiio.HALF: "half", oiio.FLOAT: "float", oiio.DOUBLE: "double"}
+    return STORAGE_PRECISION.get(names.get(basetype, ""), 0.0)
+
+
+def read_sidecar(path: str | None) -> dict | None:
+    """The synth sidecar beside an image (``ID.png`` → ``ID.json``, see docs/datasets.md)
+    if there is one and it is a strauss-fit sample description, else None."""
+    if not path:
+        return None
+    import json
+    from pathlib import Path
+
+    candidate = Path(path).with_suffix(".json")
+    try:
+        data = json.loads(candidate.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("format") != "strauss-fit synth sample":
+        return None
+    return data
+
+
+def _from_sidecar(sidecar: dict) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """(a, b, note) of a sidecar's noise: a renderer's measured per-channel noise
+    (``noise.per_channel``) or the synthetic sensor (Var = E/gain + read_noise²)."""
+    measured = (sidecar.get("noise") or {}).get("per_channel")
+    if measured is not None:
+        sigma = _triple(measured)
+        if np.all(np.isfinite(sigma)) and np.all(sigma >= 0):
+            return np.zeros(3), sigma**2, "measured noise recorded in the sidecar"
+    sensor = sidecar.get("sensor")
+    if isinstance(sensor, dict):
+        try:
+            gain, read = float(sensor.get("gain", 0.0)), float(sensor.get("read_noise", 0.0))
+        except (TypeError, ValueError):
+            return None
+        if not (math.isfinite(gain) and gain >= 0 and math.isfinite(read) and read >= 0):
+            return None
+        a = np.full(3, 1.0 / gain if gain > 0 else 0.0)
+        note = f"sensor of the sidecar (gain {gain:g}, read noise {read:g})"
+        if gain == 0 and read == 0:
+            note = "the sidecar's sensor adds no noise: only the file's precision limits the fit"
+        return a, np.full(3, read**2), note
+    return None
+
+
+def describe_noise(
+    pixels: np.ndarray,
+    usable: np.ndarray,
+    *,
+    encoding: str = "linear",
+    path: str | None = None,
+    given: float | tuple | None = None,
+    sidecar: dict | None = None,
+) -> NoiseModel:
+    """The noise model of a target image (see :class:`NoiseModel`): the ``given`` level if
+    any, else the ``sidecar``'s (read beside ``path`` when not passed; pass ``{}`` to
+    ignore it), else estimated from the image over the ``usable`` pixels (the sphere's
+    fully covered ones), signal-dependent when the estimate finds shot noise. An 8-bit sRGB
+    target (``encoding="srgb"``) adds its quantisation; a float file its precision."""
+    pixels = np.asarray(pixels, dtype=np.float64)
+    quantised = encoding == "srgb"
+    storage = 0.0 if quantised else storage_precision(path)
+    if given is not None:
+        sigma = _triple(given)
+        return NoiseModel("given", np.zeros(3), sigma**2, quantised, storage, notes=["the noise level given"])
+    if sidecar is None:
+        sidecar = read_sidecar(path)
+    described = _from_sidecar(sidecar) if sidecar else None
+    if described is not None:
+        a, b, note = described
+        return NoiseModel("sensor", a, b, quantised, storage, notes=[note])
+    try:
+        estimate = estimate_noise(pixels, usable, censor=(0.0, 1.0) if quantised else None)
+    except NoiseEstimationError as exc:
+        return NoiseModel("unknown", np.zeros(3), np.zeros(3), quantised, storage, notes=[str(exc)])
+    if not np.all(estimate.resolved):
+        why = (
+            "the image's fine detail, not noise, sets its high-frequency content (a noise-free render, or a "
+            "pattern seen in the sphere)"
+        )
+        return NoiseModel(
+            "unknown", np.zeros(3), np.zeros(3), quantised, storage, notes=[why], details=estimate.to_dict()
+        )
+    variance = estimate.sigma**2
+    if quantised:  # the estimate holds the quantisation pooled over the pixels it used; each pixel gets its own
+        variance = np.maximum(variance - np.mean(quantisation_sigma(pixels[usable]) ** 2, axis=0), 0.0)
+    a = np.zeros(3)
+    note = "estimated from the image (additive, per channel)"
+    if estimate.n_pixels >= MIN_PIXELS_SIGNAL_DEPENDENT:
+        try:
+            model = estimate_noise_model(
+                pixels, usable, quantisation="srgb8" if quantised else None, censor=(0.0, 1.0) if quantised else None
+            )
+        except NoiseEstimationError:
+            model = None
+        if model is not None and np.any(model.signal_dependent) and np.all(model.channels_independent):
+            # the line must agree with the additive estimate on average over the pixels it
+            # describes, within the latter's own uncertainty (3 standard errors of σ²)
+            level = pixels[usable]
+            mean_variance = np.mean(model.a * np.maximum(level, 0.0) + model.b, axis=0)
+            tolerance = 3 * 2 * np.asarray(estimate.relative_stderr, dtype=float) * variance
+            if np.all(np.abs(mean_variance - variance) <= tolerance):
+                a, variance = model.a.copy(), model.b.copy()
+                note = "estimated from the image (signal-dependent: Var = a·L + b per channel)"
+    return NoiseModel(
+        "image",
+        a,
+        variance,
+        quantised,
+        storage,
+        relative_stderr=np.asarray(estimate.relative_stderr, dtype=float),
+        notes=[note],
+        details=estimate.to_dict(),
+    )
