@@ -5,9 +5,10 @@
 - ``tmpfs``: a real, small tmpfs mounted there (needs root and a kernel that allows it;
   the fixture skips this variant where ``mount`` fails), filled with a ballast file; every
   writer meets a real ``ENOSPC`` from the kernel, at ``write``, ``close`` or ``fsync``;
-- ``patched``: the one function through which every output's bytes reach the disk
-  (:func:`strauss_fit.io.files._write_file`) is patched to write what still fits and then
-  raise ``ENOSPC``, the space used being the size of the files in the folder.
+- ``patched``: the functions through which every output's bytes reach the disk
+  (:func:`strauss_fit.io.files._write_file`, and ``_append_file`` for progress files) are
+  patched to write what still fits and then raise ``ENOSPC``, the space used being the size
+  of the files in the folder.
 
 :meth:`Disk.free_up` then makes room again (removes the ballast, lifts the budget).
 """
@@ -59,7 +60,18 @@ class Disk:
                 real(path, bytes(data[: max(room, 0)]))
                 raise strauss_fit.io.files.no_space(path)
 
+            real_append = strauss_fit.io.files._append_file
+
+            def append(path: Path, data) -> None:
+                path = Path(path)
+                if self.capacity is None or folder not in path.parents:
+                    return real_append(path, data)
+                if len(data) > self.capacity - used_bytes(folder):
+                    raise strauss_fit.io.files.no_space(path)  # the real one rolls a partial append back
+                return real_append(path, data)
+
             monkeypatch.setattr(strauss_fit.io.files, "_write_file", write)
+            monkeypatch.setattr(strauss_fit.io.files, "_append_file", append)
 
     def fill(self, free: int) -> None:
         """Leave ``free`` bytes free (about: a tmpfs counts whole pages)."""

@@ -1,6 +1,6 @@
 """Cameras and primary rays against the canonical unit sphere at the origin.
 
-Orthographic (the contract of ``shared/formats.md``): the camera looks down −z from +z, so
+Orthographic (see docs/model.md, "Cameras and pixels"): the camera looks down −z from +z, so
 V = (0, 0, 1) everywhere; the image spans x, y ∈ [−1, 1] at pixel centres, pixel (row i,
 column k) at x = (k + 0.5)/width·2 − 1, y = 1 − (i + 0.5)/height·2, and a pixel shows the
 sphere where x² + y² < 1.
