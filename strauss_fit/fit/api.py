@@ -35,10 +35,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..color import delta_e_2000
+from ..engine import Steps, run
 from ..errors import StraussFitError
 from ..inference import laplace
-from ..inference.equivalence import equivalence_ranges
-from ..inference.laplace import problem_laplace, problem_sandwich
+from ..inference.equivalence import equivalence_ranges_steps
+from ..inference.laplace import problem_laplace_steps, problem_sandwich_steps
 from ..inference.noise import NoiseModel, describe_noise
 from ..io.targets import Target
 from ..models.material import PARAMETER_NAMES, Material
@@ -46,17 +47,17 @@ from ..precision import uses_float64
 from ..render.strauss import Prepared, RenderPlan, plan_render
 from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene
-from .diagnosis import Diagnosis, diagnose, reachable_maximum, uncertainty_warnings
+from .diagnosis import Diagnosis, diagnose, reachable_maximum_steps, uncertainty_warnings
 from .guess import initial_guess
 from .identifiability import (
     MAX_DECISIONS,
     Decision,
     chi2_95,
-    decide_free,
+    decide_free_steps,
     decision_key,
     held_at_optimum,
-    hold_ior_without_significant_transparency,
-    hold_jointly_dead_at_fit,
+    hold_ior_without_significant_transparency_steps,
+    hold_jointly_dead_at_fit_steps,
     newly_held,
     reference_noise_level,
 )
@@ -71,9 +72,9 @@ from .parameters import (
     material_with,
     value_of,
 )
-from .problem import EXPOSURE, Problem, build_problem, coarse_problem, shade_full
+from .problem import EXPOSURE, Problem, build_problem_steps, coarse_problem_steps, shade_full
 from .result import FitResult
-from .solvers import SOLVERS, Solved, solve
+from .solvers import SOLVERS, Solved, solve_steps
 
 
 def candidate_names(scene: Scene, options: FitOptions) -> list[str]:
@@ -138,12 +139,27 @@ def fit(
     (:func:`strauss_fit.io.targets.match_scene`). ``options`` defaults to the ``balanced``
     preset (:meth:`FitOptions.preset`). ``progress``, if given, is called with short
     status strings. Runs in float64 whatever ``jax_enable_x64`` says
-    (:mod:`strauss_fit.precision`).
+    (:mod:`strauss_fit.precision`). Many targets: :func:`strauss_fit.fit_many`, which runs
+    the same steps (:func:`fit_steps`) batched.
     """
+    release_compiled_code_if_needed()
+    return run(fit_steps(scene, target, options, progress=progress))
+
+
+def fit_steps(
+    scene: Scene,
+    target: Target,
+    options: FitOptions = FitOptions(),
+    *,
+    progress: Callable[[str], None] | None = None,
+    cache: dict | None = None,
+) -> Steps:
+    """:func:`fit` as steps (:mod:`strauss_fit.engine`): the one definition of a fit,
+    run directly by :func:`fit` and batched by :func:`strauss_fit.fit_many`. ``cache``
+    (a dict) may be shared by the fits of one scene, which then prepare it once."""
     say = progress or (lambda message: None)
     started = time.perf_counter()
     options.validate()
-    release_compiled_code_if_needed()
     if options.solver not in SOLVERS:
         raise StraussFitError(f"unknown solver {options.solver!r}; expected one of {', '.join(SOLVERS)}")
     if options.starts < 1:
@@ -164,8 +180,9 @@ def fit(
                 f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}"
             )
     probe_plan = plan_render(scene, material, transparent=False)
-    prepared_cache: dict = {}  # one prepared scene per render plan, for every problem of this fit
-    guess_problem, prepared_full, index = build_problem(
+    # one prepared scene per render plan, for every problem of this fit
+    prepared_cache: dict = {} if cache is None else cache
+    guess_problem, prepared_full, index = yield from build_problem_steps(
         scene, target, ["color"], material, probe_plan, options, cache=prepared_cache, exposure=exposure
     )
     say("computing the first guess")
@@ -193,7 +210,9 @@ def fit(
 
     sigma_ref = reference_noise(target, options)
     say("deciding which parameters the image constrains")
-    decision = decide_free(scene, target, options, material, guess, candidates, fixed, sigma_ref, cache=prepared_cache)
+    decision = yield from decide_free_steps(
+        scene, target, options, material, guess, candidates, fixed, sigma_ref, cache=prepared_cache
+    )
     solve_started = time.perf_counter()
     kept: Round | None = None  # the fit that stands
     tried = [decision_key(decision, material, scene.lights, exposure)]
@@ -208,7 +227,7 @@ def fit(
             )
         transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
         plan = plan_render(scene, material, transparent=transparent)
-        problem, prepared_full, index = build_problem(
+        problem, prepared_full, index = yield from build_problem_steps(
             scene,
             target,
             decision.free,
@@ -221,9 +240,8 @@ def fit(
             noise_sigma=noise_sigma,
             exposure=exposure,
         )
-        solved = solve(
-            problem, guess, options, say, coarse_problem(problem, prepared_full, index), exact_first=attempt > 0
-        )
+        coarse = yield from coarse_problem_steps(problem, prepared_full, index)
+        solved = yield from solve_steps(problem, guess, options, say, coarse, exact_first=attempt > 0)
         fits_done = attempt + 1
         # Holding a parameter never lowers the cost; a refit under a new decision stands
         # unless it costs significantly more at the reference noise than the best fit before:
@@ -256,7 +274,7 @@ def fit(
             for name, size, offset in zip(problem.layout.names, problem.layout.sizes, problem.layout.offsets)
             if size == 1 and pinned[offset]
         )
-        again = decide_free(
+        again = yield from decide_free_steps(
             scene,
             target,
             options,
@@ -269,9 +287,9 @@ def fit(
             at_bound=at_bound,
             cache=prepared_cache,
         )
-        hold_ior_without_significant_transparency(again, solved)
+        yield from hold_ior_without_significant_transparency_steps(again, solved)
         held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
-        hold_jointly_dead_at_fit(
+        yield from hold_jointly_dead_at_fit_steps(
             again,
             decision,
             fitted,
@@ -303,15 +321,15 @@ def fit(
         say(f"at the optimum the image constrains {', '.join(again.free) or 'nothing'}: fitting again from there")
         decision, guess, material, scene = again, {**fitted, **held_values}, next_material, next_scene
         exposure = next_exposure
-    outcome = _conclude(kept, target, options, noise, loss, say)
+    outcome = yield from _conclude(kept, target, options, noise, loss, say)
     visible = float(np.mean(outcome.delta_e)) >= VISIBLE_DELTA_E
     if options.loss == "auto" and outcome.diagnosis.verdict == "mismatch" and visible and MISMATCH_LOSS != loss:
         say(f"the model cannot reproduce the target: fitting again with the {MISMATCH_LOSS} loss")
-        refit = _refit_with_loss(kept, target, options, MISMATCH_LOSS, noise_sigma, sigma_ref, say)
-        outcome = _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
+        refit = yield from _refit_with_loss(kept, target, options, MISMATCH_LOSS, noise_sigma, sigma_ref, say)
+        outcome = yield from _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
         kept = refit
     solve_time = time.perf_counter() - solve_started
-    return _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time)
+    return (yield from _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time))
 
 
 def _refit_with_loss(
@@ -322,10 +340,10 @@ def _refit_with_loss(
     noise_sigma: np.ndarray | None,
     sigma_ref: float,
     say: Callable[[str], None],
-) -> Round:
+) -> Steps:
     """The kept round's fit again under another loss, from its optimum (same free and
     held parameters)."""
-    problem, prepared_full, index = build_problem(
+    problem, prepared_full, index = yield from build_problem_steps(
         kept.scene,
         target,
         kept.decision.free,
@@ -344,7 +362,8 @@ def _refit_with_loss(
         EXPOSURE: kept.exposure,
         **jsonable(layout.split(kept.solved.x)),
     }
-    solved = solve(problem, start, options, say, coarse_problem(problem, prepared_full, index), exact_first=True)
+    coarse = yield from coarse_problem_steps(problem, prepared_full, index)
+    solved = yield from solve_steps(problem, start, options, say, coarse, exact_first=True)
     return Round(
         kept.decision, problem, prepared_full, index, solved, kept.plan, kept.material, kept.scene, kept.exposure
     )
@@ -362,7 +381,7 @@ class _Outcome:
 
 def _conclude(
     kept: Round, target: Target, options: FitOptions, noise: NoiseModel, loss: str, say: Callable[[str], None]
-) -> _Outcome:
+) -> Steps:
     """The fitted image of ``kept`` and the verdict on it (:func:`diagnose`)."""
     solved, scene, plan = kept.solved, kept.scene, kept.plan
     problem, layout = solved.problem, solved.problem.layout
@@ -370,7 +389,8 @@ def _conclude(
     fitted_material = material_with(kept.material, fitted_values)
     fitted_lights = lights_with(scene.lights, fitted_values)
     exposure = float(fitted_values[EXPOSURE]) if EXPOSURE in layout.names else kept.exposure
-    full_fit = np.asarray(shade_full(fitted_material, kept.prepared_full, fitted_lights, scene, plan)).reshape(-1, 3)
+    full_fit = np.asarray((yield shade_full.call(fitted_material, kept.prepared_full, fitted_lights, scene, plan)))
+    full_fit = full_fit.reshape(-1, 3)
     if exposure != 1.0:
         full_fit = full_fit * exposure
     model = full_fit[kept.index]  # the fitted radiance at the pixels used
@@ -380,6 +400,7 @@ def _conclude(
     say("comparing the fit with the target's noise")
     free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
     pinned = np.asarray(problem.pinned)
+    reach = None if free_lights else (yield from reachable_maximum_steps(problem))
     diagnosis = diagnose(
         problem,
         model,
@@ -387,7 +408,7 @@ def _conclude(
         parameters=int((~pinned).sum()),
         delta_e_mean=float(np.mean(delta_e)),
         at_bound=[label for label, p in zip(layout.labels(), pinned) if p],
-        reach=None if free_lights else reachable_maximum(problem),
+        reach=reach,
     )
     return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis)
 
@@ -403,7 +424,7 @@ def _result(
     fits_done: int,
     started: float,
     solve_time: float,
-) -> FitResult:
+) -> Steps:
     """The :class:`FitResult` of the round that stands."""
     decision, solved, scene, plan, material = kept.decision, kept.solved, kept.scene, kept.plan, kept.material
     held = {
@@ -424,11 +445,13 @@ def _result(
     model, diagnosis = outcome.model, outcome.diagnosis
     residual = model - np.asarray(problem.target)
     rss = float(np.sum(residual**2))
-    laplace_sd, laplace_corr, laplace_cov = problem_laplace(
+    laplace_sd, laplace_corr, laplace_cov = yield from problem_laplace_steps(
         problem, x_best, rss, None, solved.information if problem.loss == "linear" else None
     )
     if noise.known:
-        uncertainty, correlation, covariance, extra = problem_sandwich(problem, x_best, noise.sigma_at(model).ravel())
+        uncertainty, correlation, covariance, extra = yield from problem_sandwich_steps(
+            problem, x_best, noise.sigma_at(model).ravel()
+        )
         method = {
             "name": "noise sandwich",
             "noise_source": noise.source,
@@ -468,15 +491,14 @@ def _result(
             notes.append(f"{name} sits on its bound; its deviation is not a symmetric interval there")
     equivalence = None
     if options.equivalence and layout.size:
-        equivalence = equivalence_ranges(problem, x_best, delta_e=options.equivalence_de)
+        equivalence = yield from equivalence_ranges_steps(problem, x_best, delta_e=options.equivalence_de)
     free_covariance = None
     if pinned.any():  # what the pinned entries' deviations would be, were they free
         variance = (
             float(np.mean(noise.sigma_at(model) ** 2)) if noise.known else rss / max(residual.size - layout.size, 1)
         )
-        free_covariance = laplace.covariance(
-            laplace.information(np.asarray(laplace.jacobian(problem, jnp.asarray(x_best)))), variance
-        )
+        jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, np.asarray(x_best))))
+        free_covariance = laplace.covariance(laplace.information(jacobian), variance)
     warnings = diagnosis.warnings + uncertainty_warnings(
         layout,
         np.zeros((layout.size, layout.size)) if covariance is None else covariance,

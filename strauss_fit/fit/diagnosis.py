@@ -41,12 +41,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..engine import Kernel, Steps, run
 from ..inference.noise import NoiseModel
 from .parameters import Layout
 
@@ -95,12 +95,20 @@ def chi2_statistics(z2: np.ndarray, parameters: int, relative_stderr: np.ndarray
     return chi2, dof, spread, (chi2 - 1.0) / spread
 
 
-@eqx.filter_jit
 def _brightest(problem: Any, xs: Array) -> Array:
     return jnp.max(jax.vmap(problem.render_physical)(xs), axis=0)
 
 
+#: The brightest model value at each pixel over a set of materials (a Kernel).
+brightest = Kernel(_brightest, "brightest")
+
+
 def reachable_maximum(problem: Any) -> np.ndarray:
+    """:func:`reachable_maximum_steps`, run directly."""
+    return run(reachable_maximum_steps(problem))
+
+
+def reachable_maximum_steps(problem: Any) -> Steps:
     """(N, 3): at each used pixel, the brightest value any Strauss material reaches under
     the problem's lights (their fixed intensities, and a held exposure): the maximum over
     white opaque materials (C = 1, t = 0) of every smoothness, plastic and metal. Brighter
@@ -112,13 +120,13 @@ def reachable_maximum(problem: Any) -> np.ndarray:
         problem, layout=layout, pinned=jnp.zeros(layout.size, dtype=bool), pinned_values=jnp.zeros(layout.size)
     )
     rows = [[1.0, 1.0, 1.0, s, m, 0.0] for s in _ENVELOPE_SMOOTHNESS for m in (0.0, 1.0)]
-    brightest = np.asarray(_brightest(probe, jnp.asarray(rows)))
+    maximum = np.asarray((yield brightest.call(probe, np.asarray(rows))))
     if problem.plan.transmit:
         # light through a transparent sphere is the background's, weighted by at most 1
         # and added to what the surface reflects: bounded by the brightest background
         seen = [problem.prepared.miss_radiance, problem.prepared.reflected_radiance]
-        brightest = brightest + max(float(np.max(np.asarray(v))) for v in seen if v is not None)
-    return brightest
+        maximum = maximum + max(float(np.max(np.asarray(v))) for v in seen if v is not None)
+    return maximum
 
 
 def pixel_regions(prepared: Any) -> dict[str, np.ndarray]:

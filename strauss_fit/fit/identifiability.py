@@ -36,9 +36,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import jax.numpy as jnp
 import numpy as np
 
+from ..engine import Steps, run
 from ..inference import laplace
 from ..io.targets import Target
 from ..models.material import Material
@@ -46,7 +46,7 @@ from ..render.strauss import plan_render
 from ..scene.lights import Lights
 from ..scene.loading import Scene
 from .parameters import Layout, value_of
-from .problem import build_problem, costs
+from .problem import build_problem_steps, costs
 
 if TYPE_CHECKING:
     from .options import FitOptions
@@ -205,7 +205,12 @@ def numerical_decision(
     return Decision(free=names, held=held, predicted_sd={n: predicted[n] for n in names}, partner=partners, dead=dead)
 
 
-def decide_free(
+def decide_free(*args: Any, **kwargs: Any) -> Decision:
+    """:func:`decide_free_steps`, run directly."""
+    return run(decide_free_steps(*args, **kwargs))
+
+
+def decide_free_steps(
     scene: Scene,
     target: Target,
     options: FitOptions,
@@ -217,7 +222,7 @@ def decide_free(
     margin: float = 0.15,
     at_bound: frozenset[str] = frozenset(),
     cache: dict | None = None,
-) -> Decision:
+) -> Steps:
     """Which of ``candidates`` to fit (see the module docstring), probing at ``guess``
     with unit-interval values kept ``margin`` inside their bounds. At a first guess a
     margin keeps a rough estimate off the bounds, where some sensitivities vanish (m has
@@ -247,9 +252,9 @@ def decide_free(
     for key in ("smoothness", "metalness", "transparency"):
         probe_values[key] = float(np.clip(probe_values[key], margin, 1 - margin))
     probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), margin, 1 - margin)
-    problem, _, _ = build_problem(scene, target, names, material, plan, options, cache=cache)
+    problem, _, _ = yield from build_problem_steps(scene, target, names, material, plan, options, cache=cache)
     probe = problem.layout.join(probe_values)
-    jacobian = np.asarray(laplace.jacobian(problem, jnp.asarray(probe)))
+    jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, probe)))
     decision = numerical_decision(problem.layout, jacobian, probe, sigma, options.threshold, at_bound)
     decision.held = {**held, **decision.held}
     return decision
@@ -357,6 +362,11 @@ def _mirror_holds_metalness(again: Decision, before: Decision, fitted: dict[str,
 
 
 def hold_ior_without_significant_transparency(again: Decision, solved: Solved) -> None:
+    """:func:`hold_ior_without_significant_transparency_steps`, run directly."""
+    run(hold_ior_without_significant_transparency_steps(again, solved))
+
+
+def hold_ior_without_significant_transparency_steps(again: Decision, solved: Solved) -> Steps:
     """Hold n at the scene's value — whether the analysis found it free or held it as
     barely visible — when the fitted transparency is within two Laplace deviations of 0.
     Why: the local analysis sees n's effect at the fitted t, however small — and with
@@ -369,7 +379,9 @@ def hold_ior_without_significant_transparency(again: Decision, solved: Solved) -
     if not ("ior" in again.free or numerically_held) or not {"ior", "transparency"} <= set(layout.names):
         return
     transparency = float(solved.x[layout.offsets[layout.names.index("transparency")]])
-    uncertainty, _, _ = laplace.problem_laplace(solved.problem, solved.x, solved.rss, None, solved.information)
+    uncertainty, _, _ = yield from laplace.problem_laplace_steps(
+        solved.problem, solved.x, solved.rss, None, solved.information
+    )
     deviation = float(uncertainty["transparency"])
     if transparency > 2 * deviation:
         return
@@ -385,7 +397,12 @@ def hold_ior_without_significant_transparency(again: Decision, solved: Solved) -
     )
 
 
-def hold_jointly_dead_at_fit(
+def hold_jointly_dead_at_fit(*args: Any, **kwargs: Any) -> None:
+    """:func:`hold_jointly_dead_at_fit_steps`, run directly."""
+    run(hold_jointly_dead_at_fit_steps(*args, **kwargs))
+
+
+def hold_jointly_dead_at_fit_steps(
     again: Decision,
     before: Decision,
     fitted: dict[str, Any],
@@ -396,7 +413,7 @@ def hold_jointly_dead_at_fit(
     values: dict[str, Any],
     reasons: dict[str, str],
     exposure: float = 1.0,
-) -> None:
+) -> Steps:
     """Hold the parameters that the image ignores at the optimum at the fitted values
     instead of the scene's, when putting them back to the scene's values would change the
     image (by more than Δχ² = 1 at the reference noise): they are then invisible only
@@ -411,7 +428,7 @@ def hold_jointly_dead_at_fit(
     for name in dead:
         offset, size = layout.offsets[layout.names.index(name)], layout.sizes[layout.names.index(name)]
         x[offset : offset + size] = np.atleast_1d(np.asarray(value_of(name, material, lights, exposure), dtype=float))
-    cost = float(np.asarray(costs(solved.problem, jnp.asarray(x[None])))[0])
+    cost = float(np.asarray((yield costs.call(solved.problem, x[None])))[0])
     if cost * float(solved.problem.residual_scale) ** 2 <= solved.rss + sigma**2:
         return
     for name in dead:

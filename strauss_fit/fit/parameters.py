@@ -104,6 +104,16 @@ class Layout:
             parts.append((1 + jnp.sin(t)) / 2 if kind == UNIT_INTERVAL else low - 1 + jnp.sqrt(t * t + 1))
         return jnp.concatenate(parts, axis=-1) if parts else theta
 
+    def to_physical_numpy(self, theta: np.ndarray) -> np.ndarray:
+        """:meth:`to_physical` in NumPy, for concrete values outside a compiled function."""
+        theta = np.asarray(theta, dtype=np.float64)
+        parts = []
+        for name, size, offset in zip(self.names, self.sizes, self.offsets):
+            t = theta[..., offset : offset + size]
+            kind, low = _kind_and_low(name)
+            parts.append((1 + np.sin(t)) / 2 if kind == UNIT_INTERVAL else low - 1 + np.sqrt(t * t + 1))
+        return np.concatenate(parts, axis=-1) if parts else theta
+
     def to_unconstrained(self, physical: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """A θ mapping to ``physical`` (first clipped ``margin`` inside [0, 1] for unit
         entries, since the transform's slope vanishes on the bounds)."""

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
 from ..io.targets import Target
 from ..models.material import Material
@@ -173,40 +174,73 @@ def unit_intensity_scene(scene: Scene) -> Scene:
     return eqx.tree_at(lambda s: s.lights, scene, scene.lights.with_intensities(ones))
 
 
-# Jitted once per shape: run eagerly, these would compile dozens of small XLA programs.
-@eqx.filter_jit
-def prepare_float64(scene: Scene, plan: RenderPlan, mode: str, table_size: int) -> Prepared:
-    """:func:`strauss_fit.render.strauss.prepare` in float64, jitted."""
+# Compiled once per structure (run eagerly, these would dispatch dozens of small XLA
+# programs); :class:`~strauss_fit.engine.Kernel` also runs them over a batch of targets.
+def _prepare_float64(scene: Scene, plan: RenderPlan, mode: str, table_size: int) -> Prepared:
     return prepare(scene, plan, mode, table_size, jnp.float64)
 
 
-#: :func:`strauss_fit.render.strauss.take_pixels`, jitted.
-take_pixels_jit = eqx.filter_jit(take_pixels)
+#: :func:`strauss_fit.render.strauss.prepare` in float64.
+prepare_float64 = Kernel(_prepare_float64, "prepare")
+#: :func:`strauss_fit.render.strauss.take_pixels`.
+take_pixels_jit = Kernel(take_pixels, "take_pixels")
 
 
-@eqx.filter_jit
-def shade_full(material: Material, prepared: Prepared, lights: Lights, scene: Scene, plan: RenderPlan) -> Array:
-    """The whole image of a unit-intensity prepared scene for ``material`` and ``lights``."""
+def _shade_full(material: Material, prepared: Prepared, lights: Lights, scene: Scene, plan: RenderPlan) -> Array:
     return shade_prepared(material, scaled(prepared, lights), scene, plan)
 
 
-@eqx.filter_jit
-def to_physical(layout: Layout, theta: Array) -> Array:
-    """``layout.to_physical``, jitted."""
+#: The whole image of a unit-intensity prepared scene for a material and lights.
+shade_full = Kernel(_shade_full, "shade_full")
+
+
+def _to_physical(layout: Layout, theta: Array) -> Array:
     return layout.to_physical(theta)
 
 
-@eqx.filter_jit
-def render_at(problem: Any, x: Array) -> Array:
-    """A problem's model radiance (N, 3) at physical parameters ``x`` (any problem with
-    ``render_physical``, a Phong one too)."""
+#: ``layout.to_physical``.
+to_physical = Kernel(_to_physical, "to_physical")
+
+
+def _render_at(problem: Any, x: Array) -> Array:
     return problem.render_physical(x)
 
 
-@eqx.filter_jit
-def costs(problem: Problem, xs: Array) -> Array:
-    """The normalised cost Σ(r/scale)² at each row of physical points ``xs`` (K, P)."""
+#: A problem's model radiance (N, 3) at physical parameters ``x`` (any problem with
+#: ``render_physical``, a Phong one too).
+render_at = Kernel(_render_at, "render_at")
+
+
+def _costs(problem: Problem, xs: Array) -> Array:
     return jax.vmap(lambda x: jnp.sum(problem.objective_residual(x) ** 2))(xs)
+
+
+#: The normalised cost Σ(r/scale)² at each row of physical points ``xs`` (K, P).
+costs = Kernel(_costs, "costs")
+
+
+def physical_values(problem: Problem, theta: np.ndarray) -> np.ndarray:
+    """:meth:`Problem.physical` in NumPy (no JAX dispatch): the physical values of θ with the
+    pinned entries replaced."""
+    return np.where(
+        np.asarray(problem.pinned), np.asarray(problem.pinned_values), problem.layout.to_physical_numpy(theta)
+    )
+
+
+def geometry_key(scene: Scene, plan: RenderPlan, options: FitOptions) -> tuple:
+    """What a prepared scene depends on, as a hashable key: the camera, the background,
+    the lights and depth (values, not object identity: every fit builds its own scene
+    object), the render plan and the evaluator — so that the targets of one scene share
+    one preparation (:func:`build_problem_steps`)."""
+    leaves, treedef = jax.tree.flatten((scene.camera, scene.background, scene.lights, scene.depth))
+    return (
+        "geometry",
+        str(treedef),
+        tuple(np.asarray(leaf).tobytes() + str(np.asarray(leaf).dtype).encode() for leaf in leaves),
+        plan,
+        options.mode,
+        options.table_size,
+    )
 
 
 @uses_float64
@@ -225,20 +259,59 @@ def build_problem(
     exposure: float | None = None,
 ) -> tuple[Problem, Prepared, np.ndarray]:
     """The :class:`Problem` for the free ``names``, the full prepared image and the
-    flat indices of the pixels used.
+    flat indices of the pixels used (:func:`build_problem_steps`, run directly)."""
+    return run(
+        build_problem_steps(
+            scene,
+            target,
+            names,
+            material,
+            plan,
+            options,
+            reference_noise,
+            cache,
+            loss=loss,
+            noise_sigma=noise_sigma,
+            exposure=exposure,
+        )
+    )
+
+
+def build_problem_steps(
+    scene: Scene,
+    target: Target,
+    names: list[str],
+    material: Material,
+    plan: RenderPlan,
+    options: FitOptions,
+    reference_noise: float = 1.0,
+    cache: dict | None = None,
+    *,
+    loss: str = "linear",
+    noise_sigma: np.ndarray | None = None,
+    exposure: float | None = None,
+) -> Steps:
+    """:func:`build_problem` as steps (:mod:`strauss_fit.engine`).
 
     Of ``options`` only ``mode``, ``table_size`` and ``edge_pixels`` matter. ``cache`` (a
-    dict owned by one :func:`strauss_fit.fit.api.fit` call) keeps the prepared scene per
-    render plan: preparing depends only on the camera, the background, where the lights
-    are and the plan — not on the material or the lights' intensities, which is all that
-    changes between the problems of one fit. ``loss`` (:data:`LOSSES`), ``noise_sigma``
-    (the noise level of every value of the image, (H, W, 3), for the robust losses) and
-    ``exposure`` (a held global exposure other than 1) shape the residual."""
-    key = (plan, options.mode, options.table_size)
-    if cache is not None and key in cache:
-        prepared_full, index, prepared, pixels = cache[key]
+    dict) keeps the prepared scene per :func:`geometry_key` — preparing depends only on the
+    camera, the background, where the lights are and the plan, not on the material or the
+    lights' intensities, so every problem of a fit, and every target of a scene in
+    :func:`strauss_fit.fit_many`, shares it — and the target's pixels per render plan.
+    ``loss`` (:data:`LOSSES`), ``noise_sigma`` (the noise level of every value of the
+    image, (H, W, 3), for the robust losses) and ``exposure`` (a held global exposure
+    other than 1) shape the residual."""
+    cache = {} if cache is None else cache
+    geometry = geometry_key(scene, plan, options)
+    if geometry not in cache:
+        cache[geometry] = yield prepare_float64.call(
+            unit_intensity_scene(scene), plan, options.mode, options.table_size
+        )
+    prepared_full = cache[geometry]
+    key = ("pixels", id(target), geometry, options.edge_pixels)
+    if key in cache:
+        _, index, prepared, pixels = cache[key]
     else:
-        prepared_full = prepare_float64(unit_intensity_scene(scene), plan, options.mode, options.table_size)
         used = used_pixels(scene, target, np.asarray(prepared_full.hit), options.edge_pixels)
         if not used.any():
             raise StraussFitError(
@@ -247,37 +320,37 @@ def build_problem(
                 + ")"
             )
         index = np.flatnonzero(used.ravel())
-        pixels = jnp.asarray(target.pixels.reshape(-1, 3)[index])
-        if float(jnp.max(pixels)) <= 0:
+        pixels = np.asarray(target.pixels, dtype=np.float64).reshape(-1, 3)[index]
+        if float(np.max(pixels)) <= 0:
             raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
-        prepared = take_pixels_jit(prepared_full, jnp.asarray(index))
-        if cache is not None:
-            cache[key] = prepared_full, index, prepared, pixels
+        prepared = yield take_pixels_jit.call(prepared_full, index)
+        cache[key] = target, index, prepared, pixels  # the target is kept: its id stays its own
     extra: dict[str, Any] = {}
     if loss != "linear":
         if loss not in LOSSES:
             raise StraussFitError(f"unknown loss {loss!r}; expected one of {', '.join(LOSSES)}")
         extra["loss"] = loss
         if loss == "perceptual":
-            level = max(float(np.percentile(np.asarray(pixels), 98)), 1e-12)
+            level = max(float(np.percentile(pixels, 98)), 1e-12)
             offset = PERCEPTUAL_OFFSET * level
-            extra["loss_offset"] = jnp.asarray(offset)
-            extra["loss_norm"] = jnp.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)
+            extra["loss_offset"] = np.asarray(offset)
+            extra["loss_norm"] = np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)
         elif noise_sigma is not None:
             sigma = np.asarray(noise_sigma, dtype=np.float64).reshape(-1, 3)[index]
-            extra["weights"] = jnp.asarray(reference_noise / np.maximum(sigma, 1e-300))
+            extra["weights"] = reference_noise / np.maximum(sigma, 1e-300)
     if exposure is not None and float(exposure) != 1.0:
-        extra["exposure"] = jnp.asarray(float(exposure))
+        extra["exposure"] = np.asarray(float(exposure))
+    layout = Layout(tuple(names))
     problem = Problem(
         prepared=prepared,
         target=pixels,
         scene=scene,
         material=material.astype(jnp.float64),
         lights=scene.lights,
-        pinned=jnp.zeros(Layout(tuple(names)).size, dtype=bool),
-        pinned_values=jnp.zeros(Layout(tuple(names)).size),
-        residual_scale=jnp.asarray(reference_noise * np.sqrt(pixels.size)),
-        layout=Layout(tuple(names)),
+        pinned=np.zeros(layout.size, dtype=bool),
+        pinned_values=np.zeros(layout.size),
+        residual_scale=np.asarray(reference_noise * np.sqrt(pixels.size)),
+        layout=layout,
         plan=plan,
         **extra,
     )
@@ -302,6 +375,11 @@ PERCEPTUAL_OFFSET = 1e-3
 
 
 def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray) -> Problem | None:
+    """:func:`coarse_problem_steps`, run directly."""
+    return run(coarse_problem_steps(problem, prepared_full, index))
+
+
+def coarse_problem_steps(problem: Problem, prepared_full: Prepared, index: np.ndarray) -> Steps:
     """``problem`` restricted to every k-th of its pixels (k = N // :data:`COARSE_PIXELS`),
     or None when it is small enough. The residual scale shrinks with the pixel count, so
     costs (χ² per value at the reference noise) stay comparable."""
@@ -309,9 +387,10 @@ def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray)
     if stride < 2:
         return None
     subset = np.arange(0, index.size, stride)
+    prepared = yield take_pixels_jit.call(prepared_full, index[subset])
     return dataclasses.replace(
         problem,
-        prepared=take_pixels_jit(prepared_full, jnp.asarray(index[subset])),
+        prepared=prepared,
         target=problem.target[subset],
         residual_scale=problem.residual_scale * np.sqrt(subset.size / index.size),
         weights=None if problem.weights is None else problem.weights[subset],

@@ -36,12 +36,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
 from ..precision import uses_float64
 from .options import FitOptions
 from .parameters import Layout, jsonable
-from .problem import Problem, costs, to_physical
-from .starts import scan_ior, starts
+from .problem import Problem, costs, physical_values
+from .starts import scan_ior_steps, starts
 
 if TYPE_CHECKING:
     import optimistix as optx
@@ -100,8 +101,7 @@ def _result_code(result: Any) -> Array:
     return jnp.argmax(jnp.stack([result == getattr(optx.RESULTS, name) for name in RESULT_NAMES]))
 
 
-@eqx.filter_jit
-def solve_starts(
+def _solve_starts(
     problem: Problem, thetas: Array, solver_name: str, rtol: float, atol: float, max_steps: int, batched: bool
 ):
     """Solve from every row of ``thetas``: vectorised (``vmap``) when ``batched``, else one
@@ -123,6 +123,11 @@ def solve_starts(
     return jax.vmap(one)(thetas) if batched else jax.lax.map(one, thetas)
 
 
+#: Solve from every row of ``thetas`` (see :func:`_solve_starts`); a
+#: :class:`~strauss_fit.engine.Kernel`.
+solve_starts = Kernel(_solve_starts, "solve_starts")
+
+
 #: Entries this close to a bound after the first phase are tried pinned to it.
 BOUND_SNAP = 0.02
 
@@ -133,8 +138,7 @@ def near_bounds(layout: Layout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x - layout.lower_bounds() < BOUND_SNAP, layout.upper_bounds() - x < BOUND_SNAP
 
 
-@eqx.filter_jit
-def polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int, solver_name: str):
+def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int, solver_name: str):
     """One solve of the polish: θ, the normalised cost, the steps, the result code, and
     the gradient Jᵀr and curvature JᵀJ of the normalised cost in physical units."""
     import optimistix as optx
@@ -146,6 +150,10 @@ def polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_s
     jac = jax.jacfwd(problem.objective_residual)(x)
     residual = problem.objective_residual(x)  # = problem.residual(solution.value)
     return solution.value, jnp.sum(residual**2), solution.stats["num_steps"], code, jac.T @ residual, jac.T @ jac
+
+
+#: One solve of the polish (:func:`_polish_solve`); a :class:`~strauss_fit.engine.Kernel`.
+polish_solve = Kernel(_polish_solve, "polish_solve")
 
 
 def release_gain(information: np.ndarray, gradient: np.ndarray, pinned: np.ndarray, count: int) -> np.ndarray:
@@ -170,6 +178,11 @@ def release_gain(information: np.ndarray, gradient: np.ndarray, pinned: np.ndarr
 
 @uses_float64
 def polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool = False):
+    """:func:`polish_steps`, run directly."""
+    return run(polish_steps(problem, theta, options, near))
+
+
+def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool = False) -> Steps:
     """Continue the best start with an active set. Entries within :data:`BOUND_SNAP` of a
     bound are pinned to it and the rest re-solved (Levenberg–Marquardt, whatever the
     solver of the starts; Gauss–Newton when ``near``, i.e. the start converged on the
@@ -192,9 +205,9 @@ def polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool 
     layout = problem.layout
     lower, upper = layout.lower_bounds(), layout.upper_bounds()
     count = problem.target.size
-    x = np.asarray(problem.physical(jnp.asarray(theta)))
+    x = physical_values(problem, theta)
     start_theta = theta
-    start_cost = float(np.asarray(costs(problem, jnp.asarray(x[None])))[0])
+    start_cost = float(np.asarray((yield costs.call(problem, x[None])))[0])
     at_lower, at_upper = near_bounds(layout, x)
     released = np.zeros_like(at_lower)
     total_steps = 0
@@ -202,25 +215,33 @@ def polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool 
     for round_ in range(3):
         pinned = at_lower | at_upper
         trial = problem.pin(pinned, np.where(at_lower, lower, np.where(at_upper, upper, x)))
-        start = jnp.asarray(theta)
+        start = np.asarray(theta)
         # Gauss–Newton's QR would divide by the zero Jacobian column of a pinned entry
         gauss_newton = near and not round_ and not pinned.any()
         theta, cost, steps, code, gradient, information = (
             np.asarray(v)
-            for v in polish_solve(
-                trial, start, options.rtol, options.atol, options.max_steps, "gauss-newton" if gauss_newton else "lm"
+            for v in (
+                yield polish_solve.call(
+                    trial,
+                    start,
+                    options.rtol,
+                    options.atol,
+                    options.max_steps,
+                    "gauss-newton" if gauss_newton else "lm",
+                )
             )
         )
         # (with nothing pinned the trial is the problem itself, so its start cost is start_cost)
         if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and status_name(int(code)) == "successful"):
             theta, cost, more, code, gradient, information = (
-                np.asarray(v) for v in polish_solve(trial, start, options.rtol, options.atol, options.max_steps, "lm")
+                np.asarray(v)
+                for v in (yield polish_solve.call(trial, start, options.rtol, options.atol, options.max_steps, "lm"))
             )
             steps = steps + more
         total_steps += int(steps)
         if best is None or (np.isfinite(cost) and cost <= best[1] * (1 + 1e-9)):
             best = theta, cost, code, information, trial
-        x = np.asarray(trial.physical(jnp.asarray(theta)))
+        x = physical_values(trial, theta)
         gain = release_gain(information, gradient, pinned, count)
         release_lower = at_lower & (gradient < 0) & (gain > 1.0)
         release_upper = at_upper & (gradient > 0) & (gain > 1.0)
@@ -239,8 +260,10 @@ def polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool 
         # pinning must never end above the cost the polish started from.
         theta, cost, steps, code, _, information = (
             np.asarray(v)
-            for v in polish_solve(
-                problem, jnp.asarray(start_theta), options.rtol, options.atol, options.max_steps, "lm"
+            for v in (
+                yield polish_solve.call(
+                    problem, np.asarray(start_theta), options.rtol, options.atol, options.max_steps, "lm"
+                )
             )
         )
         total_steps += int(steps)
@@ -281,6 +304,18 @@ def solve(
     coarse: Problem | None = None,
     exact_first: bool = False,
 ) -> Solved:
+    """:func:`solve_steps`, run directly."""
+    return run(solve_steps(problem, guess, options, say, coarse, exact_first))
+
+
+def solve_steps(
+    problem: Problem,
+    guess: dict[str, Any],
+    options: FitOptions,
+    say: Callable[[str], None],
+    coarse: Problem | None = None,
+    exact_first: bool = False,
+) -> Steps:
     """Every start (:attr:`FitOptions.start_steps` steps each), then the best one
     polished (:func:`polish`) on every pixel, unless it converged away from the bounds
     on every pixel already.
@@ -295,7 +330,7 @@ def solve(
     ior_candidates = None
     if "ior" in layout.names:
         say("scanning the index of refraction for starting points")
-        ior_candidates = scan_ior(screen, guess)
+        ior_candidates = yield from scan_ior_steps(screen, guess)
     thetas = starts(layout, guess, options.starts, ior_candidates, exact_first and ior_candidates is None)
     say(
         f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}"
@@ -306,23 +341,25 @@ def solve(
     # steps on the trade-off set against 25 when the polish pins it (23 ms against 46 ms).
     values, costs_, steps, results = (
         np.asarray(v)
-        for v in solve_starts(
-            screen,
-            jnp.asarray(thetas),
-            options.solver,
-            options.rtol,
-            options.atol,
-            options.start_steps,
-            jax.default_backend() != "cpu",
+        for v in (
+            yield solve_starts.call(
+                screen,
+                np.asarray(thetas),
+                options.solver,
+                options.rtol,
+                options.atol,
+                options.start_steps,
+                jax.default_backend() != "cpu",
+            )
         )
     )
-    physical = np.asarray(to_physical(layout, jnp.asarray(values)))
+    physical = layout.to_physical_numpy(values)
     finite = np.isfinite(costs_)
     if not finite.any():
         raise StraussFitError("every start of the fit diverged to non-finite values")
     best = int(np.argmin(np.where(finite, costs_, np.inf)))
     statuses = [status_name(int(r)) for r in results]
-    start_points = np.asarray(to_physical(layout, jnp.asarray(thetas)))
+    start_points = layout.to_physical_numpy(thetas)
     start_records = [
         {
             "start": jsonable(layout.split(start_points[i])),
@@ -342,21 +379,21 @@ def solve(
     interior = not (near_lower | near_upper).any()
     if coarse is None and statuses[best] == "successful" and interior:
         # converged away from every bound: the active-set polish would only repeat it
-        theta_best, cost_best, polish_steps, status, information = values[best], costs_[best], 0, statuses[best], None
+        theta_best, cost_best, polish_count, status, information = values[best], costs_[best], 0, statuses[best], None
     else:
         say("polishing the best start (parameters at a bound held there)")
-        theta_best, cost_best, polish_steps, status, problem, information = polish(
+        theta_best, cost_best, polish_count, status, problem, information = yield from polish_steps(
             problem, values[best], options, near=coarse is not None and statuses[best] == "successful"
         )
-    x_best = np.asarray(problem.physical(jnp.asarray(theta_best)))
+    x_best = physical_values(problem, theta_best)
     rss = float(cost_best) * float(problem.residual_scale) ** 2
     return Solved(
         problem,
         x_best,
         rss,
         status,
-        int(steps[best]) + polish_steps,
-        polish_steps,
+        int(steps[best]) + polish_count,
+        polish_count,
         best,
         start_records,
         spread,

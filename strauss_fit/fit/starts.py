@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
 
+from ..engine import Steps, run
 from .parameters import Layout
 from .problem import Problem, costs
 
@@ -54,14 +54,19 @@ def starts(
 
 def scan_ior(problem: Problem, guess: dict[str, Any], keep: int = 3) -> list[float]:
     """The ``keep`` best local minima of the cost over :data:`IOR_SCAN`, the other
-    parameters at the guess. Why: a patterned background seen through the sphere makes the
-    cost oscillate in n, so a local solver must start near the right basin."""
+    parameters at the guess (:func:`scan_ior_steps`, run directly)."""
+    return run(scan_ior_steps(problem, guess, keep))
+
+
+def scan_ior_steps(problem: Problem, guess: dict[str, Any], keep: int = 3) -> Steps:
+    """:func:`scan_ior` as steps. Why scan: a patterned background seen through the sphere
+    makes the cost oscillate in n, so a local solver must start near the right basin."""
     layout = problem.layout
     # n only shows through transmitted light: scan it at several transparencies (when t is
     # fitted) and keep, per n, the best of them.
     t_values = (0.25, 0.5, 0.75, 1.0) if "transparency" in layout.names else (guess["transparency"],)
     xs = np.stack([layout.join(dict(guess, ior=float(n), transparency=t)) for n in IOR_SCAN for t in t_values])
-    values = np.asarray(costs(problem, jnp.asarray(xs))).reshape(IOR_SCAN.size, len(t_values))
+    values = np.asarray((yield costs.call(problem, xs))).reshape(IOR_SCAN.size, len(t_values))
     values = np.min(np.where(np.isfinite(values), values, np.inf), axis=1)
     interior = np.r_[True, values[1:] <= values[:-1]] & np.r_[values[:-1] <= values[1:], True]
     minima = sorted(np.flatnonzero(interior), key=lambda i: values[i])[:keep]

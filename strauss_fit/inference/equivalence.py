@@ -28,10 +28,10 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
 
 from ..color import delta_e_2000
+from ..engine import Steps, run
 from ..errors import StraussFitError
 from ..precision import uses_float64
 
@@ -52,16 +52,24 @@ def _perceptual_copy(problem: Any, image: np.ndarray) -> Any:
     offset = PERCEPTUAL_OFFSET * level
     return dataclasses.replace(
         problem,
-        target=jnp.asarray(image),
+        target=np.asarray(image),
         loss="perceptual",
-        loss_offset=jnp.asarray(offset),
-        loss_norm=jnp.asarray((level + offset) ** (-2.0 / 3.0) / 3.0),
+        loss_offset=np.asarray(offset),
+        loss_norm=np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0),
         weights=None,
     )
 
 
 @uses_float64
-def equivalence_ranges(
+def equivalence_ranges(problem: Any, x: np.ndarray, **settings: Any) -> dict[str, Any]:
+    """The perceptual equivalence range of every free parameter of a fit
+    (``problem``, ``x`` as in :attr:`strauss_fit.FitResult.problem` and ``.x``): a map
+    from parameter name to ``[low, high]`` (colour: three pairs, R, G, B). See the module
+    docstring; ``settings`` as for :func:`equivalence_ranges_steps`."""
+    return run(equivalence_ranges_steps(problem, x, **settings))
+
+
+def equivalence_ranges_steps(
     problem: Any,
     x: np.ndarray,
     *,
@@ -69,39 +77,35 @@ def equivalence_ranges(
     rtol: float = 1e-6,
     atol: float = 1e-8,
     max_steps: int = 100,
-) -> dict[str, Any]:
-    """The perceptual equivalence range of every free parameter of a fit
-    (``problem``, ``x`` as in :attr:`strauss_fit.FitResult.problem` and ``.x``): a map
-    from parameter name to ``[low, high]`` (colour: three pairs, R, G, B). See the module
-    docstring."""
-    from ..fit.problem import render_at
+) -> Steps:
+    """:func:`equivalence_ranges` as steps: ``delta_e`` the threshold (mean CIEDE2000), the
+    inner fits' tolerances and step limit."""
+    from ..fit.problem import physical_values, render_at
     from ..fit.solvers import solve_starts
 
     if not np.isfinite(delta_e) or delta_e <= 0:
         raise StraussFitError(f"the equivalence threshold must be a positive CIEDE2000, got {delta_e}")
     layout = problem.layout
     x = np.asarray(x, dtype=np.float64)
-    best = np.asarray(render_at(problem, jnp.asarray(x)))
+    best = np.asarray((yield render_at.call(problem, x)))
     base = _perceptual_copy(problem, best)
     pinned0 = np.asarray(problem.pinned)
     values0 = np.where(pinned0, np.asarray(problem.pinned_values), x)
     lower, upper = layout.lower_bounds(), layout.upper_bounds()
     labels = layout.labels()
 
-    def distance(k: int, v: float, warm: np.ndarray) -> tuple[float, np.ndarray]:
+    def distance(k: int, v: float, warm: np.ndarray) -> Steps:
         mask = pinned0.copy()
         mask[k] = True
         values = values0.copy()
         values[k] = v
-        trial = base.pin(mask, values)
+        trial = dataclasses.replace(base, pinned=mask, pinned_values=values)
         if mask.all():
-            point = np.asarray(trial.physical(jnp.asarray(warm)))
             theta = warm
         else:
-            thetas, _, _, _ = solve_starts(trial, jnp.asarray(warm[None]), "lm", rtol, atol, max_steps, False)
+            thetas, _, _, _ = yield solve_starts.call(trial, warm[None], "lm", rtol, atol, max_steps, False)
             theta = np.asarray(thetas[0])
-            point = np.asarray(trial.physical(jnp.asarray(theta)))
-        image = np.asarray(render_at(problem, jnp.asarray(point)))
+        image = np.asarray((yield render_at.call(problem, physical_values(trial, theta))))
         return float(np.mean(delta_e_2000(image, best))), theta
 
     start_theta = layout.to_unconstrained(values0)
@@ -119,7 +123,7 @@ def equivalence_ranges(
             outside = None
             while True:
                 v = float(max(centre - step, bound) if direction < 0 else min(centre + step, bound))
-                d, theta = distance(k, v, warm)
+                d, theta = yield from distance(k, v, warm)
                 if d > delta_e:
                     outside = v
                     break
@@ -130,7 +134,7 @@ def equivalence_ranges(
             if outside is not None:
                 for _ in range(BISECTIONS):
                     middle = 0.5 * (inside + outside)
-                    d, theta = distance(k, middle, warm)
+                    d, theta = yield from distance(k, middle, warm)
                     if d > delta_e:
                         outside = middle
                     else:

@@ -32,22 +32,26 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..engine import Kernel, Steps, run
 from ..precision import uses_float64
 
 #: Eigenvalues of JᵀJ below this fraction of the largest are dropped by the pseudo-inverse.
 PINV_RCOND = 1e-14
 
 
-@eqx.filter_jit
 def _jacobian(problem: Any, x: Array) -> Array:
     return jax.jacfwd(problem.residual_physical)(x)
+
+
+#: The Jacobian as a :class:`~strauss_fit.engine.Kernel` (for steps; see :func:`jacobian`).
+jacobian_kernel = Kernel(_jacobian, "jacobian")
 
 
 @uses_float64
 def jacobian(problem: Any, x: Array) -> Array:
     """d(residuals)/d(physical parameters) at ``x``, (N, P): ``jax.jacfwd`` of
     ``problem.residual_physical``, compiled once per problem structure."""
-    return _jacobian(problem, x)
+    return jacobian_kernel(problem, x)
 
 
 def information(jac: np.ndarray) -> np.ndarray:
@@ -91,6 +95,13 @@ def correlation(cov: np.ndarray, *, fallback: np.ndarray | None = None, floor: f
 def problem_laplace(
     problem: Any, x: np.ndarray, rss: float, sigma: float | None = None, info: np.ndarray | None = None
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray | None]:
+    """:func:`problem_laplace_steps`, run directly."""
+    return run(problem_laplace_steps(problem, x, rss, sigma, info))
+
+
+def problem_laplace_steps(
+    problem: Any, x: np.ndarray, rss: float, sigma: float | None = None, info: np.ndarray | None = None
+) -> Steps:
     r"""The Laplace deviations and correlations of a fit problem at its optimum ``x``.
 
     :math:`\Sigma = \sigma^2 (J^\top J)^{+}` with σ² given or RSS/(N − P). Entries the
@@ -103,7 +114,7 @@ def problem_laplace(
     if layout.size == 0:
         return {}, {}, None
     if info is None:
-        info = information(np.asarray(jacobian(problem, jnp.asarray(x))))
+        info = information(np.asarray((yield jacobian_kernel.call(problem, np.asarray(x, dtype=np.float64)))))
     free = ~np.asarray(problem.pinned)
     info = np.asarray(info) * np.outer(free, free)
     n, p = problem.target.size, layout.size
@@ -128,7 +139,6 @@ def by_parameter(layout: Any, cov: np.ndarray) -> tuple[dict[str, Any], dict[str
 # --- under misspecification: the noise sandwich ------------------------------------------
 
 
-@eqx.filter_jit
 def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array]:
     residual = problem.objective_residual
 
@@ -143,6 +153,10 @@ def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array]:
     return jax.jacfwd(residual)(x), jax.hessian(half_cost)(x), slope
 
 
+#: :func:`objective_terms` as a :class:`~strauss_fit.engine.Kernel`.
+objective_terms_kernel = Kernel(_objective_terms, "objective_terms")
+
+
 @uses_float64
 def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """At physical ``x``, for the residuals g the solver minimises
@@ -150,7 +164,7 @@ def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
     Hessian H of ½Σg² (P, P: JᵀJ plus the curvature of each residual times its value) and
     ∂gᵢ/∂yᵢ (M,), the slope of each residual in its own target value (each gᵢ depends on
     yᵢ alone), which carries the noise of the data into g."""
-    j, h, slope = _objective_terms(problem, jnp.asarray(x, dtype=jnp.float64))
+    j, h, slope = objective_terms_kernel(problem, jnp.asarray(x, dtype=jnp.float64))
     return np.asarray(j), np.asarray(h), np.asarray(slope)
 
 
@@ -177,6 +191,11 @@ def sandwich(bread: np.ndarray, meat: np.ndarray, free: np.ndarray | None = None
 def problem_sandwich(
     problem: Any, x: np.ndarray, noise_sd: np.ndarray
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray, dict[str, Any]]:
+    """:func:`problem_sandwich_steps`, run directly."""
+    return run(problem_sandwich_steps(problem, x, noise_sd))
+
+
+def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) -> Steps:
     r"""The noise-sandwich covariance of a fit at its optimum ``x``: how far the fitted
     values would move if the image were taken again with fresh noise.
 
@@ -200,7 +219,7 @@ def problem_sandwich(
     Returns the deviations by name, the correlation, V, and the eigenvalues of
     (JᵀJ)⁻¹H on the free entries (1 when the model fits; far from 1: the misfit's curvature
     matters)."""
-    j, h, slope = objective_terms(problem, x)
+    j, h, slope = (np.asarray(v) for v in (yield objective_terms_kernel.call(problem, np.asarray(x, dtype=np.float64))))
     free = ~np.asarray(problem.pinned)
     weight = (slope * np.asarray(noise_sd, dtype=np.float64)) ** 2
     meat = j.T @ (j * weight[:, None])

@@ -1,0 +1,134 @@
+r"""Where :func:`strauss_fit.fit_many` runs its chunks of targets.
+
+An executor has one method, ``run(jobs, chunks, arrived)``: fit the
+:class:`~strauss_fit.fit.batch.FitJob` s of every chunk (a list of indices into
+``jobs``) and call ``arrived(index, result)`` in this process for each result as it comes.
+
+- :class:`InProcessExecutor` — here, chunk after chunk (:func:`~strauss_fit.fit.batch.fit_chunk`).
+- :class:`DaskExecutor` — on a ``dask.distributed`` cluster: a local one of ``workers``
+  processes (one JAX runtime each), or an existing one at ``scheduler``. Each chunk is one
+  task; a worker fits its chunk exactly as this process would and sends back the results
+  as JSON documents plus the fitted images, which are rebuilt here into
+  :class:`~strauss_fit.fit.result.FitResult` s (without the solved problem, which does not
+  cross processes). Results are handed on as their chunk completes; a task whose worker
+  dies is run again on another (``retries``), so a dead worker loses only its chunk's
+  time. Targets and scenes given as paths are read by the workers: on a cluster of several
+  machines they must see the same files. Needs ``pip install 'strauss-fit[dask]'``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..errors import StraussFitError
+from .batch import FitFailure, FitJob, fit_chunk
+from .result import FitResult
+
+
+class InProcessExecutor:
+    """Fit the chunks here, one after the other."""
+
+    def __init__(self, max_batch: int | None = None):
+        self.max_batch = max_batch
+
+    def run(self, jobs: Sequence[FitJob], chunks: list[list[int]], arrived: Callable[[int, Any], None]) -> None:
+        for chunk in chunks:
+            fit_chunk(
+                [jobs[i] for i in chunk],
+                on_result=lambda position, result, chunk=chunk: arrived(chunk[position], result),
+                max_batch=self.max_batch,
+            )
+
+
+def _portable(result: FitResult | FitFailure) -> dict[str, Any]:
+    """A result as plain data that crosses processes (JSON document, images)."""
+    if isinstance(result, FitFailure):
+        return {"failure": result.target, "message": result.message}
+    return {
+        "json": result.to_json(),
+        "fitted_image": None if result.fitted_image is None else np.asarray(result.fitted_image, dtype=np.float32),
+        "mask": None if result.mask is None else np.asarray(result.mask),
+        "used_index": None if result.used_index is None else np.asarray(result.used_index),
+        "standardized_residual": None
+        if result.standardized_residual is None
+        else np.asarray(result.standardized_residual, dtype=np.float32),
+    }
+
+
+def _rebuilt(data: dict[str, Any]) -> FitResult | FitFailure:
+    if "failure" in data:
+        return FitFailure(data["failure"], data["message"])
+    result = FitResult.from_json(data["json"])
+    result.fitted_image = data["fitted_image"]
+    result.mask = data["mask"]
+    result.used_index = data["used_index"]
+    result.standardized_residual = data["standardized_residual"]
+    return result
+
+
+def fit_chunk_portable(jobs: Sequence[FitJob]) -> list[dict[str, Any]]:
+    """:func:`~strauss_fit.fit.batch.fit_chunk` on a worker, results as plain data."""
+    return [_portable(result) for result in fit_chunk(jobs)]
+
+
+class DaskExecutor:
+    """Fit the chunks on a Dask cluster (see the module docstring): ``workers`` local
+    worker processes, or the cluster at ``scheduler`` (an address such as
+    ``tcp://host:8786``), or an existing ``client``."""
+
+    def __init__(
+        self,
+        workers: int | None = None,
+        *,
+        scheduler: str | None = None,
+        client: Any = None,
+        retries: int = 2,
+    ):
+        if sum(x is not None for x in (workers, scheduler, client)) != 1:
+            raise StraussFitError("give the Dask executor one of: a number of workers, a scheduler address, a client")
+        if workers is not None and workers < 1:
+            raise StraussFitError(f"the number of Dask workers must be at least 1, got {workers}")
+        self.workers, self.scheduler, self.client, self.retries = workers, scheduler, client, retries
+
+    def _client(self):
+        try:
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise StraussFitError("running on Dask needs dask.distributed: pip install 'strauss-fit[dask]'") from None
+        if self.client is not None:
+            return self.client, None
+        if self.scheduler is not None:
+            try:
+                return Client(self.scheduler, timeout="10s"), None
+            except (OSError, TimeoutError) as error:
+                raise StraussFitError(f"cannot reach the Dask scheduler at {self.scheduler}: {error}") from None
+        # processes, one thread each: every worker has its own JAX runtime and compiles once
+        cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        return Client(cluster), cluster
+
+    def run(self, jobs: Sequence[FitJob], chunks: list[list[int]], arrived: Callable[[int, Any], None]) -> None:
+        from dask.distributed import as_completed
+
+        client, cluster = self._client()
+        try:
+            futures = {}
+            for chunk in chunks:
+                future = client.submit(fit_chunk_portable, [jobs[i] for i in chunk], retries=self.retries, pure=False)
+                futures[future] = chunk
+            for future in as_completed(futures):
+                chunk = futures[future]
+                try:
+                    portable = future.result()
+                except Exception as error:  # the chunk failed on every try: its targets fail
+                    for index in chunk:
+                        arrived(index, FitFailure(jobs[index].name, f"the Dask task failed: {error}", error))
+                    continue
+                for index, data in zip(chunk, portable):
+                    arrived(index, _rebuilt(data))
+        finally:
+            if cluster is not None:
+                client.close()
+                cluster.close()
