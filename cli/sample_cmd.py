@@ -38,7 +38,7 @@ _FIT_ONLY = {
 #: Largest --walkers (each walker holds a parameter vector in every stored step).
 MAX_WALKERS = 100_000
 #: Options fixed by an existing chain, which --resume refuses to change.
-_CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed")
+_CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed", "adjust")
 
 
 def add_parser(subparsers) -> None:
@@ -69,8 +69,19 @@ def add_parser(subparsers) -> None:
         "--sigma",
         type=finite_float(0.0, open_low=True),
         metavar="S",
-        help="noise standard deviation per RGB value, linear units (default: estimated from the "
-        "fit's residual, sqrt(RSS/(N-P)))",
+        help="noise standard deviation per RGB value, linear units (default: the target's noise as the fit "
+        "found it, root mean square over the channels; without one, estimated from the fit's residual, "
+        "sqrt(RSS/(N-P)))",
+    )
+    parser.add_argument(
+        "--adjust",
+        choices=("affine", "temperature", "none"),
+        metavar="{affine,temperature,none}",
+        help="make the posterior's width match the fit's noise sandwich on a target the model cannot "
+        "reproduce: affine maps the draws (theta' = theta_hat + A (theta - theta_hat), A Sigma_post A^T = V; "
+        "the raw chain is kept and A stored with it), temperature samples with sigma x sqrt(T) (T the largest "
+        "generalised eigenvalue: conservative), none samples the Gaussian likelihood as it is (default: affine "
+        "when the fit's uncertainty is the noise sandwich and its verdict is 'mismatch', else none)",
     )
     parser.add_argument(
         "--prior",
@@ -262,6 +273,7 @@ def run(args: argparse.Namespace) -> int:
             priors=priors,
             settings=settings,
             quality=args.quality,
+            adjust=args.adjust or "auto",
             resume=args.resume,
             force=args.force,
             log=log,
@@ -284,7 +296,21 @@ def run(args: argparse.Namespace) -> int:
 
 def format_summary(payload: dict[str, Any]) -> str:
     d = payload["diagnostics"]
-    rows = [("parameter", "fit", "Laplace ±", "median", "16 %", "84 %", "2.5 %", "97.5 %", "tau", "ESS")]
+    method = payload.get("uncertainty_method", "laplace")
+    rows = [
+        (
+            "parameter",
+            "fit",
+            "sandwich ±" if method == "noise sandwich" else "Laplace ±",
+            "median",
+            "16 %",
+            "84 %",
+            "2.5 %",
+            "97.5 %",
+            "tau",
+            "ESS",
+        )
+    ]
     lap = payload["laplace"]
     for k, label in enumerate(payload["labels"]):
         p = payload["posterior"]["parameters"][label]
@@ -313,6 +339,24 @@ def format_summary(payload: dict[str, Any]) -> str:
         f"sigma {payload['sigma']:.3g}; {verdict}"
     )
     lines += [f"not trustworthy: {r}" for r in d["reasons"]]
+    adjustment = payload.get("adjustment") or {}
+    if adjustment.get("method") == "affine":
+        lines.append(
+            "adjusted (affine) to the fit's noise sandwich: the percentiles above are of the mapped draws "
+            f"(theta' = theta_hat + A (theta - theta_hat)); {adjustment.get('dropped', 0)} of "
+            f"{adjustment.get('dropped', 0) + adjustment.get('kept', 0)} fell outside the prior and were dropped"
+        )
+    elif adjustment.get("method") == "temperature":
+        lines.append(
+            f"tempered: sampled with sigma x sqrt(T), T = {adjustment.get('temperature', float('nan')):.3g}, so that "
+            "every interval is at least as wide as the fit's noise sandwich"
+        )
+    if adjustment.get("reason"):
+        lines.append(f"adjustment: {adjustment['method']} ({adjustment['reason']})")
+    verdict = payload.get("fit_verdict")
+    if verdict:
+        lines.append(f"fit verdict: {verdict}")
+    lines += [f"fit warning [{w.get('code', '?')}]: {w.get('message', '')}" for w in payload.get("fit_warnings", [])]
     lines += [f"note: {n}" for n in payload["comparison"]["notes"]]
     lines += [f"warning: {w}" for w in payload["warnings"]]
     return "\n".join(lines)

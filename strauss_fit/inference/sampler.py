@@ -33,7 +33,17 @@ Storage: emcee's own HDF5 layout (group ``mcmc``: ``chain`` (S, W, P), ``log_pro
 ``accepted`` (W,), the random state) — load it with
 ``emcee.backends.HDFBackend(path, read_only=True)`` or h5py — plus a group ``strauss_fit``
 holding what is needed to resume and report (labels, prior, σ, the fit, the target's
-digest).
+digest, and the ``adjustment``: its method and reason, the fit's covariance V and the
+centre θ̂, and for the affine one the matrix A with the steps and burn-in it was computed
+from and the draws it drops; :mod:`strauss_fit.inference.adjustment`).
+
+Adjustment (``adjust``). On a target the model cannot reproduce, the Gaussian
+likelihood's posterior does not have the spread of the fitted values over fresh noise
+(the fit's noise sandwich V). With ``"affine"`` (the default when the fit's uncertainty is
+the sandwich and its verdict a mismatch) the chain is sampled as usual and A, with
+A Σ_post Aᵀ = V, is computed from its draws after burn-in when sampling ends and stored;
+:meth:`Chain.samples` returns the mapped draws θ̂ + A(θ − θ̂) (those outside the prior
+dropped) and ``adjusted=False`` the raw ones. ``"temperature"`` samples with σ√T instead.
 
 Writing the chain safely. HDF5 cannot survive a full disk: a failed write inside it can
 crash the process (a segmentation fault in h5py's clean-up) and leave a file that no
@@ -82,6 +92,8 @@ from ..io.targets import load_target, match_scene
 from ..precision import uses_float64
 from ..scene.loading import load_scene
 from . import laplace
+from .adjustment import METHODS as ADJUST_METHODS
+from .adjustment import AdjustmentError, adjust_samples, default_method, full_matrix, temperature
 from .posterior import (
     LogPosterior,
     Prior,
@@ -530,6 +542,7 @@ class Chain:
     log_prob: np.ndarray
     accepted: np.ndarray
     meta: dict[str, Any]
+    _adjusted: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def labels(self) -> list[str]:
@@ -543,11 +556,62 @@ class Chain:
         )
         return diagnose(self.chain, self.log_prob, self.accepted, self.labels, k)
 
-    def samples(self, discard: int | None = None) -> np.ndarray:
-        """The flattened samples (n, P) after the burn-in (:func:`burn_in` unless given)."""
+    def samples(self, discard: int | None = None, *, adjusted: bool = True) -> np.ndarray:
+        """The flattened samples (n, P) after the burn-in (:func:`burn_in` unless given):
+        with ``adjusted`` (the default) mapped as the chain's adjustment says (see
+        :meth:`adjusted`), else the raw draws as sampled."""
         if discard is None:
             discard = burn_in(autocorrelation_times(self.chain), self.chain.shape[0])
+        if adjusted:
+            return self.adjusted(discard)[0]
         return self.chain[discard:].reshape(-1, self.chain.shape[-1])
+
+    @property
+    def adjustment(self) -> dict[str, Any]:
+        """The chain's adjustment (``method`` "affine", "temperature" or "none"; see
+        :mod:`strauss_fit.inference.adjustment`); ``{"method": "none"}`` for chains
+        written without one."""
+        value = self.meta.get("adjustment")
+        return value if isinstance(value, dict) else {"method": "none"}
+
+    def adjusted(self, discard: int | None = None) -> tuple[np.ndarray, int]:
+        """The samples after the burn-in with the affine adjustment applied
+        (θ' = θ̂ + A(θ − θ̂), A as stored when the chain was written, recomputed from the
+        draws if the chain has grown since), those outside the prior box dropped; and how
+        many were dropped. Without an affine adjustment, the raw samples and 0."""
+        if discard is None:
+            discard = burn_in(autocorrelation_times(self.chain), self.chain.shape[0])
+        raw = self.chain[discard:].reshape(-1, self.chain.shape[-1])
+        info = self.adjustment
+        if info.get("method") != "affine":
+            return raw, 0
+        key = (discard, self.chain.shape[0])
+        cached = self._adjusted.get(key)
+        if cached is not None:
+            return cached
+        size = raw.shape[1]
+        try:
+            target = np.asarray(info["target_covariance"], dtype=np.float64)
+            center = np.asarray(info["center"], dtype=np.float64)
+            if target.shape != (size, size) or center.shape != (size,) or not np.all(np.isfinite(target)):
+                raise ValueError("shape")
+            stored = info.get("matrix")
+            if stored is not None and info.get("steps") == self.chain.shape[0] and info.get("burn_in") == discard:
+                matrix = np.asarray(stored, dtype=np.float64)
+                if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)):
+                    raise ValueError("matrix")
+            else:
+                matrix = full_matrix(raw, target)
+        except AdjustmentError as exc:
+            raise ChainError(f"cannot adjust the chain {self.path}: {exc} (too few distinct draws?)") from None
+        except (KeyError, TypeError, ValueError):
+            raise ChainError(f"chain file {self.path}: its strauss-fit metadata is damaged ('adjustment')") from None
+        prior = self.meta.get("prior", {})
+        lower = np.array([prior.get(label, [-np.inf, np.inf])[0] for label in self.labels], dtype=np.float64)
+        upper = np.array([prior.get(label, [-np.inf, np.inf])[1] for label in self.labels], dtype=np.float64)
+        result = adjust_samples(raw, center, matrix, lower, upper)
+        self._adjusted[key] = result
+        return result
 
 
 def load_chain(path: str | Path, *, required: bool = False) -> Chain:
@@ -819,6 +883,72 @@ def run_sampler(
 # --- the whole workflow ------------------------------------------------------------------------
 
 
+def _adjustment_target(adjust: str, fit_json: dict[str, Any], labels: list[str]) -> tuple[str, str, np.ndarray]:
+    """The adjustment to make (``adjust``, or the default for ``auto``), why, and the fit's
+    covariance V in the chain's label order (the noise sandwich when the fit used it)."""
+    from .summaries import Laplace
+
+    default, why = default_method(fit_json)
+    if adjust == "auto":
+        method, reason = default, why
+    elif adjust == "none":
+        method, reason = "none", "--adjust none"
+    else:
+        if (fit_json.get("uncertainty_method") or {}).get("name") != "noise sandwich":
+            raise ChainError(
+                f"--adjust {adjust} maps the chain to the fit's noise sandwich, but this fit's uncertainty is the "
+                "Laplace approximation (the target's noise was unknown to it): give the fit the noise level "
+                "(a sidecar, or fit's noise option), or use --adjust none"
+            )
+        method, reason = adjust, f"--adjust {adjust}: {why}"
+    fitted = Laplace.from_fit(fit_json)
+    if fitted.labels != list(labels):
+        raise ChainError(
+            f"the fit result's uncertainties are for {', '.join(fitted.labels)}, not {', '.join(labels)}: "
+            "it does not belong to this problem"
+        )
+    target = fitted.covariance
+    if method != "none" and not (np.all(np.isfinite(target)) and np.any(np.diag(target) > 0)):
+        raise ChainError("the fit's noise sandwich has no finite, positive variance to adjust the chain to")
+    return method, reason, target
+
+
+def _noise_level(sigma: float | None, fit_json: dict[str, Any], problem: Any, x_hat: np.ndarray) -> tuple[float, str]:
+    """σ of the likelihood and where it comes from: given; the fit's noise level when it
+    knew the target's noise; else estimated from the fit's residual."""
+    if sigma is not None:
+        return sigma, "given (--sigma)"
+    residual = fit_json.get("residual") or {}
+    noise = residual.get("noise")
+    if (fit_json.get("uncertainty_method") or {}).get("name") == "noise sandwich" and isinstance(noise, list):
+        level = np.asarray(noise, dtype=np.float64)
+        if level.size and np.all(np.isfinite(level)) and np.all(level > 0):
+            return float(np.sqrt(np.mean(level**2))), (
+                f"the target's noise as the fit estimated it (source: {residual.get('noise_source', 'unknown')}), "
+                "root mean square over the channels"
+            )
+    return estimate_sigma(problem, x_hat), "estimated from the fit's residual, sqrt(RSS/(N-P))"
+
+
+def _store_adjustment(chain: Chain) -> None:
+    """Compute the affine adjustment's matrix A from the chain's draws after burn-in and
+    store it (with the steps and burn-in it was computed from, and the draws it drops) in
+    the chain file's metadata; the raw chain is not touched."""
+    discard = burn_in(autocorrelation_times(chain.chain), chain.chain.shape[0])
+    raw = chain.chain[discard:].reshape(-1, chain.chain.shape[-1])
+    info = dict(chain.adjustment)
+    try:
+        matrix = full_matrix(raw, np.asarray(info["target_covariance"], dtype=np.float64))
+    except AdjustmentError as exc:
+        raise ChainError(f"cannot adjust the chain {chain.path}: {exc} (too few distinct draws?)") from None
+    info.update(matrix=matrix.tolist(), steps=int(chain.chain.shape[0]), burn_in=int(discard))
+    chain.meta = dict(chain.meta, adjustment=info)
+    chain._adjusted.clear()
+    _, dropped = chain.adjusted(discard)
+    info["dropped"] = int(dropped)
+    write_metadata(chain.path, chain.meta)
+
+
 @dataclass
 class SampleResult:
     """What :func:`sample` did: the chain file, the summary written beside it (the
@@ -866,6 +996,7 @@ def sample(
     priors: dict[str, tuple[float, float]] | list[str] | None = None,
     settings: SampleSettings = SampleSettings(),
     quality: str = DEFAULT_QUALITY,
+    adjust: str = "auto",
     resume: bool = False,
     force: bool = False,
     log: Callable[[str], None] | None = None,
@@ -879,12 +1010,21 @@ def sample(
     report or ``resume`` can reload them. The walkers start around the least-squares
     optimum of ``fit`` (a fit result, or the path of one's JSON) or, without it, of a fit
     made first with ``fit_options`` (default: the ``quality`` preset). The noise level is
-    ``sigma``, or estimated from the fit's residual; the prior is the default box of
+    ``sigma``; else the target's noise as the fit found it (the root mean square of its
+    per-channel level) when the fit knew it (its uncertainty is the noise sandwich), else
+    estimated from the fit's residual. The prior is the default box of
     :func:`strauss_fit.inference.posterior.default_prior` narrowed by ``priors`` (a dict
     ``{name: (low, high)}`` or ``NAME=LOW,HIGH`` strings). ``settings`` (see
     :meth:`SampleSettings.preset`) says how long to sample and with how many walkers.
 
-    ``resume`` continues the chain in ``output`` (its fit, σ, prior and walkers are kept);
+    ``adjust`` (:data:`strauss_fit.inference.adjustment.METHODS`) makes the chain's width
+    match the fit's noise sandwich on a target the model cannot reproduce:
+    ``"affine"`` maps the draws on read (:meth:`Chain.adjusted`; the raw chain is kept),
+    ``"temperature"`` samples with σ√T, ``"none"`` samples the Gaussian likelihood as it is;
+    ``"auto"`` is ``"affine"`` when the fit's uncertainty is the noise sandwich and its
+    verdict is a mismatch, else ``"none"`` (:mod:`strauss_fit.inference.adjustment`).
+
+    ``resume`` continues the chain in ``output`` (its fit, σ, prior, walkers and adjustment are kept);
     otherwise an existing ``output`` is refused unless ``force``. ``log`` receives short
     status lines and ``progress`` a :class:`Progress` after every check. Ctrl-C while
     sampling raises :class:`SamplingInterrupted` (a KeyboardInterrupt) after every step so
@@ -905,6 +1045,8 @@ def sample(
         check_writable(summary_path, force)
     if priors is not None and not isinstance(priors, dict):
         priors = parse_priors(list(priors))
+    if adjust not in ADJUST_METHODS:
+        raise ChainError(f"unknown adjustment {adjust!r}; expected one of {', '.join(ADJUST_METHODS)}")
 
     loaded_scene = load_scene(scene)
     loaded_target = load_target(target, mask, encoding)
@@ -919,6 +1061,9 @@ def sample(
         if problem.layout.labels() != meta["labels"]:
             raise ChainError(f"{out} samples {', '.join(meta['labels'])}, not {', '.join(problem.layout.labels())}")
         sigma = float(meta["sigma"])
+        kept = (meta.get("adjustment") or {}).get("method", "none")
+        if adjust != "auto" and adjust != kept:
+            raise ChainError(f"--adjust cannot change when resuming: {out} was started with --adjust {kept}")
         prior = Prior(
             tuple(meta["labels"]),
             np.array([meta["prior"][k][0] for k in meta["labels"]]),
@@ -943,15 +1088,28 @@ def sample(
             if isinstance(fit_json, FitResult):
                 fit_json = fit_json.to_json()
             problem, x_hat = problem_from_fit(loaded_scene, loaded_target, fit_json)
-        sigma_source = "given (--sigma)" if sigma is not None else "estimated from the fit's residual, sqrt(RSS/(N-P))"
-        sigma = sigma if sigma is not None else estimate_sigma(problem, x_hat)
+        method, reason, target_covariance = _adjustment_target(adjust, fit_json, problem.layout.labels())
+        sigma, sigma_source = _noise_level(sigma, fit_json, problem, x_hat)
         prior = default_prior(problem.layout, x_hat, priors)
         ndim = problem.layout.size
         walkers = settings.walkers or default_walkers(ndim)
         if walkers < 2 * ndim:
             raise ChainError(f"--walkers must be at least twice the number of parameters ({2 * ndim}), got {walkers}")
-        log_posterior = LogPosterior(problem, prior, sigma)
         covariance = laplace.laplace_covariance(problem, x_hat, sigma)
+        adjustment: dict[str, Any] = {"method": method, "reason": reason}
+        if method != "none":
+            adjustment.update(target_covariance=target_covariance.tolist(), center=[float(v) for v in x_hat])
+        if method == "temperature":
+            use = np.diag(target_covariance) > 0
+            try:
+                factor = temperature(covariance[np.ix_(use, use)], target_covariance[np.ix_(use, use)])
+            except AdjustmentError as exc:
+                raise ChainError(f"cannot temper the likelihood: {exc}") from None
+            adjustment.update(temperature=factor, sigma_untempered=sigma)
+            log(f"tempering the likelihood: sigma x sqrt(T) = {sigma:.3g} x {np.sqrt(factor):.3g} (T = {factor:.3g})")
+            sigma, covariance = sigma * float(np.sqrt(factor)), covariance * factor
+            sigma_source += f", tempered by sqrt(T) = {np.sqrt(factor):.3g} (--adjust temperature)"
+        log_posterior = LogPosterior(problem, prior, sigma)
         log("compiling the log-probability and placing the walkers")
         start = initial_walkers(x_hat, covariance, prior, walkers, np.random.default_rng(settings.seed), log_posterior)
         meta = {
@@ -969,6 +1127,7 @@ def sample(
             "laplace_covariance": covariance.tolist(),
             "pixels_used": int(problem.target.shape[0]),
             "quality": quality,
+            "adjustment": adjustment,
         }
     try:
         run = run_sampler(
@@ -984,7 +1143,10 @@ def sample(
         )
     except KeyboardInterrupt:
         raise SamplingInterrupted(out, stored_steps(out)) from None
-    summary = summarise_chain(load_chain(out, required=True))
+    chain = load_chain(out, required=True)
+    if chain.adjustment.get("method") == "affine":
+        _store_adjustment(chain)
+    summary = summarise_chain(chain)
     summary["run"] = {
         "stopped": run.stopped,
         "new_steps": run.new_steps,

@@ -420,6 +420,10 @@ def summarise_chain(chain: Chain) -> dict[str, Any]:
     diagnostics = posterior.diagnostics
     warnings = degeneracy_warnings(chain.labels, posterior.covariance, fit.held, values=laplace.x_hat)
     return {
+        "uncertainty_method": (fit.uncertainty_method or {}).get("name", "laplace"),
+        "fit_verdict": fit.verdict,
+        "fit_warnings": [dict(w) for w in fit.warnings if isinstance(w, dict)],
+        "adjustment": adjustment_summary(chain, laplace, diagnostics.burn_in),
         "chain": chain.path,
         "target": meta.get("target"),
         "scene": meta.get("scene"),
@@ -440,3 +444,24 @@ def summarise_chain(chain: Chain) -> dict[str, Any]:
         "comparison": {"rows": [r.as_dict() for r in posterior.rows], "notes": posterior.notes},
         "warnings": warnings,
     }
+
+
+def adjustment_summary(chain: Chain, laplace: Laplace, discard: int) -> dict[str, Any]:
+    """What the chain's adjustment did (:mod:`strauss_fit.inference.adjustment`): the
+    method and why, the temperature, the draws dropped outside the prior box, and per
+    parameter the raw chain's standard deviation, the adjusted one and the fit's (the
+    noise sandwich's, which the adjustment aims at)."""
+    info = chain.adjustment
+    raw = chain.samples(discard, adjusted=False)
+    adjusted, dropped = chain.adjusted(discard)
+    out: dict[str, Any] = {
+        "method": info.get("method", "none"),
+        "reason": info.get("reason"),
+        "temperature": info.get("temperature"),
+        "dropped": int(dropped),
+        "kept": int(adjusted.shape[0]),
+        "sd_raw": raw.std(axis=0, ddof=1).tolist() if raw.shape[0] > 1 else None,
+        "sd_adjusted": adjusted.std(axis=0, ddof=1).tolist() if adjusted.shape[0] > 1 else None,
+        "sd_fit": laplace.sd.tolist(),
+    }
+    return out
