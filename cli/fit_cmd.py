@@ -10,6 +10,7 @@ from .common import (
     add_quality_option,
     by_quality,
     check_evaluator_options,
+    escape,
     finite_float,
     positive_int,
     progress_printer,
@@ -24,14 +25,24 @@ PARAMETER_HELP = (
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
         "fit",
-        help="fit the Strauss parameters to a reference image",
+        help="fit the Strauss parameters to reference images",
         description="Fit the material (C, s, m, t, n) of SCENE to the image TARGET by least squares "
         "(optimistix), in float64, from several starts. Parameters the scene cannot constrain are "
-        "held at the scene's [material] values and the result says why. Writes RESULT.json.",
+        "held at the scene's [material] values and the result says why; the fit then says whether "
+        "the model reproduces the target within its noise. Writes RESULT.json. Several targets (files, "
+        "folders, @LIST files, or --manifest) are fitted together into the folder -o OUTDIR: "
+        "OUTDIR/<stem>.json per target and OUTDIR/summary.csv (see docs/commands/fit.md).",
     )
-    parser.add_argument("target", metavar="TARGET", help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB)")
-    parser.add_argument("--scene", required=True, metavar="SCENE.toml", help="the scene the target was taken in")
-    parser.add_argument("-o", "--output", required=True, metavar="RESULT.json", help="fit result (JSON)")
+    parser.add_argument(
+        "target",
+        metavar="TARGET",
+        nargs="*",
+        help="reference image(s) (.exr/.hdr/.tif linear; .png/.jpg sRGB), folders of images, or @LIST files",
+    )
+    parser.add_argument("--scene", metavar="SCENE.toml", help="the scene the target(s) were taken in")
+    parser.add_argument(
+        "-o", "--output", required=True, metavar="RESULT.json|OUTDIR", help="fit result (JSON), or a folder"
+    )
     parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
     parser.add_argument(
         "--encoding",
@@ -78,12 +89,69 @@ def add_parser(subparsers) -> None:
         help="noise level used to decide what the image constrains (default: 1%% of the target's 98th percentile)",
     )
     parser.add_argument(
+        "--noise",
+        metavar="SIGMA",
+        help="the target's noise (standard deviation, linear; one value or R,G,B) when known; default: from "
+        "the target's sidecar, else estimated from the image",
+    )
+    parser.add_argument(
+        "--loss",
+        choices=("auto", "linear", "perceptual", "huber", "cauchy"),
+        default="auto",
+        help="what the fit minimises (default auto: least squares, then Huber when the model visibly "
+        "cannot reproduce the target)",
+    )
+    parser.add_argument(
+        "--fit-exposure", action="store_true", help="also fit one global exposure (a scale on the whole image)"
+    )
+    parser.add_argument(
+        "--edge-pixels",
+        choices=("exclude", "include"),
+        default="exclude",
+        help="silhouette pixels the sphere covers only partly: leave out (default) or fit as sphere pixels",
+    )
+    parser.add_argument(
+        "--equivalence",
+        action="store_true",
+        default=None,
+        help="also compute each parameter's range that looks the same (default: on with --quality accurate)",
+    )
+    parser.add_argument(
+        "--equivalence-de",
+        type=finite_float(0.0, open_low=True),
+        default=1.0,
+        metavar="DE",
+        help="the mean CIEDE2000 within which images look the same (default 1, one just-noticeable difference)",
+    )
+    parser.add_argument(
         "--render-fit",
         metavar="OUT",
-        help="write the fitted image to OUT and a target | fit | residual PNG beside it (OUT.compare.png)",
+        help="write the fitted image to OUT and a target | fit | residual | residual/noise PNG beside it "
+        "(OUT.compare.png); one target only",
     )
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
     parser.add_argument("--quiet", action="store_true", help="print only the result table")
+    batch = parser.add_argument_group("several targets (-o is a folder)")
+    batch.add_argument(
+        "--manifest",
+        metavar="FILE",
+        help="CSV or JSON list of targets with their own scene, mask, encoding (columns target, scene, mask, encoding)",
+    )
+    batch.add_argument("--compare", action="store_true", help="also write OUTDIR/<stem>.compare.png per target")
+    batch.add_argument(
+        "--resume", action="store_true", help="keep the results already in OUTDIR and fit the other targets"
+    )
+    batch.add_argument(
+        "--chunk-size",
+        type=positive_int,
+        default=64,
+        metavar="N",
+        help="targets fitted together (one compiled call covers up to N; default 64)",
+    )
+    batch.add_argument(
+        "--workers", type=positive_int, metavar="N", help="run on a local Dask cluster of N worker processes"
+    )
+    batch.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster at ADDRESS (tcp://host:8786)")
     add_evaluator_options(parser)
     add_quality_option(parser)
     parser.set_defaults(run=run)
@@ -121,7 +189,7 @@ def fit_options(args: argparse.Namespace, fixed, **more):
     given explicitly (also used by ``sample`` when it fits first)."""
     from strauss_fit import FitOptions
 
-    return FitOptions.preset(
+    options = FitOptions.preset(
         args.quality,
         solver=args.solver,
         starts=args.starts,
@@ -130,8 +198,33 @@ def fit_options(args: argparse.Namespace, fixed, **more):
         free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
         fixed=fixed,
         fit_lights=args.fit_lights,
+        noise=parse_noise(getattr(args, "noise", None)),
+        loss=getattr(args, "loss", None),
+        fit_exposure=getattr(args, "fit_exposure", None),
+        edge_pixels=getattr(args, "edge_pixels", None),
+        equivalence=getattr(args, "equivalence", None),
+        equivalence_de=getattr(args, "equivalence_de", None),
         **more,
     )
+    options.validate()
+    return options
+
+
+def parse_noise(text: str | None) -> float | tuple[float, float, float] | None:
+    """``--noise``: one positive number, or R,G,B."""
+    import math
+
+    from strauss_fit.errors import StraussFitError
+
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise StraussFitError(f"--noise expects a number or R,G,B, got {text!r}") from None
+    if len(values) not in (1, 3) or not all(math.isfinite(v) and v > 0 for v in values):
+        raise StraussFitError(f"--noise expects one positive number or three (R,G,B), got {text!r}")
+    return values[0] if len(values) == 1 else values
 
 
 def check_fixed_ranges(fixed) -> None:
@@ -150,70 +243,34 @@ def check_fixed_ranges(fixed) -> None:
             raise StraussFitError(f"--fix {name}={value}: an intensity must be >= 0")
 
 
-def format_table(result: dict) -> str:
-    """The human-readable summary: one row per parameter."""
-    rows = [("parameter", "value", "± (Laplace)", "status")]
-    uncertainty = result.get("uncertainty", {})
-    for name in ("color", "smoothness", "metalness", "transparency", "ior", *result.get("lights", {})):
-        value = result["color"] if name == "color" else result.get(name, result.get("lights", {}).get(name))
-        if value is None:
-            continue
-        if name in result["free"]:
-            sd = uncertainty.get(name)
-            status = "fitted"
-        elif name in result["held"]:
-            sd = None
-            status = "held: " + result["held"][name]["reason"]
-        else:
-            continue
-        if isinstance(value, list):
-            text = ", ".join(f"{v:.4f}" for v in value)
-            sd_text = ", ".join(f"{v:.2g}" for v in sd) if sd is not None else "-"
-        else:
-            text = f"{value:.4f}"
-            sd_text = f"{sd:.2g}" if sd is not None else "-"
-        rows.append((name, text, sd_text, status))
-    widths = [max(len(r[i]) for r in rows) for i in range(3)]
-    lines = [f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:<{widths[2]}}  {r[3]}" for r in rows]
-    lines.insert(1, "-" * min(100, sum(widths) + 6 + 6))
-    res = result["residual"]
-    lines.append("")
-    lines.append(
-        f"residual: RMS {res['rms']:.3g} (linear), CIEDE2000 mean {res['delta_e2000_mean']:.3g}, "
-        f"95th percentile {res['delta_e2000_p95']:.3g}; {result['pixels_used']} pixels"
+def is_batch(args: argparse.Namespace) -> bool:
+    """Several targets (into a folder) or one (into RESULT.json)?"""
+    output = Path(args.output)
+    return (
+        len(args.target) != 1
+        or args.manifest is not None
+        or args.target[0].startswith("@")
+        or Path(args.target[0]).is_dir()
+        or output.is_dir()
+        or args.output.endswith(("/", "\\"))
     )
-    solver = result["solver"]
-    lines.append(
-        f"solver: {solver['name']}, {solver['steps']} steps, {solver['status']}, "
-        f"{len(result['starts'])} start(s); wall time {result['wall_time_s']:.2f} s"
-    )
-    for note in result.get("notes", []):
-        lines.append(f"note: {note}")
-    return "\n".join(lines)
-
-
-def comparison_image(target, fitted, mask):
-    """target | fit | |residual| (amplified to fill the range), side by side, linear."""
-    import numpy as np
-
-    residual = np.abs(fitted - target) * mask[..., None]
-    peak = float(residual.max())
-    scale = float(np.percentile(target[mask], 99)) if mask.any() else 1.0
-    scale = max(scale, 1e-12)
-    residual_view = residual / peak * scale if peak > 0 else residual
-    gap = np.ones((target.shape[0], 2, 3)) * scale
-    return np.concatenate([target, gap, fitted, gap, residual_view], axis=1) / scale
 
 
 def check_outputs(args: argparse.Namespace) -> Path | None:
     """Check every output of ``fit`` before any work; returns the comparison image's path."""
+    from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import check_distinct, check_writable
     from strauss_fit.io.images import check_image_output
 
+    for option in ("compare", "resume", "workers", "scheduler"):
+        if getattr(args, option):
+            raise StraussFitError(f"--{option} is for several targets fitted into a folder (-o OUTDIR)")
+    if args.scene is None:
+        raise StraussFitError("give --scene (the scene the target was taken in)")
     compare_path = Path(args.render_fit).with_suffix(".compare.png") if args.render_fit else None
     check_distinct(
         {"-o": args.output, "--render-fit": args.render_fit, "--render-fit's comparison": compare_path},
-        {"TARGET": args.target, "--scene": args.scene, "--mask": args.mask},
+        {"TARGET": args.target[0], "--scene": args.scene, "--mask": args.mask},
     )
     check_writable(args.output, args.force)
     if args.render_fit:
@@ -224,35 +281,161 @@ def check_outputs(args: argparse.Namespace) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
+    if is_batch(args):
+        return run_batch(args)
     compare_path = check_outputs(args)
     fixed = parse_fixed(args.fix)
     check_fixed_ranges(fixed)
+    options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
 
     from strauss_fit import fit, load_scene, load_target, match_scene
+    from strauss_fit.fit.summary import comparison_image, format_fit_table, standardized_map
     from strauss_fit.io.files import Outputs
 
     log = progress_printer(args.quiet, "... ")
     scene = load_scene(args.scene)
-    target = load_target(args.target, args.mask, args.encoding)
+    target = load_target(args.target[0], args.mask, args.encoding)
     scene, message = match_scene(scene, target)
     if message:
         log(message)
-    options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
     if args.precision != "float64":
         log("fits always run in float64; --precision is ignored")
     result = fit(scene, target, options, progress=log)
-    payload = result.to_json()
-    payload["target"] = str(args.target)
-    payload["scene"] = str(args.scene)
-    payload["mask"] = str(args.mask) if args.mask else None
-    payload["encoding"] = args.encoding
-    payload["settings"]["quality"] = args.quality
+    payload = merged(result.to_json(), recorded(args, args.target[0], args.scene, args.mask, args.encoding))
     with Outputs(force=args.force) as out:  # all or nothing
         out.add_json(args.output, payload)
         if args.render_fit:
             out.add_image(args.render_fit, result.fitted_image)
-            out.add_image(compare_path, comparison_image(target.pixels, result.fitted_image, result.mask))
+            standardized = standardized_map(result, target.pixels.shape[:2])
+            out.add_image(compare_path, comparison_image(target.pixels, result.fitted_image, result.mask, standardized))
         written = out.commit(final=True)
-    print(format_table(payload))
+    print(escape(format_fit_table(payload)))
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0 if result.solver["status"] == "successful" else 1
+
+
+def merged(payload: dict, extra: dict) -> dict:
+    """``payload`` with ``extra``'s keys (a dict value is merged into the dict there)."""
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(payload.get(key), dict):
+            payload[key].update(value)
+        else:
+            payload[key] = value
+    return payload
+
+
+def recorded(args: argparse.Namespace, target, scene, mask, encoding) -> dict:
+    """What the command line records in a result JSON beside the fit itself."""
+    return {
+        "target": str(target),
+        "scene": str(scene),
+        "mask": str(mask) if mask else None,
+        "encoding": encoding,
+        "settings": {"quality": args.quality},
+    }
+
+
+def run_batch(args: argparse.Namespace) -> int:
+    """Several targets into the folder ``-o`` (:func:`strauss_fit.fit.folder.fit_to_folder`)."""
+    import sys
+    import time
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.fit.folder import fit_to_folder, jobs_from_arguments
+
+    if args.render_fit:
+        raise StraussFitError("--render-fit writes one target's images; with several targets use --compare")
+    if args.workers is not None and args.scheduler is not None:
+        raise StraussFitError("give --workers or --scheduler, not both")
+    if args.resume and args.force:
+        raise StraussFitError("give --resume or --force, not both")
+    fixed = parse_fixed(args.fix)
+    check_fixed_ranges(fixed)
+    options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
+    jobs = jobs_from_arguments(args.target, args.scene, args.manifest, options, mask=args.mask, encoding=args.encoding)
+    executor = None
+    if args.workers is not None or args.scheduler is not None:
+        from strauss_fit.fit.executors import DaskExecutor
+
+        executor = DaskExecutor(args.workers, scheduler=args.scheduler)
+    log = progress_printer(args.quiet, "")
+    bar = ProgressBar(args.quiet)
+
+    def record(job):
+        return recorded(args, job.target, job.scene, job.mask, job.encoding)
+
+    def announce(index, result):
+        from strauss_fit.fit.batch import FitFailure
+
+        if isinstance(result, FitFailure):
+            bar.clear()
+            log(f"fit: failed: {escape(str(result))}")
+
+    started = time.perf_counter()
+    run = fit_to_folder(
+        jobs,
+        args.output,
+        executor=executor,
+        chunk_size=args.chunk_size,
+        resume=args.resume,
+        force=args.force,
+        compare=args.compare,
+        recorded=record,
+        progress=bar.update,
+        on_result=announce,
+    )
+    bar.clear()
+    elapsed = time.perf_counter() - started
+    rate = run.fitted / elapsed if elapsed > 0 else 0.0
+    print(
+        f"{run.fitted} fitted, {run.failed} failed, {run.skipped} kept from before, of {len(jobs)} target(s) "
+        f"in {elapsed:.1f} s ({rate:.1f} targets/s); wrote {run.summary}",
+        file=sys.stdout,
+    )
+    return 1 if run.failed else 0
+
+
+class ProgressBar:
+    """One status line on stderr: targets done, rate, time left, failures (redrawn in
+    place on a terminal; elsewhere a line every tenth of the way)."""
+
+    def __init__(self, quiet: bool):
+        import sys
+
+        self.quiet = quiet
+        self.stream = sys.stderr
+        self.tty = self.stream.isatty()
+        self.shown = 0
+        self.last = -1
+
+    def update(self, progress) -> None:
+        from . import interrupts
+
+        interrupts.check()
+        if self.quiet:
+            return
+        eta = "?" if progress.eta_s is None else _duration(progress.eta_s)
+        text = (
+            f"fit: {progress.done}/{progress.total} ({100 * progress.done / progress.total:.0f} %), "
+            f"{progress.rate:.1f} targets/s, {eta} left, {progress.failed} failed"
+        )
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self.shown))
+            self.stream.flush()
+            self.shown = len(text)
+        else:
+            step = max(progress.total // 10, 1)
+            if progress.done // step != self.last or progress.done == progress.total:
+                self.last = progress.done // step
+                print(text, file=self.stream, flush=True)
+
+    def clear(self) -> None:
+        if self.tty and self.shown and not self.quiet:
+            self.stream.write("\r" + " " * self.shown + "\r")
+            self.stream.flush()
+            self.shown = 0
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 60}m{seconds % 60:02d}s" if seconds >= 60 else f"{seconds}s"

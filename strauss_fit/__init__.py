@@ -58,6 +58,8 @@ from .scene.loading import Scene, load_scene, parse_scene
 
 if TYPE_CHECKING:
     from .convert.converter import phong_to_strauss, strauss_to_phong
+    from .fit.batch import BatchProgress, FitFailure, FitJob, fit_many
+    from .fit.executors import DaskExecutor, InProcessExecutor
     from .inference.sampler import Chain, SampleResult, SampleSettings, load_chain, sample
     from .reporting.fit_report import Report, build_report, report_from_files, write_report
     from .study.study import run_study, study_config
@@ -79,6 +81,12 @@ _LAZY = {
     "strauss_to_phong": ".convert.converter",
     "run_study": ".study.study",
     "study_config": ".study.study",
+    "fit_many": ".fit.batch",
+    "FitJob": ".fit.batch",
+    "FitFailure": ".fit.batch",
+    "BatchProgress": ".fit.batch",
+    "DaskExecutor": ".fit.executors",
+    "InProcessExecutor": ".fit.executors",
 }
 
 
@@ -135,6 +143,12 @@ __all__ = [
     "QUALITY_PRESETS",
     "FitOptions",
     "FitResult",
+    "fit_many",
+    "FitJob",
+    "FitFailure",
+    "BatchProgress",
+    "DaskExecutor",
+    "InProcessExecutor",
     "fit",
     # uncertainty
     "Chain",

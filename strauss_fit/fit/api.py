@@ -567,4 +567,5 @@ def _result(
         uncertainty_laplace=laplace_sd,
         used_index=kept.index,
         standardized_residual=diagnosis.standardized,
+        target_image=target.pixels,
     )

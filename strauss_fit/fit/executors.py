@@ -55,6 +55,7 @@ def _portable(result: FitResult | FitFailure) -> dict[str, Any]:
         "standardized_residual": None
         if result.standardized_residual is None
         else np.asarray(result.standardized_residual, dtype=np.float32),
+        "target_image": None if result.target_image is None else np.asarray(result.target_image, dtype=np.float32),
     }
 
 
@@ -66,6 +67,7 @@ def _rebuilt(data: dict[str, Any]) -> FitResult | FitFailure:
     result.mask = data["mask"]
     result.used_index = data["used_index"]
     result.standardized_residual = data["standardized_residual"]
+    result.target_image = data["target_image"]
     return result
 
 

@@ -93,6 +93,9 @@ class FitResult:
     #: (RMS over channels; None when the noise is unknown), for the comparison image.
     used_index: np.ndarray | None = None
     standardized_residual: np.ndarray | None = None
+    #: The target's linear pixels (H, W, 3) the fit saw (for the comparison image; not in
+    #: the JSON).
+    target_image: np.ndarray | None = None
 
     @property
     def at_bound(self) -> list[str]:
