@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         title=args.title,
         force=args.force,
     )
+    if report.data.get("verdict"):
+        print(f"fit verdict: {report.data['verdict']}", file=sys.stderr)
     for warning in report.data.get("warnings", []):
         print(f"warning: {warning}", file=sys.stderr)
     print(f"wrote {', '.join(str(p) for p in written)}")

@@ -1,12 +1,16 @@
 """The uncertainty report: one self-contained HTML page (images embedded as base64 PNG, no
 scripts, no network) and the same content as Markdown with the PNGs in a folder beside it.
 
-Contents: warnings first (degeneracies, an untrustworthy chain, the fit's notes); the
-target, fit and residual images; the parameter table (least-squares value, Laplace ±,
-posterior median and 16/84 and 2.5/97.5 percentiles, prior); parameters held and why; the
-Laplace-versus-posterior comparison (:func:`strauss_fit.inference.summaries.compare`); the
-correlation matrix; a corner plot; trace plots and sampler diagnostics. Without a chain the
-intervals are the Laplace (Gaussian) ones and say so.
+Contents: the fit's verdict and warnings first (its warning codes and messages, the
+degeneracies, an untrustworthy chain, the fit's notes); the target, fit and residual
+images; the parameter table (least-squares value, the statistical ± — the noise sandwich,
+valid for the best Strauss approximation, or the Laplace estimate, conditional on the
+model, as the fit computed it — the perceptual equivalence band beside it when the fit
+computed one, posterior median and 16/84 and 2.5/97.5 percentiles, prior), one sentence on
+what each kind of interval means and a figure of both per parameter; parameters held and
+why; the fit's ± against the posterior (:func:`strauss_fit.inference.summaries.compare`);
+the correlation matrix; a corner plot; trace plots and sampler diagnostics. Without a chain
+the intervals are the fit's Gaussian ones and say so.
 
 The page is built with :class:`strauss_fit.reporting.document.Document` and the plots with
 :mod:`strauss_fit.reporting.figures` (matplotlib's object API and the Agg canvas: building a
@@ -145,6 +149,39 @@ def corner_figure(samples: np.ndarray, labels: Sequence[str], truths: np.ndarray
     return png_bytes(fig)
 
 
+def intervals_figure(
+    labels: Sequence[str],
+    x_hat: np.ndarray,
+    sd: np.ndarray,
+    bands: dict[str, tuple[float, float]],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    statistical: str,
+    threshold: float,
+) -> bytes:
+    """One row per parameter: the perceptual equivalence band (light), the statistical
+    ±1.96σ interval (dark) and the fit (dot), over the parameter's range."""
+    k = len(labels)
+    fig = new_figure(figsize=(8, 0.55 * k + 1.0))
+    shared = bool(np.all(lower == lower[0]) and np.all(upper == upper[0]))
+    axes = np.atleast_1d(fig.subplots(k, 1, sharex=shared, gridspec_kw={"hspace": 0.15 if shared else 0.9}))
+    for row, (ax, label) in enumerate(zip(axes, labels)):
+        if label in bands:
+            low, high = bands[label]
+            ax.barh(0, high - low, left=low, height=0.8, color="C0", alpha=0.25, lw=0)
+        ax.barh(0, max(2 * 1.96 * sd[row], 1e-12), left=x_hat[row] - 1.96 * sd[row], height=0.35, color="C3")
+        ax.plot([x_hat[row]], [0], "o", color="k", ms=3)
+        ax.set_xlim(lower[row], upper[row])
+        ax.set_yticks([0], [label])
+        ax.set_ylim(-0.6, 0.6)
+        ax.tick_params(axis="x", labelsize=8)
+    axes[0].set_title(
+        f"light: looks the same (mean CIEDE2000 ≤ {threshold:g}); dark: {statistical} ±1.96σ; dot: the fit",
+        fontsize=9,
+    )
+    return png_bytes(fig)
+
+
 def trace_figure(chain: np.ndarray, log_prob: np.ndarray, labels: Sequence[str], burn: int) -> bytes:
     """Every parameter (and the log-probability) against step, one line per walker."""
     steps, walkers, k = chain.shape
@@ -243,14 +280,23 @@ def build_report(
         labels,
         covariance,
         fit.held,
-        source="posterior" if samples is not None else "Laplace estimate",
+        source="posterior"
+        if samples is not None
+        else ("noise sandwich" if _statistical_name(fit) == "noise sandwich" else "Laplace estimate"),
         values=laplace.x_hat,
     )
     if diagnostics is not None and not diagnostics.trustworthy:
         warnings.insert(0, "The chain is not trustworthy yet: " + "; ".join(diagnostics.reasons) + ".")
+    fit_warnings = [w for w in fit.warnings if isinstance(w, dict)]
+    warnings = [f"[{w.get('code', '?')}] {w.get('message', '')}" for w in fit_warnings] + warnings
     warnings += [f"fit: {note}" for note in fit.notes]
     data["warnings"] = warnings
+    data["fit_warnings"] = fit_warnings
+    verdict = fit.verdict
+    data["verdict"] = verdict
     doc.heading("Warnings")
+    if verdict:
+        doc.para(_verdict_text(fit), "ok" if verdict == "consistent" else "bad" if verdict == "mismatch" else None)
     if warnings:
         doc.bullets(warnings, "warn")
     else:
@@ -270,21 +316,30 @@ def build_report(
     )
 
     doc.heading("Parameters")
+    statistical = _statistical_name(fit)
+    short = "sandwich" if statistical == "noise sandwich" else "Laplace"
+    bands = _equivalence_bands(fit, labels)
+    threshold = float(fit.settings.get("equivalence_de", 1.0) or 1.0)
+    band_header = [f"looks the same (ΔE ≤ {threshold:g})"] if bands else []
+    adjusted = chain is not None and chain.adjustment.get("method") == "affine"
     if summary is not None:
-        header = ["parameter", "fit", "Laplace ±", "median", "16 %", "84 %", "2.5 %", "97.5 %", "prior"]
+        posterior_name = "posterior, adjusted" if adjusted else "posterior"
+        header = (
+            ["parameter", "fit", f"± ({statistical})"]
+            + band_header
+            + [f"median ({posterior_name})", "16 %", "84 %", "2.5 %", "97.5 %", "prior"]
+        )
     else:
-        header = [
-            "parameter",
-            "fit",
-            "Laplace ±",
-            "16 % (Laplace)",
-            "84 % (Laplace)",
-            "2.5 % (Laplace)",
-            "97.5 % (Laplace)",
-        ]
+        header = (
+            ["parameter", "fit", f"± ({statistical})"]
+            + band_header
+            + [f"16 % ({short})", f"84 % ({short})", f"2.5 % ({short})", f"97.5 % ({short})"]
+        )
     rows = []
     for k, label in enumerate(labels):
         row = [label, _fmt(laplace.x_hat[k]), _fmt(laplace.sd[k], 2) if laplace.sd[k] > 0 else "at bound"]
+        if bands:
+            row.append(f"{_fmt(bands[label][0], 3)} – {_fmt(bands[label][1], 3)}" if label in bands else "–")
         if summary is not None:
             p = summary["parameters"][label]
             row += [
@@ -300,9 +355,43 @@ def build_report(
             row += [_fmt(x - s), _fmt(x + s), _fmt(x - 1.96 * s), _fmt(x + 1.96 * s)]
         rows.append(row)
     doc.table(header, rows)
+    meanings = [_statistical_meaning(fit)]
+    if bands:
+        meanings.append(
+            f"Looks the same (perceptual equivalence): every value in the band, the other parameters re-fitted, "
+            f"renders within a mean CIEDE2000 of {threshold:g} of the fit — a difference nobody sees. It says what the "
+            "image of this scene can show, not how precisely the data pin the value: a band far wider than the ± "
+            "means a parameter the data determine but the eye does not."
+        )
+    if adjusted:
+        meanings.append(
+            "Posterior, adjusted: the emcee chain mapped to the fit's noise sandwich (θ' = θ̂ + A(θ − θ̂), A chosen "
+            "so that the draws' covariance is the sandwich's), keeping its shape; "
+            f"{chain.adjustment.get('dropped', 0)} draws that left the prior were dropped."
+        )
+    data["intervals"] = {"statistical": statistical, "bands": bands, "meanings": meanings}
+    doc.bullets(meanings)
+    if bands:
+        lo_box = np.array(
+            [
+                0.0 if _unit(label) else min(bands.get(label, (np.inf,))[0], laplace.x_hat[k])
+                for k, label in enumerate(labels)
+            ]
+        )
+        hi_box = np.array(
+            [
+                1.0 if _unit(label) else max(bands.get(label, (0.0, -np.inf))[1], laplace.x_hat[k])
+                for k, label in enumerate(labels)
+            ]
+        )
+        doc.image(
+            "intervals.png",
+            intervals_figure(labels, laplace.x_hat, laplace.sd, bands, lo_box, hi_box, statistical, threshold),
+            f"per parameter: the band that looks the same (light), the {statistical} ±1.96σ interval (dark), the fit",
+        )
     if summary is None:
         doc.para(
-            "No chain was given: the intervals are the Laplace (Gauss–Newton) ones, x̂ ± σ and x̂ ± 1.96σ, "
+            f"No chain was given: the intervals are the fit's Gaussian ones ({statistical}), x̂ ± σ and x̂ ± 1.96σ, "
             "which assume the model is linear over the uncertainty and ignore the bounds. "
             "Run 'strauss-fit sample' for the posterior."
         )
@@ -315,14 +404,14 @@ def build_report(
         )
 
     if summary is not None:
-        doc.heading("Laplace estimate against the posterior")
+        doc.heading(f"The fit's ± ({statistical}) against the posterior")
         rows_cmp, notes = posterior.rows, posterior.notes
         data["comparison"] = {"rows": [r.as_dict() for r in rows_cmp], "notes": notes}
         doc.table(
             [
                 "parameter",
                 "fit",
-                "Laplace ±",
+                f"{short} ±",
                 "posterior median",
                 "posterior ± (half 16–84 %)",
                 "width ratio",
@@ -350,13 +439,13 @@ def build_report(
         else:
             doc.para(
                 "They agree: widths within 20–25 %, medians within half a standard deviation of the optimum, "
-                "no skew, no bound, no curved ridge. The Laplace estimate alone would have done.",
+                f"no skew, no bound, no curved ridge. The fit's {statistical} alone would have done.",
                 "ok",
             )
 
     doc.heading("Correlations")
     corr = np.asarray(summary["correlation"]) if summary is not None else _laplace.correlation(laplace.covariance)
-    source = "posterior samples" if summary is not None else "Laplace estimate"
+    source = "posterior samples" if summary is not None else statistical
     doc.image(
         "correlation.png",
         correlation_figure(labels, corr, f"correlation ({source})"),
@@ -377,8 +466,8 @@ def build_report(
         if draws is not None:
             doc.image(
                 "corner.png",
-                corner_figure(draws, labels, laplace.x_hat, "Laplace approximation (Gaussian)"),
-                "draws from the Laplace approximation N(x̂, Σ), not a posterior sample",
+                corner_figure(draws, labels, laplace.x_hat, f"{statistical} (Gaussian)"),
+                f"draws from the Gaussian N(x̂, Σ) of the {statistical}, not a posterior sample",
             )
 
     if chain is not None and diagnostics is not None:
@@ -404,8 +493,13 @@ def build_report(
     doc.heading("How to read this report", 3)
     doc.bullets(
         [
-            "Laplace ±: the Gauss–Newton standard deviation σ·sqrt((JᵀJ)⁻¹) at the least-squares optimum; exact for a "
-            "linear model far from the bounds.",
+            "± (noise sandwich): sqrt of the diagonal of H⁻¹ Jᵀ diag(σ²) J H⁻¹, the spread of the fitted values "
+            "over fresh noise of the known level σ, around the best Strauss approximation of this image — valid "
+            "whether or not the model reproduces the target, but then an interval for that approximation, not "
+            "for the material.",
+            "± (Laplace): the Gauss–Newton standard deviation σ̂·sqrt((JᵀJ)⁻¹) with σ̂² = RSS/(N − P), used when the "
+            "noise is unknown; exact for a linear model far from the bounds, and only if the model reproduces the "
+            "target (else the misfit counts as noise and the ± is too wide).",
             "median and percentiles: of the emcee posterior samples after burn-in; 16–84 % is the central 68 % "
             "interval, 2.5–97.5 % the central 95 %.",
             "τ: the integrated autocorrelation time, in steps: about how many steps a walker takes to forget where it "
@@ -415,6 +509,63 @@ def build_report(
         ]
     )
     return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
+
+
+def _statistical_name(fit: FitResult) -> str:
+    """ "noise sandwich" or "Laplace", as the fit computed its ±."""
+    return "noise sandwich" if (fit.uncertainty_method or {}).get("name") == "noise sandwich" else "Laplace"
+
+
+def _statistical_meaning(fit: FitResult) -> str:
+    if _statistical_name(fit) == "noise sandwich":
+        source = (fit.uncertainty_method or {}).get("noise_source") or fit.residual.get("noise_source") or "known"
+        text = (
+            f"± (noise sandwich, the target's noise from: {source}): how far the fitted values would move if the "
+            "image were taken again with fresh noise — an interval for the best Strauss approximation of this image"
+        )
+        if fit.verdict == "mismatch":
+            return text + ", not for the true material, since the model cannot reproduce the target."
+        return text + "; with a model that reproduces the target, as here, that is the material's value."
+    return (
+        "± (Laplace): σ̂·sqrt((JᵀJ)⁻¹) with σ̂² = RSS/(N − P), the noise estimated from the residual — valid only "
+        "if the model reproduces the target (otherwise the misfit counts as noise); give the fit the noise level "
+        "for the noise sandwich."
+    )
+
+
+def _verdict_text(fit: FitResult) -> str:
+    residual = fit.residual
+    verdict = fit.verdict
+    chi2 = residual.get("chi2_per_dof")
+    against = f" (χ²/dof {chi2:.4g} against the noise, from: {residual.get('noise_source', '?')})" if chi2 else ""
+    meaning = {
+        "consistent": "the Strauss model reproduces the target within its noise",
+        "mismatch": "the Strauss model cannot reproduce the target: the residual is larger than the noise explains",
+        "undetermined": "the target's noise is unknown, so whether the model reproduces it cannot be said",
+    }.get(str(verdict), "")
+    return f"Verdict: {verdict}{against}" + (f": {meaning}." if meaning else ".")
+
+
+def _unit(label: str) -> bool:
+    return label.startswith("color_") or label in ("smoothness", "metalness", "transparency")
+
+
+def _equivalence_bands(fit: FitResult, labels: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """The fit's equivalence ranges by vector label (colour per channel), or {}."""
+    ranges = fit.equivalence
+    out: dict[str, tuple[float, float]] = {}
+    if not isinstance(ranges, dict):
+        return out
+    for name, value in ranges.items():
+        try:
+            if name == "color":
+                for channel, pair in zip("rgb", value):
+                    out[f"color_{channel}"] = (float(pair[0]), float(pair[1]))
+            else:
+                out[name] = (float(value[0]), float(value[1]))
+        except (TypeError, ValueError, IndexError):
+            continue
+    return {label: out[label] for label in labels if label in out}
 
 
 def _value_text(value: Any) -> str:
@@ -445,7 +596,7 @@ def report_paths(html_path: str | Path) -> tuple[Path, Path, Path]:
 def check_report_outputs(
     html_path: str | Path,
     force: bool,
-    image_names: Sequence[str] = ("images.png", "correlation.png", "corner.png", "trace.png"),
+    image_names: Sequence[str] = ("images.png", "intervals.png", "correlation.png", "corner.png", "trace.png"),
 ) -> None:
     """Refuse (before any work) to overwrite an existing report without ``force``."""
     page, markdown, folder = report_paths(html_path)
