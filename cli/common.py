@@ -9,7 +9,7 @@ import sys
 
 from strauss_fit.errors import StraussFitError
 from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS
-from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE, MODES
+from strauss_fit.models.modes import DEFAULT_TABLE_SIZE, MODES
 
 
 def add_evaluator_options(parser: argparse.ArgumentParser) -> None:

@@ -30,6 +30,14 @@ COMMAND_MODULES = (
 )
 
 
+def _load_numeric_libraries() -> None:
+    """Import NumPy and JAX while an interrupt is only recorded: raised inside their
+    compiled modules' imports, it would come back wrapped in an ImportError with a
+    traceback in its message."""
+    import jax.numpy  # noqa: F401
+    import numpy  # noqa: F401
+
+
 def _enable_compilation_cache() -> None:
     """Keep compiled XLA programs between runs, so repeated CLI calls skip compilation."""
     import jax
@@ -42,7 +50,9 @@ def _enable_compilation_cache() -> None:
     except OSError:
         return  # an unwritable cache only costs speed
     jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    # every program, however quick to compile: a fit compiles a few hundred small ones
+    # (eager operations included), which together cost a second in every new process
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -90,9 +100,10 @@ def main(argv: list[str] | None = None) -> int:
     sys.stdout, sys.stderr = EscapingStream(stdout), EscapingStream(stderr)
     try:
         try:
-            interrupts.arm()  # raises an interrupt recorded while Python was starting
             parser = build_parser()
-            args = parser.parse_args(argv)
+            args = parser.parse_args(argv)  # --help ends here, having loaded no JAX
+            _load_numeric_libraries()  # a Ctrl-C meanwhile is only recorded ...
+            interrupts.arm()  # ... and raised here, as one recorded while Python was starting
             interrupts.check()
             _enable_compilation_cache()
             code = int(args.run(args) or 0)

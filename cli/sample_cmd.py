@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 from strauss_fit.fit.options import QUALITY_PRESETS
-from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE, MODES
+from strauss_fit.models.modes import DEFAULT_TABLE_SIZE, MODES
 
 from .common import (
     add_quality_option,

@@ -1,4 +1,4 @@
-"""CIEDE2000 between linear RGB images (strauss_fit.colour_difference)."""
+"""Colour: the sRGB curve, CIE L*a*b* and CIEDE2000 (strauss_fit.color), checked against colour-science."""
 
 import colour
 import numpy as np
@@ -38,3 +38,32 @@ def test_hdr_images_are_compared_at_the_references_exposure():
     reference = rng.random((300, 3)) * 2.0
     image = reference * 0.97
     np.testing.assert_allclose(delta_e_2000(4 * image, 4 * reference), delta_e_2000(image, reference), rtol=1e-9)
+
+
+def test_the_srgb_curve_and_lab_agree_with_colour_science():
+    from strauss_fit.color import linear_to_lab, srgb_decode, srgb_encode
+
+    values = np.r_[np.linspace(0.0, 1.0, 2001), 0.0031308, 0.04045, 1e-9]
+    np.testing.assert_allclose(srgb_decode(values), colour.cctf_decoding(values, function="sRGB"), rtol=1e-12)
+    np.testing.assert_allclose(srgb_encode(values), colour.cctf_encoding(values, function="sRGB"), rtol=1e-12)
+    rng = np.random.default_rng(5)
+    rgb = rng.random((500, 3))
+    space = colour.RGB_COLOURSPACES["sRGB"]
+    expected = colour.XYZ_to_Lab(colour.RGB_to_XYZ(rgb, space), space.whitepoint)
+    np.testing.assert_allclose(linear_to_lab(rgb), expected, rtol=1e-12, atol=1e-10)
+
+
+def test_ciede2000_matches_the_published_test_pairs():
+    # Sharma, Wu & Dalal (2005), Table 1: pairs 1, 7, 17, 19, 25 and 34 (the last of 34 pairs)
+    from strauss_fit.color import ciede2000
+
+    pairs = [
+        ((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),
+        ((50.0, 0.0, 0.0), (50.0, -1.0, 2.0), 2.3669),
+        ((50.0, 2.5, 0.0), (73.0, 25.0, -18.0), 27.1492),
+        ((50.0, 2.5, 0.0), (50.0, 3.1736, 0.5854), 1.0),
+        ((60.2574, -34.0099, 36.2677), (60.4626, -34.1751, 39.4387), 1.2644),
+        ((2.0776, 0.0795, -1.1350), (0.9033, -0.0636, -0.5514), 0.9082),
+    ]
+    for one, two, expected in pairs:
+        assert float(ciede2000(np.array(one), np.array(two))) == pytest.approx(expected, abs=5e-5)

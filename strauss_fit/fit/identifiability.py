@@ -45,6 +45,7 @@ from ..models.material import Material
 from ..render.strauss import plan_render
 from ..scene.lights import Lights
 from ..scene.loading import Scene
+from .options import DEFAULT_THRESHOLD
 from .parameters import Layout, value_of
 from .problem import build_problem_steps, costs
 
@@ -52,9 +53,6 @@ if TYPE_CHECKING:
     from .options import FitOptions
     from .solvers import Solved
 
-#: A parameter is fitted when its predicted standard deviation at the reference noise is
-#: at most this fraction of its scale.
-DEFAULT_THRESHOLD = 0.05
 #: Reference noise: this fraction of the target's 98th-percentile value.
 DEFAULT_REFERENCE_NOISE = 0.01
 

@@ -16,8 +16,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import StraussFitError
-from ..models.strauss import DEFAULT_TABLE_SIZE
-from .identifiability import DEFAULT_THRESHOLD
+from ..models.modes import DEFAULT_TABLE_SIZE
+
+#: A parameter is fitted when its predicted standard deviation at the reference noise is
+#: at most this fraction of its scale (:mod:`strauss_fit.fit.identifiability`).
+DEFAULT_THRESHOLD = 0.05
 
 #: Settings of each ``--quality`` preset: for fits (``starts``, ``max_steps``, ``rtol``,
 #: ``atol``, ``equivalence``) and for sampling (``walkers``, ``min_tau_multiple``, ``sample_max_steps``).

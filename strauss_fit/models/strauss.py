@@ -31,7 +31,7 @@ At ``s = 1`` the exponent h is infinite and the direct highlight is a delta: it 
 from __future__ import annotations
 
 import functools
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -49,11 +49,7 @@ K_G = 1.01
 #: Constant of the off-specular peak term in r_j.
 K_J = 0.1
 
-Mode = Literal["exact", "table", "j-table"]
-MODES: tuple[str, ...] = ("exact", "table", "j-table")
-#: Default number of samples of the F/G tables over [0, pi/2] (``mode="table"``) and per
-#: axis of the j(alpha, gamma) table (``mode="j-table"``).
-DEFAULT_TABLE_SIZE = 1024
+from .modes import DEFAULT_TABLE_SIZE, MODES, Mode  # noqa: E402 (the evaluator modes, importable without JAX)
 
 
 @uses_float64
