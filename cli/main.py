@@ -12,9 +12,7 @@ its traceback. Text the commands print passes through :func:`strauss_fit_cli.com
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-from pathlib import Path
 
 from . import interrupts
 
@@ -39,20 +37,10 @@ def _load_numeric_libraries() -> None:
 
 
 def _enable_compilation_cache() -> None:
-    """Keep compiled XLA programs between runs, so repeated CLI calls skip compilation."""
-    import jax
+    """Keep compiled XLA programs between runs (:func:`strauss_fit.runtime.enable_compilation_cache`)."""
+    from strauss_fit.runtime import enable_compilation_cache
 
-    cache = os.environ.get("STRAUSS_FIT_CACHE_DIR") or str(Path.home() / ".cache" / "strauss-fit" / "jax")
-    if cache.lower() in ("", "off", "none", "0"):
-        return
-    try:
-        Path(cache).mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return  # an unwritable cache only costs speed
-    jax.config.update("jax_compilation_cache_dir", cache)
-    # every program, however quick to compile: a fit compiles a few hundred small ones
-    # (eager operations included), which together cost a second in every new process
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    enable_compilation_cache()
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -1,4 +1,14 @@
-"""Keeping a long-running process healthy while it compiles many JAX programs.
+"""JAX's runtime: the persistent compilation cache, and keeping a long-running process
+healthy while it compiles many programs.
+
+The compilation cache (:func:`enable_compilation_cache`): compiled XLA programs are kept
+on disk (``~/.cache/strauss-fit/jax``; ``STRAUSS_FIT_CACHE_DIR=PATH`` moves it,
+``STRAUSS_FIT_CACHE_DIR=off`` turns it off), so that a new process — the next
+``strauss-fit`` command, a Dask worker — loads them instead of compiling again. Every
+program is kept, however quick to compile: a fit compiles a few hundred small ones, which
+together cost a second in every new process.
+
+Compiled code and memory mappings:
 
 XLA:CPU maps the machine code of every compiled program into memory separately, a few
 hundred mappings per configuration of a fit (scene structure, free parameters, loss,
@@ -17,12 +27,51 @@ does nothing.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 #: Clear JAX's caches once the process holds this fraction of the mapping limit.
 MAP_FRACTION = 0.5
 _MAPS = Path("/proc/self/maps")
 _LIMIT = Path("/proc/sys/vm/max_map_count")
+
+
+def cache_folder() -> Path | None:
+    """The persistent compilation cache's folder, or None when it is turned off."""
+    setting = os.environ.get("STRAUSS_FIT_CACHE_DIR")
+    if setting is not None and setting.strip().lower() in ("", "off", "none", "0"):
+        return None
+    return Path(setting) if setting else Path.home() / ".cache" / "strauss-fit" / "jax"
+
+
+def enable_compilation_cache() -> Path | None:
+    """Turn on JAX's persistent compilation cache in :func:`cache_folder` (see the module
+    docstring); returns the folder, or None (turned off, or not writable: it only costs
+    time)."""
+    folder = cache_folder()
+    if folder is None:
+        return None
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    return folder
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux's ``MemAvailable``), or None
+    where unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 def mapping_usage() -> tuple[int, int] | None:

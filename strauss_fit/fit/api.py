@@ -41,7 +41,7 @@ from ..inference import laplace
 from ..inference.equivalence import equivalence_ranges_steps
 from ..inference.laplace import problem_laplace_steps, problem_sandwich_steps
 from ..inference.noise import NoiseModel, describe_noise
-from ..io.targets import Target
+from ..io.targets import Target, reduce_target
 from ..models.material import PARAMETER_NAMES, Material
 from ..precision import uses_float64
 from ..render.strauss import Prepared, RenderPlan, plan_render
@@ -160,6 +160,9 @@ def fit_steps(
     say = progress or (lambda message: None)
     started = time.perf_counter()
     options.validate()
+    scene, target, reduction = reduce_target(scene, target)
+    if reduction:
+        say(reduction)
     if options.solver not in SOLVERS:
         raise StraussFitError(f"unknown solver {options.solver!r}; expected one of {', '.join(SOLVERS)}")
     if options.starts < 1:
@@ -329,7 +332,10 @@ def fit_steps(
         outcome = yield from _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
         kept = refit
     solve_time = time.perf_counter() - solve_started
-    return (yield from _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time))
+    result = yield from _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time)
+    if reduction:
+        result.notes.append(reduction)
+    return result
 
 
 def _refit_with_loss(

@@ -72,7 +72,11 @@ def _rebuilt(data: dict[str, Any]) -> FitResult | FitFailure:
 
 
 def fit_chunk_portable(jobs: Sequence[FitJob]) -> list[dict[str, Any]]:
-    """:func:`~strauss_fit.fit.batch.fit_chunk` on a worker, results as plain data."""
+    """:func:`~strauss_fit.fit.batch.fit_chunk` on a worker, results as plain data (the
+    worker uses the persistent compilation cache: a new worker loads what others compiled)."""
+    from ..runtime import enable_compilation_cache
+
+    enable_compilation_cache()
     return [_portable(result) for result in fit_chunk(jobs)]
 
 

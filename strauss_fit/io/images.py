@@ -65,6 +65,24 @@ def _first_line(text: str, fallback: str) -> str:
     return lines[0] if lines else fallback
 
 
+#: Bytes per pixel and channel a read image occupies at its peak: the decoder's float32
+#: copy of every channel plus the float64 RGB pixels and a working copy of them.
+_READ_BYTES = (4, 2 * 3 * 8)
+
+
+def check_memory_for(path: str | Path, width: int, height: int, channels: int) -> None:
+    """Refuse, before reading it, an image too large for the memory there is."""
+    from ..runtime import available_memory
+
+    need = width * height * (_READ_BYTES[0] * channels + _READ_BYTES[1])
+    have = available_memory()
+    if have is not None and need > have:
+        raise ImageError(
+            f"image {path} is {width}x{height}: reading it needs about {need / 2**30:.1f} GB of memory, "
+            f"and {have / 2**30:.1f} GB are available"
+        )
+
+
 def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
     """Read any image OpenImageIO reads, as linear RGB.
 
@@ -89,6 +107,7 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
         spec = image_input.spec()
         if spec.width < 1 or spec.height < 1 or spec.nchannels < 1:
             raise ImageError(f"cannot read image {path}: it holds no pixels")
+        check_memory_for(path, spec.width, spec.height, spec.nchannels)
         raw = image_input.read_image(0, 0, 0, spec.nchannels, "float")
         # a decoder may fill a truncated file and only warn ("Premature end of JPEG file")
         damaged = image_input.has_error

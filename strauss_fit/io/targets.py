@@ -76,3 +76,40 @@ def match_scene(scene: Scene, target: Target) -> tuple[Scene, str | None]:
         f"{width}x{height}: rendering at the target's size"
     )
     return scene.resized(width, height), message
+
+
+#: The most pixels a fit works on: a larger target is fitted box-averaged to at most this
+#: many (:func:`reduce_target`), so that any image the scene format allows (8192 × 8192)
+#: fits in a few GB. A 1024 × 1024 sphere has 820 000 pixels, far more than the handful
+#: of parameters need.
+MAX_FIT_PIXELS = 1024 * 1024
+
+
+def reduce_target(scene: Scene, target: Target, limit: int = MAX_FIT_PIXELS) -> tuple[Scene, Target, str | None]:
+    """``scene`` and ``target`` as a fit sees them: unchanged up to ``limit`` pixels; above
+    it, the target averaged over k × k blocks (the smallest k that divides both sides and
+    brings it under the limit: what a camera of k times fewer pixels per side records) and
+    the scene's camera at that size, with a message saying so. A block is usable when all
+    its pixels are. Averaging keeps what the fit needs — the shading is smooth over a few
+    pixels, silhouette blocks are left out like silhouette pixels, and the noise estimated
+    from the averaged image is that of the averaged image."""
+    height, width = target.pixels.shape[:2]
+    if height * width <= limit:
+        return scene, target, None
+    for k in range(2, min(height, width) + 1):
+        if height % k == 0 and width % k == 0 and (height // k) * (width // k) <= limit:
+            break
+    else:
+        raise ImageError(
+            f"target {target.path} is {width}x{height}: more than {limit} pixels and no block size divides both "
+            "sides; resize it (or crop it to sides with a common factor)"
+        )
+    h, w = height // k, width // k
+    pixels = target.pixels.reshape(h, k, w, k, 3).mean(axis=(1, 3))
+    usable = target.usable.reshape(h, k, w, k).all(axis=(1, 3))
+    reduced = Target(pixels, usable, target.path, target.encoding, target.clipped_count, target.masked_out_count)
+    message = (
+        f"the target is {width}x{height}: fitted averaged over {k}x{k} blocks, at {w}x{h} "
+        f"(at most {limit} pixels; the fitted image is at that size)"
+    )
+    return scene.resized(w, h), reduced, message

@@ -296,3 +296,32 @@ def test_the_body_colour_of_rough_plastics_is_recovered_to_a_few_percent(case):
     s, m = found["smoothness"], found["metalness"]
     albedo = (1 - m * s) * (1 - s**3) * np.asarray(found["color"])
     np.testing.assert_allclose(albedo, sidecar["reference"]["diffuse_albedo"], rtol=0.05)
+
+
+# --- very large targets (issue 14.4) -------------------------------------------------------
+
+
+def test_a_target_above_the_pixel_limit_is_fitted_block_averaged_and_says_so(monkeypatch):
+    import strauss_fit.io.targets as targets
+
+    truth = dict(color=(0.6, 0.4, 0.3), smoothness=0.5, metalness=0.0)
+    scene = support.key_and_fill_scene(96, material=truth, source="large")
+    image, _ = sf.render(scene, sf.Material(**truth))
+    target = sf.Target(np.asarray(image), np.ones((96, 96), dtype=bool), "large.exr", "linear", 0, 0)
+    monkeypatch.setattr(targets, "MAX_FIT_PIXELS", 48 * 48)  # a 96x96 target is then "too large"
+    monkeypatch.setattr(targets.reduce_target, "__defaults__", (48 * 48,))
+    result = sf.fit(scene, target, sf.FitOptions(noise=1e-3, free=("color", "smoothness")))
+    assert any("averaged over 2x2 blocks, at 48x48" in note for note in result.notes)
+    assert result.fitted_image.shape == (48, 48, 3)
+    np.testing.assert_allclose(result.material.to_dict()["color"], truth["color"], atol=0.01)
+    assert result.material.to_dict()["smoothness"] == pytest.approx(truth["smoothness"], abs=0.02)
+
+
+def test_an_image_too_large_for_the_memory_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    import strauss_fit.runtime as runtime
+
+    path = tmp_path / "t.exr"
+    sf.write_image(path, np.full((64, 64, 3), 0.5))
+    monkeypatch.setattr(runtime, "available_memory", lambda: 1000)
+    with pytest.raises(sf.ImageError, match="64x64: reading it needs about .* GB of memory"):
+        sf.load_target(path)
