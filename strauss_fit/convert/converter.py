@@ -55,17 +55,28 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..color import delta_e_2000
+from ..engine import Steps, run_batched
 from ..errors import StraussFitError
-from ..fit.identifiability import reference_noise_level
-from ..fit.options import DEFAULT_QUALITY, FitOptions, quality_preset
-from ..fit.problem import build_problem, render_at
-from ..fit.solvers import polish
+from ..fit.diagnosis import WEAK_FRACTION
+from ..fit.identifiability import (
+    Decision,
+    deviation_scale,
+    held_at_optimum,
+    numerical_decision,
+    reference_noise_level,
+)
+from ..fit.options import DEFAULT_QUALITY, VISIBLE_DELTA_E, FitOptions, quality_preset
+from ..fit.parameters import jsonable, material_with
+from ..fit.problem import build_problem, physical_values, render_at, take_pixels_jit
+from ..fit.solvers import polish_steps, solve_starts
 from ..fit.starts import START_MARGIN, starts
-from ..inference.laplace import problem_laplace
+from ..inference.laplace import covariance, deviations, jacobian_kernel, problem_laplace_steps
+from ..inference.laplace import information as information_of
 from ..io.files import check_distinct, check_writable
 from ..io.journal import Journal
 from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
@@ -80,17 +91,24 @@ from ..scene.loading import Scene, load_scene
 from .phong_fit import (
     PHONG_LAYOUT,
     exponent_from_unit,
-    laplace_deviations,
+    laplace_deviations_from,
     material_from_vector,
     phong_problem,
-    solve_batch,
+    solve_phong_starts,
     unit_from_exponent,
 )
 
 #: Strauss parameters the conversion fits (t and n are carried over, see the module docstring).
 STRAUSS_FREE = ("color", "smoothness", "metalness")
-#: Materials solved per vectorised call (the last chunk is padded, so one compilation serves all).
-CHUNK = 8
+#: Materials converted together (:meth:`Converter._stream`): their kernel calls run as one
+#: compiled call each (:func:`strauss_fit.engine.run_batched`).
+CHUNK = 32
+#: The starts run on every COARSE_STRIDE-th pixel of the conversion image, the polish on all.
+COARSE_STRIDE = 4
+#: Two conversions whose mean CIEDE2000 to the target differ by less than this (a hundredth
+#: of a just-noticeable difference) look the same: the one on the canonical branch is taken
+#: (a metal for a tinted Phong highlight, a dielectric for a white one).
+SAME_LOOK_DE = 0.01
 #: The default conversion scene, in ``data_synth/scenes``.
 DEFAULT_SCENE_NAME = "conversion_default.toml"
 #: Angle (α = γ) at which the closed-form Strauss → Phong guess evaluates j and F.
@@ -259,9 +277,11 @@ class Settings:
 Progress = Callable[[int, int, str], None]
 
 
-def _residual_stats(model: np.ndarray, target: np.ndarray) -> dict[str, float]:
+def _residual_stats(model: np.ndarray, target: np.ndarray, delta: np.ndarray | None = None) -> dict[str, float]:
+    """RMS and largest absolute difference in linear RGB, mean and 95th percentile of the
+    per-pixel CIEDE2000 (``delta``, when already computed)."""
     diff = model - target
-    delta = delta_e_2000(model, target)
+    delta = delta_e_2000(model, target) if delta is None else delta
     return {
         "rms": float(np.sqrt(np.mean(diff**2))),
         "max_abs": float(np.max(np.abs(diff))),
@@ -285,38 +305,43 @@ def _error(entry: Entry, message: str) -> dict[str, Any]:
     }
 
 
-def _chunks(items: list, size: int):
-    for start in range(0, len(items), size):
-        yield items[start : start + size]
-
-
-def _pad(array: np.ndarray, size: int) -> np.ndarray:
-    if array.shape[0] == size:
-        return array
-    return np.concatenate([array, np.repeat(array[:1], size - array.shape[0], axis=0)])
-
-
 @dataclass
 class _Direction:
-    """How one direction of the conversion solves a chunk of materials with the generic
-    :meth:`Converter._solve_chunk`: the problem template, the solver's step limit, the
-    starts of an item, the extra per-material fields of the template (or None), how a
-    solved item is finished and what an item that renders black gets."""
+    """One direction of the conversion for the generic chunk driver
+    (:meth:`Converter._stream`): how an item is made from an entry (``prepare``, raises
+    for a bad material) and the steps that convert it (``steps``: a generator of
+    :class:`strauss_fit.engine.Call`, returning the result dict)."""
 
-    template: Any
-    max_steps: int
-    starts: Callable[[tuple], np.ndarray]
-    extra: Callable[[list[tuple]], dict[str, np.ndarray] | None]
-    finish: Callable[..., dict[str, Any]]
-    unsolved: Callable[[tuple], dict[str, Any]]
-    #: Targets whose largest value is at most this are black: not fitted (``unsolved``).
-    black_level: float = 0.0
-    #: How an item is made: ``(index, entry) -> item`` (raises for a bad material).
-    prepare: Callable[[int, Entry], tuple] | None = None
+    prepare: Callable[[int, Entry], tuple]
+    steps: Callable[[tuple], Steps]
+
+
+def _held_uncertainty(layout: Any, uncertainty: dict[str, Any], held: dict[str, Any]) -> dict[str, Any]:
+    """``uncertainty`` with None for the held parameters (a held value has no interval)."""
+    out = dict(uncertainty)
+    for name in held:
+        if name in out:
+            out[name] = [None] * len(out[name]) if isinstance(out[name], list) else None
+    return out
+
+
+def metallic_tint(phong: PhongMaterial) -> bool:
+    """Whether a Phong material's highlight is tinted — what a metal shows (its colour
+    differs from white by more than 5 %, as :func:`strauss_guess` reads it)."""
+    specular = _triple(phong.ks) * np.asarray(phong.specular_color, dtype=np.float64)
+    top = float(specular.max())
+    return top > 0 and 1.0 - float(specular.min()) / top > 0.05
 
 
 class Converter:
-    """Converts materials on one conversion scene (compiled once, reused for every batch)."""
+    """Converts materials on one conversion scene (compiled once, reused for every batch).
+
+    Each material's conversion is written as steps (:mod:`strauss_fit.engine`): the
+    numeric work — the starts, the polish, the Jacobian, the renders — is yielded as
+    kernel calls, and :meth:`_stream` drives the steps of :attr:`Settings.chunk` materials
+    together with :func:`strauss_fit.engine.run_batched`, which runs the calls of the same
+    kernel as one compiled call over the materials (one after another on a CPU, side by
+    side on an accelerator), while the per-material decisions stay plain Python."""
 
     @uses_float64
     def __init__(self, scene: Scene | None = None, settings: Settings = Settings(), scene_label: str | None = None):
@@ -334,16 +359,23 @@ class Converter:
             atol=settings.atol,
             free=STRAUSS_FREE,
         )
-        base = Material(transparency=0.0)
+        self.base = Material(transparency=0.0)
         height, width = self.scene.shape
-        dummy = Target(
+        self._dummy = Target(
             np.ones((height, width, 3)), np.ones((height, width), dtype=bool), "<conversion>", "linear", 0, 0
         )
-        plan = plan_render(self.scene, base, transparent=False)
+        self._plan = plan_render(self.scene, self.base, transparent=False)
+        self._cache: dict = {}
         self.strauss, prepared_full, self.index = build_problem(
-            self.scene, dummy, list(STRAUSS_FREE), base, plan, self.options
+            self.scene, self._dummy, list(STRAUSS_FREE), self.base, self._plan, self.options, cache=self._cache
         )
+        self._templates: dict[tuple[str, ...], Any] = {STRAUSS_FREE: self.strauss}
+        # the starts run on every COARSE_STRIDE-th pixel (the polish on all of them): the
+        # same optimum, a quarter of the work (benchmarks/convert_speed.py)
+        self.coarse = np.arange(0, self.index.size, COARSE_STRIDE) if self.index.size >= 4 * COARSE_STRIDE else None
+        self._coarse_prepared = None if self.coarse is None else take_pixels_jit(prepared_full, self.index[self.coarse])
         self.phong_template = phong_problem(self.scene, self.index)
+        self.batched = jax.default_backend() != "cpu"
 
     # -- description ---------------------------------------------------------------------
 
@@ -405,6 +437,34 @@ class Converter:
             )
         return None
 
+    # -- problems ------------------------------------------------------------------------
+
+    def _template(self, free: tuple[str, ...]) -> Any:
+        """The Strauss problem freeing ``free`` (built once per set of names)."""
+        if free not in self._templates:
+            self._templates[free], _, _ = build_problem(
+                self.scene, self._dummy, list(free), self.base, self._plan, self.options, cache=self._cache
+            )
+        return self._templates[free]
+
+    def _problem(self, template: Any, target: np.ndarray, scale: float, material: Material | None = None) -> Any:
+        changes: dict[str, Any] = {"target": np.asarray(target), "residual_scale": np.asarray(scale)}
+        if material is not None:
+            changes["material"] = material.astype(jnp.float64)
+        return dataclasses.replace(template, **changes)
+
+    def _screen(self, problem: Any, target: np.ndarray, scale: float) -> Any:
+        """``problem`` on the coarse subsample of pixels (the residual scale shrinks with
+        the pixel count, so costs stay comparable), or itself when the image is small."""
+        if self.coarse is None:
+            return problem
+        return dataclasses.replace(
+            problem,
+            prepared=self._coarse_prepared,
+            target=np.asarray(target)[self.coarse],
+            residual_scale=np.asarray(scale * math.sqrt(self.coarse.size / self.index.size)),
+        )
+
     # -- Phong -> Strauss ----------------------------------------------------------------
 
     @uses_float64
@@ -428,21 +488,12 @@ class Converter:
                 raise StraussFitError("the Phong rendering is not finite")
             return (i, entry, guess, notes, target)
 
-        direction = _Direction(
-            template=self.strauss,
-            max_steps=self.settings.start_steps,
-            starts=lambda item: starts(self.strauss.layout, item[2], self.settings.starts),
-            extra=lambda items: None,
-            finish=lambda item, *solved: self._finish_strauss(item[1], item[2], item[3], *solved),
-            unsolved=lambda item: self._black_strauss(item[1], item[2], item[3], item[4]),
-            prepare=prepare,
-        )
-        return self._stream(entries, direction, progress, start)
+        return self._stream(entries, _Direction(prepare, self._strauss_steps), progress, start)
 
     def _stream(
         self, entries: list[Entry], direction: _Direction, progress: Progress | None, start: int
     ) -> Iterator[tuple[int, dict[str, Any]]]:
-        """Prepare the entries one by one, solve them :attr:`Settings.chunk` at a time and
+        """Prepare the entries one by one, convert them :attr:`Settings.chunk` at a time and
         yield ``(index, result)`` in input order as soon as every earlier one is done (a
         bad material is an error result; the batch goes on)."""
         report = _Reporter(progress, len(entries), start)
@@ -457,7 +508,7 @@ class Converter:
                 following += 1
 
         def solve() -> None:
-            for item, outcome in zip(queue, self._solve_chunk(queue, direction)):
+            for item, outcome in zip(queue, self._run_chunk(queue, direction)):
                 done[item[0]] = report(item[1], outcome)
                 item[1].release()
             queue.clear()
@@ -479,46 +530,24 @@ class Converter:
             solve()
         yield from ready()
 
-    def _solve_chunk(self, chunk: list[tuple], direction: _Direction) -> list[dict[str, Any]]:
-        """Solve the starts of every material of ``chunk`` (items ``(i, entry, guess, ...,
-        target)``) in one vectorised call, then finish each; a failing chunk is retried
-        material by material, so that one bad material never stops the others."""
-        fittable = [k for k, item in enumerate(chunk) if float(np.max(item[4])) > direction.black_level]
-        solved: dict[int, tuple] = {}
-        if fittable:
-            try:
-                targets = np.stack([chunk[k][4] for k in fittable])
-                scales = np.array([_scale_of(chunk[k][4]) for k in fittable])
-                extra = direction.extra([chunk[k] for k in fittable])
-                thetas = np.stack([direction.starts(chunk[k]) for k in fittable])
-                size = self.settings.chunk
-                values, costs, steps, ok = (
-                    np.asarray(v)
-                    for v in solve_batch(
-                        direction.template,
-                        jnp.asarray(_pad(targets, size)),
-                        jnp.asarray(_pad(scales, size)),
-                        jnp.asarray(_pad(thetas, size)),
-                        self.settings.rtol,
-                        self.settings.atol,
-                        direction.max_steps,
-                        None if extra is None else {k: jnp.asarray(_pad(v, size)) for k, v in extra.items()},
-                    )
-                )
-                for row, k in enumerate(fittable):
-                    more = {} if extra is None else {name: v[row] for name, v in extra.items()}
-                    solved[k] = (targets[row], scales[row], more, values[row], costs[row], steps[row], ok[row])
-            except Exception as exc:  # noqa: BLE001
-                if len(chunk) > 1:  # isolate the material that breaks the vectorised solve
-                    return [result for item in chunk for result in self._solve_chunk([item], direction)]
-                return [_error(item[1], f"the solve failed: {_message(exc)}") for item in chunk]
-        out = []
-        for k, item in enumerate(chunk):
-            try:
-                out.append(direction.finish(item, *solved[k]) if k in solved else direction.unsolved(item))
-            except Exception as exc:  # noqa: BLE001
-                out.append(_error(item[1], _message(exc)))
-        return out
+    def _run_chunk(self, chunk: list[tuple], direction: _Direction) -> list[dict[str, Any]]:
+        """Convert the items of ``chunk`` (``(i, entry, ...)``) together: their steps run
+        batched (:func:`strauss_fit.engine.run_batched`; a material that fails is an error
+        result, the others go on), then the residuals of all are measured at once."""
+        outcomes = run_batched([direction.steps(item) for item in chunk], sequential=not self.batched)
+        results = [
+            _error(item[1], _message(outcome)) if isinstance(outcome, BaseException) else outcome
+            for item, outcome in zip(chunk, outcomes)
+        ]
+        measured = [r for r in results if "_model" in r]
+        if measured:
+            models = [r.pop("_model") for r in measured]
+            targets = [r.pop("_target") for r in measured]
+            delta = delta_e_2000(np.concatenate(models), np.concatenate(targets))
+            offsets = np.cumsum([0] + [m.shape[0] for m in models])
+            for k, result in enumerate(measured):
+                result["residual"] = _residual_stats(models[k], targets[k], delta[offsets[k] : offsets[k + 1]])
+        return results
 
     def _strauss_values(self, entry: Entry, fitted: dict[str, Any]) -> dict[str, Any]:
         return {
@@ -551,58 +580,254 @@ class Converter:
             notes.append(lobe)
         return notes
 
-    def _finish_strauss(
-        self,
-        entry: Entry,
-        guess: dict,
-        guess_notes: list[str],
-        target: np.ndarray,
-        scale: float,
-        extra: dict,
-        values: np.ndarray,
-        costs: np.ndarray,
-        steps: np.ndarray,
-        ok: np.ndarray,
-    ) -> dict[str, Any]:
-        problem = dataclasses.replace(self.strauss, target=jnp.asarray(target), residual_scale=jnp.asarray(scale))
-        finite = np.isfinite(costs)
+    def _solve(self, problem: Any, thetas: np.ndarray, target: np.ndarray, scale: float) -> Steps:
+        """Every start on the coarse pixels (:attr:`Settings.start_steps` steps), then the
+        best one polished on every pixel (:func:`strauss_fit.fit.solvers.polish_steps`:
+        entries at a bound pinned there). Returns (x, rss, steps, status, pinned problem,
+        JᵀJ, starts run)."""
+        screen = self._screen(problem, target, scale)
+        values, costs_, steps_, _ = (
+            np.asarray(v)
+            for v in (
+                yield solve_starts.call(
+                    screen,
+                    np.asarray(thetas),
+                    "lm",
+                    self.settings.rtol,
+                    self.settings.atol,
+                    self.settings.start_steps,
+                    self.batched,
+                )
+            )
+        )
+        finite = np.isfinite(costs_)
         if not finite.any():
             raise StraussFitError("every start of the fit diverged to non-finite values")
-        best = int(np.argmin(np.where(finite, costs, np.inf)))
-        theta, cost, polish_steps, status, problem, information = polish(problem, values[best], self.options)
-        x = np.asarray(problem.physical(jnp.asarray(theta)))
+        best = int(np.argmin(np.where(finite, costs_, np.inf)))
+        theta, cost, polish_count, status, pinned, information = yield from polish_steps(
+            problem, values[best], self.options
+        )
+        x = physical_values(pinned, theta)
         if not np.all(np.isfinite(x)):
             raise StraussFitError("the fit ended at non-finite parameters")
-        rss = float(cost) * scale**2
-        uncertainty, correlation, _ = problem_laplace(problem, x, rss, None, information)
-        model = np.asarray(render_at(problem, jnp.asarray(x)))
-        layout = problem.layout
-        fitted = self._strauss_values(entry, layout.split(x))
-        at_bound = [label for label, p in zip(layout.labels(), np.asarray(problem.pinned)) if p]
-        notes = list(entry.notes) + guess_notes + self._common_notes(entry, fitted)
+        rss = float(cost) * float(np.asarray(problem.residual_scale)) ** 2
+        return x, rss, int(steps_[best]) + polish_count, status, pinned, information, best
+
+    def _strauss_steps(self, item: tuple) -> Steps:
+        """The Phong → Strauss conversion of one material, as steps (see the module
+        docstring): the fit of C, s, m; for a tinted highlight the best metal too; then
+        what the image constrains, decided as :func:`strauss_fit.fit` decides it, with a
+        metalness the image does not determine held at the source's canonical value."""
+        _, entry, guess, guess_notes, target = item
+        if float(np.max(target)) <= 0.0:
+            return self._black_strauss(entry, guess, guess_notes, target)
+        layout = self.strauss.layout
+        scale = _scale_of(target)
+        sigma = reference_noise_level(target)
+        problem = self._problem(self.strauss, target, scale)
+        thetas = starts(layout, guess, self.settings.starts)
+        x, rss, steps_, status, pinned, information, best = yield from self._solve(problem, thetas, target, scale)
+        model = np.asarray((yield render_at.call(pinned, x)))
+        notes: list[str] = []
+        off_branch_note = None
+        phong = entry.material
+        metal_index = layout.offsets[layout.names.index("metalness")]
+        tinted = metallic_tint(phong)
+        if tinted != (x[metal_index] >= 0.5):
+            # The canonical branch: a tinted highlight is what a metal shows, a white one a
+            # dielectric's. Least squares in linear RGB can land on the other: Phong gold
+            # (its narrow lobe and diffuse Kd fit a smooth plastic with a white highlight,
+            # ΔE 5, better in RMS than the metal, ΔE 1.6, whose diffuse term
+            # (1 - ms)(1 - s^3)C ties it to a wider lobe); a grey Phong glass renders alike
+            # as C = 0.23, m = 0.03 and as C = 0.98, m = 0.80 (the highlight dimmed by
+            # m(1 - C) either way), and the presets ended in either. Fit again from the
+            # canonical branch and take it unless it looks less close to the target.
+            if tinted:
+                specular = _triple(phong.ks) * np.asarray(phong.specular_color, dtype=np.float64)
+                other_start = {**guess, "color": (specular / specular.max()).tolist(), "metalness": 1.0}
+            else:
+                other_start = {**guess, "metalness": 0.0}
+            other = yield from self._solve(
+                problem, layout.to_unconstrained(layout.join(other_start), margin=START_MARGIN)[None], target, scale
+            )
+            other_model = np.asarray((yield render_at.call(other[4], other[0])))
+            looks = float(np.mean(delta_e_2000(model, target)))
+            other_looks = float(np.mean(delta_e_2000(other_model, target)))
+            rms, other_rms = math.sqrt(rss / target.size), math.sqrt(other[1] / target.size)
+            kind = "a metal" if tinted else "a dielectric"
+            highlight = "tinted, as a metal's" if tinted else "white, as a dielectric's"
+            on_branch = tinted == (other[0][metal_index] >= 0.5)
+            if on_branch and other_looks <= looks + SAME_LOOK_DE:
+                notes.append(
+                    f"the highlight is {highlight}: the best fit from {kind} (m = {other[0][metal_index]:.3g}, mean "
+                    f"CIEDE2000 {other_looks:.3g}, linear RMS {other_rms:.3g}) is taken over the least-squares "
+                    f"optimum found first (m = {x[metal_index]:.3g}, CIEDE2000 {looks:.3g}, RMS {rms:.3g}): it looks "
+                    + ("closer" if other_looks < looks - SAME_LOOK_DE else "the same")
+                )
+                x, rss, steps_, status, pinned, information, best = other
+                model = other_model
+            else:
+                why = (
+                    f"it ends at m = {other[0][metal_index]:.3g}"
+                    if not on_branch
+                    else f"it looks less close: mean CIEDE2000 {other_looks:.3g} against {looks:.3g}, "
+                    f"linear RMS {other_rms:.3g} against {rms:.3g}"
+                )
+                reason = (
+                    "Strauss ties a metal's diffuse term to its smoothness, (1 - ms)(1 - s^3)C, so a metal cannot "
+                    "have both this highlight's width and this diffuse term"
+                    if tinted
+                    else "a dielectric's highlight, r_s = s^3 at normal incidence, cannot match this one's strength "
+                    "at this width without a metal's tint"
+                )
+                # said only if the metalness stays free (below): when the image does not
+                # determine it, it is held at the canonical value, and that note says why
+                off_branch_note = (
+                    f"the highlight is {highlight}, but the best Strauss match is not {kind}: the best fit started "
+                    f"from {kind} is no better ({why}); {reason}"
+                )
+        fitted = jsonable(layout.split(x))
+        current = _Solution(problem, pinned, x, rss, int(steps_), status, information, model)
+        held: dict[str, dict[str, Any]] = {}
+        canonical = float(guess["metalness"]) if tinted else 0.0
+        # what the image constrains at the optimum, decided as a fit decides it there
+        decision, jacobian = yield from self._decide(current, sigma)
+        if decision.held:
+            before = Decision(free=list(current.problem.layout.names))
+            values, reasons = held_at_optimum(decision, before, fitted)
+            mirror = "metalness" in values and float(values["metalness"]) == 1.0 and "mirror" in reasons["metalness"]
+            for name in decision.held:
+                values.setdefault(name, fitted[name])  # the image ignores it: any value; keep the fit's
+                reasons.setdefault(name, f"{decision.held[name]}; held at the value the fit reached")
+            if "metalness" in decision.held and not mirror:
+                values["metalness"] = canonical
+                reasons["metalness"] = (
+                    f"the conversion image does not determine it ({decision.held['metalness']}); held at "
+                    + (
+                        f"{canonical:.3g}, the closed-form guess from the highlight's tint"
+                        if tinted
+                        else "0: the Phong source has no metallic (tinted) highlight"
+                    )
+                )
+            refit = None
+            if _changed(values, fitted) and decision.free:
+                refit = yield from self._refit(
+                    tuple(decision.free), {**{k: v["value"] for k, v in held.items()}, **values}, fitted, target, scale
+                )
+                apart = float(np.mean(delta_e_2000(refit.model, current.model)))
+                if "metalness" in decision.held and not mirror and apart > VISIBLE_DELTA_E:
+                    # holding it there would change what the image shows: keep the fit's value
+                    values["metalness"] = fitted["metalness"]
+                    reasons["metalness"] = (
+                        f"{decision.held['metalness']}; held at the value the fit reached, since holding it at "
+                        f"{canonical:.3g} would change the image visibly (mean CIEDE2000 {apart:.2g} from the fit)"
+                    )
+                    refit = None
+                    if _changed(values, fitted):
+                        refit = yield from self._refit(
+                            tuple(decision.free),
+                            {**{k: v["value"] for k, v in held.items()}, **values},
+                            fitted,
+                            target,
+                            scale,
+                        )
+            held.update({name: {"value": values[name], "reason": reasons[name]} for name in decision.held})
+            if refit is not None:
+                fitted = {**fitted, **values, **jsonable(refit.problem.layout.split(refit.x))}
+                refit.steps += current.steps
+                current = refit
+            else:
+                # held at the fitted values: the optimum stands, the ± are conditional on them
+                mask = np.array([owner in held for owner in _owners(current.problem.layout)])
+                current.pinned = current.pinned.pin(mask | np.asarray(current.pinned.pinned), current.x)
+                current.information = None
+        final_layout = current.pinned.layout
+        info = jacobian.T @ jacobian if current.information is None else current.information
+        uncertainty, correlation, _ = yield from problem_laplace_steps(
+            current.pinned, current.x, current.rss, None, info
+        )
+        uncertainty = _held_uncertainty(final_layout, uncertainty, held)
+        for name in held:
+            uncertainty.setdefault(name, [None] * 3 if name == "color" else None)
+        at_bound_labels = [
+            label
+            for label, p, owner in zip(final_layout.labels(), np.asarray(current.pinned.pinned), _owners(final_layout))
+            if p and owner not in held
+        ]
+        model, status, steps_ = current.model, current.status, current.steps
+        values_out = self._strauss_values(entry, fitted)
+        notes = list(entry.notes) + guess_notes + self._common_notes(entry, values_out) + notes
+        if off_branch_note is not None and "metalness" not in held:
+            notes.append(off_branch_note)
         if status != "successful":
             notes.append(f"the solver ended with status '{status}'")
-        if at_bound:
-            notes.append(f"at a bound (Laplace deviation 0 there): {', '.join(at_bound)}")
+        for name, info in held.items():
+            notes.append(f"{name} held at {_value_text(info['value'])}: {info['reason']}")
+        if at_bound_labels:
+            notes.append(
+                "at a bound, where the data push against it (its Laplace deviation, 0 there, is no symmetric "
+                f"interval): {', '.join(at_bound_labels)}"
+            )
         return {
             "name": entry.name,
             "source": entry.source,
             "status": "ok",
             "input": {"phong": entry.material.to_dict(), "opacity": entry.opacity, "ior": entry.ior},
             "guess": guess,
-            "strauss": fitted,
+            "strauss": values_out,
+            "held": held,
             "uncertainty": uncertainty,
             "correlation": correlation,
-            "residual": _residual_stats(model, target),
             "solver": {
                 "status": status,
-                "steps": int(steps[best]) + polish_steps,
+                "steps": int(steps_),
                 "best_start": best,
-                "starts": int(len(costs)),
-                "at_bound": at_bound,
+                "starts": int(len(thetas)),
+                "at_bound": at_bound_labels,
             },
             "notes": notes,
+            "_model": model,
+            "_target": target,
         }
+
+    def _refit(
+        self, free: tuple[str, ...], values: dict[str, Any], fitted: dict[str, Any], target: np.ndarray, scale: float
+    ) -> Steps:
+        """The fit again with only ``free`` fitted and the other parameters held at
+        ``values`` (else their ``fitted`` value), polished from the fitted values."""
+        held = {name: values.get(name, fitted[name]) for name in STRAUSS_FREE if name not in free}
+        problem = self._problem(self._template(free), target, scale, material_with(self.base, held))
+        start = problem.layout.to_unconstrained(problem.layout.join({**fitted, **held}))
+        theta, cost, steps_, status, pinned, information = yield from polish_steps(problem, start, self.options)
+        x = physical_values(pinned, theta)
+        if not np.all(np.isfinite(x)):
+            raise StraussFitError("the refit with the held parameters ended at non-finite parameters")
+        model = np.asarray((yield render_at.call(pinned, x)))
+        rss = float(cost) * scale**2
+        return _Solution(problem, pinned, x, rss, int(steps_), status, information, model)
+
+    def _decide(self, current: _Solution, sigma: float) -> Steps:
+        """Which parameters the conversion image constrains at the solution ``current``:
+        :func:`strauss_fit.fit.identifiability.numerical_decision` at the reference noise
+        ``sigma`` with the Jacobian there, as a fit decides at its optimum. An entry pinned
+        at a bound is protected from being held, as in a fit, where the data push against
+        it — not where the cost is nearly flat there (the fit's ``flat-at-bound`` warning:
+        free, its deviation would exceed :data:`strauss_fit.fit.diagnosis.WEAK_FRACTION` of
+        its scale): then the bound, not the image, sets it. Returns the decision and the
+        Jacobian."""
+        layout = current.problem.layout
+        jacobian = np.asarray((yield jacobian_kernel.call(current.problem, current.x)))
+        pinned = np.asarray(current.pinned.pinned)
+        at_bound = frozenset(
+            name
+            for name, size, offset in zip(layout.names, layout.sizes, layout.offsets)
+            if size == 1 and pinned[offset]
+        )
+        scale = np.array([float(deviation_scale(owner, value)) for owner, value in zip(_owners(layout), current.x)])
+        loose = deviations(covariance(information_of(jacobian), sigma**2)) > WEAK_FRACTION * scale
+        flat = {owner for owner, is_loose in zip(_owners(layout), loose) if is_loose}
+        decision = numerical_decision(layout, jacobian, current.x, sigma, self.options.threshold, at_bound - flat)
+        return decision, jacobian
 
     def _black_strauss(self, entry: Entry, guess: dict, guess_notes: list[str], target: np.ndarray) -> dict[str, Any]:
         fitted = self._strauss_values(entry, guess)
@@ -614,13 +839,15 @@ class Converter:
             "input": {"phong": entry.material.to_dict(), "opacity": entry.opacity, "ior": entry.ior},
             "guess": guess,
             "strauss": fitted,
+            "held": {},
             "uncertainty": None,
             "correlation": None,
-            "residual": _residual_stats(model, target),
             "solver": {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
             "notes": list(entry.notes)
             + guess_notes
             + ["the material renders black in the conversion scene: nothing to fit, the closed-form guess is returned"],
+            "_model": model,
+            "_target": target,
         }
 
     # -- Strauss -> Phong ----------------------------------------------------------------
@@ -651,40 +878,9 @@ class Converter:
                 raise StraussFitError("the Strauss rendering is not finite")
             return (i, entry, guess, ka, target)
 
-        def black(item: tuple) -> dict[str, Any]:
-            i, entry, guess, ka, target = item
-            x = guess.copy()
-            x[0:6] = 0.0  # Phong black: D = S = 0 (the exponent is the guess's, it shows nowhere)
-            return self._phong_result(
-                entry,
-                guess,
-                ka,
-                template,
-                x,
-                target,
-                None,
-                None,
-                {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
-                [
-                    f"the material renders black in the conversion scene (largest value {float(np.max(target)):.2g}, "
-                    f"below {BLACK_LEVEL:g}, an 8-bit image's first step): nothing to fit, Phong black "
-                    "(kd = ks = 0) is returned"
-                ],
-            )
-
-        direction = _Direction(
-            template=template,
-            max_steps=self.settings.max_steps,
-            starts=lambda item: self._phong_starts(item[2]),
-            extra=lambda items: {"ambient_ka": np.array([item[3] for item in items])},
-            finish=lambda item, target, scale, extra, *solved: self._finish_phong(
-                item[1], item[2], template, target, scale, extra["ambient_ka"], *solved
-            ),
-            unsolved=black,
-            black_level=BLACK_LEVEL,
-            prepare=prepare,
+        return self._stream(
+            entries, _Direction(prepare, lambda item: self._phong_steps(item, template)), progress, start
         )
-        return self._stream(entries, direction, progress, start)
 
     def _phong_starts(self, guess: np.ndarray) -> np.ndarray:
         """The guess, then the exponent ×4 and ÷4, then the highlight halved and the
@@ -699,46 +895,86 @@ class Converter:
         rows = rows[: max(self.settings.starts, 1)]
         return PHONG_LAYOUT.to_unconstrained(np.stack(rows), margin=START_MARGIN)
 
-    def _finish_phong(
-        self,
-        entry: Entry,
-        guess: np.ndarray,
-        template,
-        target: np.ndarray,
-        scale: float,
-        ka: float,
-        values: np.ndarray,
-        costs: np.ndarray,
-        steps: np.ndarray,
-        ok: np.ndarray,
-    ) -> dict[str, Any]:
-        finite = np.isfinite(costs)
+    def _phong_steps(self, item: tuple, template: Any) -> Steps:
+        """The Strauss → Phong conversion of one material, as steps: every start solved
+        to convergence (:data:`strauss_fit.convert.phong_fit.solve_starts`), the best
+        kept, what the image constrains decided at it as a fit decides it."""
+        _, entry, guess, ka, target = item
+        if float(np.max(target)) <= BLACK_LEVEL:
+            x = guess.copy()
+            x[0:6] = 0.0  # Phong black: D = S = 0 (the exponent is the guess's, it shows nowhere)
+            return (
+                yield from self._phong_result(
+                    entry,
+                    guess,
+                    ka,
+                    template,
+                    x,
+                    target,
+                    None,
+                    None,
+                    {"status": "not run", "steps": 0, "best_start": None, "starts": 0, "at_bound": []},
+                    [
+                        f"the material renders black in the conversion scene (largest value "
+                        f"{float(np.max(target)):.2g}, below {BLACK_LEVEL:g}, an 8-bit image's first step): nothing "
+                        "to fit, Phong black (kd = ks = 0) is returned"
+                    ],
+                    {},
+                )
+            )
+        scale = _scale_of(target)
+        problem = dataclasses.replace(
+            template, target=np.asarray(target), residual_scale=np.asarray(scale), ambient_ka=np.asarray(ka)
+        )
+        thetas = self._phong_starts(guess)
+        values, costs_, steps_, ok = (
+            np.asarray(v)
+            for v in (
+                yield solve_phong_starts.call(
+                    problem, thetas, self.settings.rtol, self.settings.atol, self.settings.max_steps, self.batched
+                )
+            )
+        )
+        finite = np.isfinite(costs_)
         if not finite.any():
             raise StraussFitError("every start of the fit diverged to non-finite values")
-        best = int(np.argmin(np.where(finite, costs, np.inf)))
-        problem = dataclasses.replace(
-            template, target=jnp.asarray(target), residual_scale=jnp.asarray(scale), ambient_ka=jnp.asarray(ka)
-        )
-        x = np.asarray(PHONG_LAYOUT.to_physical(jnp.asarray(values[best])))
+        best = int(np.argmin(np.where(finite, costs_, np.inf)))
+        x = np.asarray(PHONG_LAYOUT.to_physical_numpy(values[best]))
         if not np.all(np.isfinite(x)):
             raise StraussFitError("the fit ended at non-finite parameters")
-        rss = float(costs[best]) * scale**2
-        sd, corr = laplace_deviations(problem, x, rss)
-        at_bound = [label for label, v in zip(PHONG_LAYOUT.labels(), x) if v < 1e-6 or v > 1 - 1e-6]
+        rss = float(costs_[best]) * scale**2
+        jacobian = np.asarray((yield jacobian_kernel.call(problem, x)))
+        labels = PHONG_LAYOUT.labels()
+        at_bound = [label for label, v in zip(labels, x) if v < 1e-6 or v > 1 - 1e-6]
+        decision = numerical_decision(
+            PHONG_LAYOUT, jacobian, x, reference_noise_level(target), self.options.threshold, frozenset(at_bound)
+        )
+        held = {
+            name: {"value": float(x[labels.index(name)]), "reason": f"{reason}; held at the value the fit reached"}
+            for name, reason in decision.held.items()
+        }
+        free = np.array([label not in held for label in labels])
+        sd, corr = laplace_deviations_from(jacobian, rss, free)
         status = "successful" if bool(ok[best]) else "max_steps_reached"
         notes = []
         if status != "successful":
             notes.append(f"the solver ended with status '{status}'")
-        if at_bound:
-            notes.append(f"at a bound (its Laplace deviation is not a symmetric interval there): {', '.join(at_bound)}")
+        for name, info in held.items():
+            notes.append(f"{name} held at {info['value']:.4g}: {info['reason']}")
+        bound = [label for label in at_bound if label not in held]
+        if bound:
+            notes.append(
+                "at a bound, where the data push against it (its Laplace deviation is no symmetric interval there): "
+                + ", ".join(bound)
+            )
         solver = {
             "status": status,
-            "steps": int(steps[best]),
+            "steps": int(steps_[best]),
             "best_start": best,
-            "starts": int(len(costs)),
-            "at_bound": at_bound,
+            "starts": int(len(costs_)),
+            "at_bound": bound,
         }
-        return self._phong_result(entry, guess, ka, template, x, target, sd, corr, solver, notes)
+        return (yield from self._phong_result(entry, guess, ka, template, x, target, sd, corr, solver, notes, held))
 
     def _phong_result(
         self,
@@ -752,18 +988,20 @@ class Converter:
         corr: np.ndarray | None,
         solver: dict,
         notes: list[str],
-    ) -> dict[str, Any]:
-        problem = dataclasses.replace(template, target=jnp.asarray(target), ambient_ka=jnp.asarray(ka))
-        model = np.asarray(render_at(problem, jnp.asarray(x)))
+        held: dict[str, Any],
+    ) -> Steps:
+        problem = dataclasses.replace(template, target=np.asarray(target), ambient_ka=np.asarray(ka))
+        model = np.asarray((yield render_at.call(problem, x)))
         phong = _phong_dict(x, ka, template.blinn)
         uncertainty = None
         correlation = None
         if sd is not None:
             n = float(exponent_from_unit(x[6]))
+            sd_or_none = [None if label in held else float(v) for label, v in zip(PHONG_LAYOUT.labels(), sd)]
             uncertainty = {
-                "diffuse": sd[0:3].tolist(),
-                "specular": sd[3:6].tolist(),
-                "exponent": float(n * math.log(MAX_EXPONENT) * sd[6]),
+                "diffuse": sd_or_none[0:3],
+                "specular": sd_or_none[3:6],
+                "exponent": None if sd_or_none[6] is None else float(n * math.log(MAX_EXPONENT) * sd_or_none[6]),
             }
             correlation = {"labels": PHONG_LAYOUT.labels(), "matrix": np.round(corr, 6).tolist()}
         t = float(entry.material.transparency)
@@ -785,12 +1023,49 @@ class Converter:
             "phong": phong,
             "opacity": float(1.0 - t),
             "ior": float(entry.material.ior),
+            "held": held,
             "uncertainty": uncertainty,
             "correlation": correlation,
-            "residual": _residual_stats(model, target),
             "solver": solver,
             "notes": all_notes,
+            "_model": model,
+            "_target": target,
         }
+
+
+@dataclass
+class _Solution:
+    """A Phong → Strauss fit: the problem (nothing pinned), the problem with the polish's
+    pins, the physical optimum, RSS, steps, status, JᵀJ there (None: to be computed) and
+    the rendered model at the pixels used."""
+
+    problem: Any
+    pinned: Any
+    x: np.ndarray
+    rss: float
+    steps: int
+    status: str
+    information: np.ndarray | None
+    model: np.ndarray
+
+
+def _changed(values: dict[str, Any], fitted: dict[str, Any]) -> bool:
+    """Whether any of ``values`` differs from the fitted value."""
+    return any(
+        not np.allclose(np.asarray(value, dtype=float), np.asarray(fitted[name], dtype=float))
+        for name, value in values.items()
+    )
+
+
+def _owners(layout: Any) -> list[str]:
+    """The parameter name of every entry of ``layout`` (``color`` three times)."""
+    return [name for name, size in zip(layout.names, layout.sizes) for _ in range(size)]
+
+
+def _value_text(value: Any) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(f"{float(v):.4g}" for v in value) + ")"
+    return f"{float(value):.4g}"
 
 
 def _phong_dict(x: np.ndarray, ka: float, blinn: bool) -> dict[str, Any]:

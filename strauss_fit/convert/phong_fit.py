@@ -34,6 +34,7 @@ import numpy as np
 import optimistix as optx
 from jax import Array
 
+from ..engine import Kernel
 from ..fit.parameters import Layout
 from ..inference import laplace
 from ..models.phong import MAX_EXPONENT, PhongMaterial, phong_shade
@@ -227,4 +228,43 @@ def laplace_deviations(problem: PhongProblem, x: np.ndarray, rss: float) -> tupl
     j = np.asarray(laplace.jacobian(problem, jnp.asarray(x)))
     n, p = j.shape
     covariance = laplace.covariance(laplace.information(j), laplace.residual_variance(rss, n, p))
+    return laplace.deviations(covariance), laplace.correlation(covariance)
+
+
+def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, max_steps: int, batched: bool):
+    """Levenberg–Marquardt (optimistix's) from every row of ``thetas`` of one problem, each
+    start to its own convergence: one after the other (``lax.map``) on a CPU, vectorised
+    (``vmap``) when ``batched``. Returns θ (S, P), the normalised cost Σr² (S,), the step
+    counts and whether each solve succeeded."""
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+
+    def one(theta0):
+        solution = optx.least_squares(problem.residual, solver, theta0, max_steps=max_steps, throw=False)
+        r = problem.residual(solution.value)
+        return (
+            solution.value,
+            jnp.sum(r * r),
+            solution.stats["num_steps"],
+            solution.result == optx.RESULTS.successful,
+        )
+
+    return jax.vmap(one)(thetas) if batched else jax.lax.map(one, thetas)
+
+
+#: :func:`_solve_phong_starts` as a :class:`~strauss_fit.engine.Kernel`: the conversions run
+#: it over many materials at once (:func:`strauss_fit.engine.run_batched`).
+solve_phong_starts = Kernel(_solve_phong_starts, "phong_solve_starts")
+
+
+def laplace_deviations_from(
+    jacobian: np.ndarray, rss: float, free: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`laplace_deviations` from a Jacobian already computed, with the entries not
+    ``free`` (held) left out of the inverse (deviation 0, the others conditional on them)."""
+    j = np.asarray(jacobian)
+    n, p = j.shape
+    info = laplace.information(j)
+    if free is not None:
+        info = info * np.outer(free, free)
+    covariance = laplace.covariance(info, laplace.residual_variance(rss, n, p))
     return laplace.deviations(covariance), laplace.correlation(covariance)

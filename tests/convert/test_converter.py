@@ -203,3 +203,38 @@ def test_the_entry_points_convert_single_materials(converter):
     assert result["status"] == "ok" and result["residual"]["delta_e2000_mean"] < 5
     [back] = sf.strauss_to_phong(Material(**result["strauss"]), scene=conversion_scene(size=SIZE))
     assert back["status"] == "ok" and back["phong"]["kd"] > 0
+
+
+# --- what the conversion image constrains (issue 13.4) ------------------------------------------
+
+
+@pytest.mark.parametrize("quality", ["fast", "balanced", "accurate"])
+def test_a_matte_wall_keeps_metalness_held_at_0_under_every_preset(quality):
+    """Ks = 0: the image barely depends on m (it only dims the diffuse term with C), so m is
+    held at 0, the value of a source without a metallic highlight — never reported at a
+    bound with deviation 0, and no preset flips it to 1."""
+    wall = PhongMaterial(ka=0.0, kd=(0.8, 0.78, 0.7), ks=0.0, exponent=10.0)
+    result = Converter(conversion_scene(size=SIZE), Settings.preset(quality)).phong_to_strauss(
+        [Entry("wall", "test", wall)]
+    )[0]
+    assert result["status"] == "ok"
+    assert result["strauss"]["metalness"] == 0.0
+    assert result["held"]["metalness"]["value"] == 0.0
+    assert "does not determine it" in result["held"]["metalness"]["reason"]
+    assert result["uncertainty"]["metalness"] is None  # a held value has no interval
+    assert "metalness" not in result["solver"]["at_bound"]
+    assert not any("best Strauss match is not" in note for note in result["notes"])
+    np.testing.assert_allclose(result["strauss"]["color"], (0.8, 0.78, 0.7), atol=0.02)
+    assert result["residual"]["delta_e2000_mean"] < 0.1
+
+
+def test_phong_gold_converts_to_a_metal(converter):
+    """A tinted Phong highlight (gold: Kd 0.1 0.07 0.02, Ks 1 0.78 0.34, Ns 200) is a metal's;
+    least squares in linear RGB alone can land on a smooth plastic with a white highlight."""
+    gold = PhongMaterial(ka=0.0, kd=(0.1, 0.07, 0.02), ks=(1.0, 0.78, 0.34), exponent=200.0)
+    result = converter.phong_to_strauss([Entry("gold", "test", gold)])[0]
+    assert result["status"] == "ok"
+    assert result["strauss"]["metalness"] > 0.9
+    color = np.asarray(result["strauss"]["color"])
+    assert color[0] > color[1] > color[2]  # a gold tint
+    assert result["residual"]["delta_e2000_mean"] < 3.0
