@@ -112,9 +112,10 @@ def add_parser(subparsers) -> None:
     )
     parser.add_argument(
         "--equivalence",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         default=None,
-        help="also compute each parameter's range that looks the same (default: on with --quality accurate)",
+        help="also compute each parameter's range that looks the same (default: on with --quality accurate; "
+        "--no-equivalence turns it off)",
     )
     parser.add_argument(
         "--equivalence-de",
@@ -306,8 +307,10 @@ def run(args: argparse.Namespace) -> int:
         out.add_json(args.output, payload)
         if args.render_fit:
             out.add_image(args.render_fit, result.fitted_image)
-            standardized = standardized_map(result, target.pixels.shape[:2])
-            out.add_image(compare_path, comparison_image(target.pixels, result.fitted_image, result.mask, standardized))
+            # the target as fitted: a target above the pixel limit was fitted block-averaged
+            seen = result.target_image if result.target_image is not None else target.pixels
+            standardized = standardized_map(result, seen.shape[:2])
+            out.add_image(compare_path, comparison_image(seen, result.fitted_image, result.mask, standardized))
         written = out.commit(final=True)
     print(escape(format_fit_table(payload)))
     print(f"wrote {', '.join(str(p) for p in written)}")

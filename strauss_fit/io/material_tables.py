@@ -579,6 +579,11 @@ def csv_columns(direction: str) -> list[str]:
     )
 
 
+def _sd_text(value: float | None) -> str:
+    """A deviation as a CSV cell; empty for a held parameter (it has none)."""
+    return "" if value is None else f"{value:.3g}"
+
+
 def _csv_row(result: dict[str, Any], direction: str) -> dict[str, Any]:
     row: dict[str, Any] = {
         "name": result["name"],
@@ -601,9 +606,9 @@ def _csv_row(result: dict[str, Any], direction: str) -> dict[str, Any]:
             row[key] = f"{values[key]:.6g}"
         if uncertainty:
             for c, v in zip("rgb", uncertainty["color"]):
-                row[f"sd_color_{c}"] = f"{v:.3g}"
-            row["sd_smoothness"] = f"{uncertainty['smoothness']:.3g}"
-            row["sd_metalness"] = f"{uncertainty['metalness']:.3g}"
+                row[f"sd_color_{c}"] = _sd_text(v)
+            row["sd_smoothness"] = _sd_text(uncertainty["smoothness"])
+            row["sd_metalness"] = _sd_text(uncertainty["metalness"])
     else:
         values = result["phong"]
         for key in ("ka", "kd", "ks", "exponent"):
@@ -617,8 +622,8 @@ def _csv_row(result: dict[str, Any], direction: str) -> dict[str, Any]:
         if uncertainty:
             for key in ("diffuse", "specular"):
                 for c, v in zip("rgb", uncertainty[key]):
-                    row[f"sd_{key}_{c}"] = f"{v:.3g}"
-            row["sd_exponent"] = f"{uncertainty['exponent']:.3g}"
+                    row[f"sd_{key}_{c}"] = _sd_text(v)
+            row["sd_exponent"] = _sd_text(uncertainty["exponent"])
     return row
 
 

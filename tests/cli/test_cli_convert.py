@@ -215,3 +215,15 @@ def test_control_characters_from_a_library_are_escaped_on_the_terminal(tmp_path,
     assert "red\\x1b[31m alert" in out and "red\\x1b[31m alert" in err
     # the output file keeps the name exactly (JSON escapes it)
     assert json.loads((tmp_path / "o.json").read_text())["materials"][0]["name"] == "red\x1b[31m alert"
+
+
+def test_a_held_parameter_has_an_empty_deviation_in_the_csv(tmp_path, capsys):
+    """A matte wall (Ks 0) holds metalness at 0: its deviation is null in JSON and an
+    empty cell in CSV (not a crash on formatting None)."""
+    output = tmp_path / "wall.csv"
+    code, out, err = run(capsys, "phong2strauss", "kd=0.8", "ks=0", "name=wall", "-o", output, "--size", SIZE)
+    assert code == 0, err
+    row = next(csv.DictReader(io.StringIO(output.read_text())))
+    assert row["metalness"] == "0" and row["sd_metalness"] == ""
+    assert float(row["sd_color_r"]) > 0
+    assert "metalness held at 0" in row["notes"]

@@ -209,3 +209,30 @@ def test_the_command_and_the_library_give_the_same_fit_for_the_same_preset(tmp_p
     ):
         assert cli[key] == library[key], key
     assert {k: v for k, v in cli["settings"].items() if k != "quality"} == library["settings"]
+
+
+def test_a_target_above_the_pixel_limit_gets_a_comparison_image_at_the_fitted_size(
+    tmp_path, scene, capsys, monkeypatch
+):
+    """The fit of a target above the pixel limit is block-averaged: the comparison image is
+    made from the target as fitted (a 2x2-averaged 24x24 target gives 12x12 panels)."""
+    import strauss_fit.io.targets as targets
+
+    monkeypatch.setattr(targets.reduce_target, "__defaults__", (12 * 12,))
+    target = render_target(tmp_path, scene, capsys)
+    result, fitted = tmp_path / "fit.json", tmp_path / "fit.exr"
+    code, _, err = run(capsys, "fit", target, "--scene", scene, "-o", result, "--render-fit", fitted)
+    assert code == 0, err
+    assert "averaged over 2x2 blocks, at 12x12" in err
+    assert read_image(fitted).pixels.shape[:2] == (12, 12)
+    compare = read_image(tmp_path / "fit.compare.png").pixels
+    assert compare.shape[0] == 12 and compare.shape[1] > 12
+
+
+def test_no_equivalence_turns_off_the_accurate_presets_equivalence_ranges(tmp_path, scene, capsys):
+    target = render_target(tmp_path, scene, capsys)
+    on, off = tmp_path / "on.json", tmp_path / "off.json"
+    assert run(capsys, "fit", target, "--scene", scene, "-o", on, "--quality", "accurate")[0] == 0
+    assert run(capsys, "fit", target, "--scene", scene, "-o", off, "--quality", "accurate", "--no-equivalence")[0] == 0
+    assert json.loads(on.read_text()).get("equivalence")
+    assert not json.loads(off.read_text()).get("equivalence")
