@@ -3,7 +3,7 @@ calibrated with, and the scene file most of them use.
 
 ``LEGACY_FIT`` holds the settings that were ``FitOptions()``'s defaults until they became
 the ``balanced`` preset (4 starts, 100 polish steps, rtol 1e-6, atol 1e-8); the benchmarks
-pass them explicitly, so that their numbers stay comparable with the tables in README.md.
+pass them explicitly, so that their numbers stay comparable with the tables in docs/benchmarks.md.
 """
 
 from __future__ import annotations

@@ -1,13 +1,13 @@
 """A plain NumPy float64 implementation of strauss-fit's local Strauss model.
 
 This is the honest baseline the benchmarks compare strauss-fit against: the formulas of
-``shared/strauss-model.md`` (and of :mod:`strauss_fit.models.strauss`) written as ordinary,
+docs/model.md (and of :mod:`strauss_fit.models.strauss`) written as ordinary,
 vectorised-over-pixels NumPy code, with no JIT and no tricks. It renders the canonical
 orthographic view of the unit sphere exactly as :func:`strauss_fit.render.strauss.render` does for
 a scene whose background is black (a constant colour is also accepted; see below):
 
 - pixel (row i, column k) is at x = (k + 0.5)/width·2 − 1, y = 1 − (i + 0.5)/height·2 and
-  shows the sphere where x² + y² < 1 (``shared/formats.md``); there N = (x, y, √(1−x²−y²))
+  shows the sphere where x² + y² < 1 (docs/formats.md); there N = (x, y, √(1−x²−y²))
   and V = (0, 0, 1);
 - per light: :math:`Q_d C_L + Q_s` times its intensity (a point light's divided by
   :math:`c_0 + c_1 d + c_2 d^2`), nothing where N·L ≤ 0 or N·V ≤ 0;

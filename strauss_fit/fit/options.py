@@ -25,7 +25,7 @@ DEFAULT_THRESHOLD = 0.05
 #: Settings of each ``--quality`` preset: for fits (``starts``, ``max_steps``, ``rtol``,
 #: ``atol``, ``equivalence``) and for sampling (``walkers``, ``min_tau_multiple``, ``sample_max_steps``).
 #: ``None``: automatic. Derived by benchmarks/tradeoff.py (2026-11-29); the numbers that
-#: picked each value are in README.md, "Quality presets".
+#: picked each value are in docs/benchmarks.md, "Quality presets".
 QUALITY_PRESETS: dict[str, dict[str, float | int | None]] = {
     "fast": dict(
         starts=2,

@@ -1,7 +1,7 @@
 """What a fit found (:class:`FitResult`), and its JSON form.
 
 :meth:`FitResult.to_json` writes the result as ``strauss-fit fit`` saves it (the contract
-of ``shared/formats.md``: the material's values at the top level, then ``free``, ``held``,
+of docs/formats.md, "Fit result (JSON)": the material's values at the top level, then ``free``, ``held``,
 ``uncertainty``, ``correlation``, ``residual``, ``solver``, ...); :meth:`FitResult.from_json`
 is the one reader of that format, used wherever a fit result is read back (the sampler,
 the posterior, the Laplace summary, the report).
@@ -50,7 +50,7 @@ class FitResultError(StraussFitError):
 
 @dataclass
 class FitResult:
-    """What a fit found; :meth:`to_json` follows ``shared/formats.md``."""
+    """What a fit found; :meth:`to_json` follows docs/formats.md."""
 
     material: Material
     free: list[str]

@@ -1,4 +1,4 @@
-r"""The local Strauss (1990) lighting model, as fixed in ``shared/strauss-model.md``.
+r"""The local Strauss (1990) lighting model, as fixed in docs/model.md.
 
 For unit vectors N (normal), L (toward the light) and V (toward the viewer), with
 :math:`\cos\alpha = N\cdot L`, :math:`\cos\gamma = N\cdot V`, :math:`R = 2N(N\cdot L) - L` and
