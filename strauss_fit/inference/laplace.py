@@ -199,11 +199,11 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     r"""The noise-sandwich covariance of a fit at its optimum ``x``: how far the fitted
     values would move if the image were taken again with fresh noise.
 
-    For the estimator :math:`\hat	heta = rg\min 	frac12\sum g_i(	heta, y_i)^2` at a
+    For the estimator :math:`\hat\theta = \arg\min \tfrac12\sum g_i(\theta, y_i)^2` at a
     fixed image with noise ε of standard deviations ``noise_sd`` (per residual value, (M,)),
-    :math:`\hat	heta - 	heta^* pprox -H^{-1} J^	op D\,arepsilon`, so
+    :math:`\hat\theta - \theta^* \approx -H^{-1} J^\top D\,\varepsilon`, so
 
-    .. math:: V = H^{-1}\,(J^	op \mathrm{diag}(D^2\sigma^2)\,J)\,H^{-1},
+    .. math:: V = H^{-1}\,(J^\top \mathrm{diag}(D^2\sigma^2)\,J)\,H^{-1},
 
     with J, H and D = ∂g/∂y from :func:`objective_terms`. θ* is the *pseudo-true* value:
     the best fit to the noise-free image, whether or not the model can reproduce it. When
