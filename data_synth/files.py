@@ -5,6 +5,9 @@
   files.
 - LDR: 8-bit PNG holding exactly the given sRGB codes.
 - Clip mask: 8-bit single-channel PNG, 255 where the LDR image is clipped, 0 elsewhere.
+- Float images with another compression or channel layout (the bundled Mitsuba targets:
+  PXR24 images, a one-channel coverage): :func:`float_exr_bytes`, read back with
+  :func:`decode_exr`.
 
 The ``*_bytes`` functions encode in memory; :mod:`data_synth.generate` writes a sample's
 files together through :class:`strauss_fit.io.files.Outputs` (temporary files, every write
@@ -14,6 +17,7 @@ checked, then renamed together). The ``write_*`` functions write one file the sa
 from __future__ import annotations
 
 import hashlib
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +32,56 @@ def exr_bytes(image: np.ndarray) -> bytes:
     if data.ndim != 3 or data.shape[-1] != 3:
         raise ImageError(f"cannot write an image of shape {data.shape} as OpenEXR")
     return encode_image(data, "sample.exr")
+
+
+def float_exr_bytes(image: np.ndarray, *, compression: str = "zip", channel_names: tuple[str, ...] = ()) -> bytes:
+    """A float image (H, W) or (H, W, C) as float32 OpenEXR bytes, no timestamp (same pixels,
+    same bytes). ``compression``: an OpenEXR compression OpenImageIO knows, e.g. ``zip``
+    (lossless) or ``pxr24`` (float32 rounded to 24 bits: relative error ≤ 1.5e-5, files
+    less than half the size); ``channel_names`` default to OpenImageIO's (R, G, B, ...)."""
+    import OpenImageIO as oiio
+
+    data = np.asarray(image, dtype=np.float32)
+    if data.ndim == 2:
+        data = data[..., None]
+    if data.ndim != 3 or not np.all(np.isfinite(data)):
+        raise ImageError(f"cannot write an image of shape {data.shape} (or with non-finite values) as OpenEXR")
+    data = np.ascontiguousarray(data)
+    spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], oiio.FLOAT)
+    spec.attribute("compression", compression)
+    spec.attribute("DateTime", "")  # an empty value drops OpenImageIO's timestamp
+    if channel_names:
+        spec.channelnames = tuple(channel_names)
+    with tempfile.TemporaryDirectory(prefix="strauss-fit-exr-") as folder:
+        path = str(Path(folder) / "image.exr")
+        output = oiio.ImageOutput.create(path)
+        ok = output is not None and output.open(path, spec) and output.write_image(data) and not output.has_error
+        message = output.geterror() if output is not None and not ok else ""
+        if output is not None and not output.close() and ok:
+            message, ok = output.geterror(), False
+        if not ok:
+            raise ImageError(f"cannot encode an OpenEXR image: {message or 'the encoder failed'}")
+        return Path(path).read_bytes()
+
+
+def decode_exr(data: bytes) -> np.ndarray:
+    """The pixels (H, W, C) float64 of OpenEXR bytes (see :func:`float_exr_bytes`)."""
+    import OpenImageIO as oiio
+
+    with tempfile.TemporaryDirectory(prefix="strauss-fit-exr-") as folder:
+        path = Path(folder) / "image.exr"
+        path.write_bytes(data)
+        image_input = oiio.ImageInput.open(str(path))
+        if image_input is None:
+            raise ImageError(f"cannot decode OpenEXR bytes: {oiio.geterror()}")
+        try:
+            spec = image_input.spec()
+            pixels = image_input.read_image(0, 0, 0, spec.nchannels, "float")
+        finally:
+            image_input.close()
+    if pixels is None:
+        raise ImageError("cannot decode OpenEXR bytes")
+    return np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
 
 
 def codes_bytes(codes: np.ndarray) -> bytes:

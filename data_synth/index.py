@@ -70,9 +70,18 @@ def read_index(folder: str | Path) -> dict[str, Any]:
     return index
 
 
+#: Models whose samples are rendered outside strauss-fit: their sidecars have synth's shape,
+#: but ``parameters`` is not a strauss-fit material (``"mitsuba"``: a Mitsuba 3 BSDF, see
+#: :mod:`data_synth.mitsuba_backend` and :mod:`data_synth.make_bundled_mitsuba`).
+EXTERNAL_MODELS = ("mitsuba",)
+
+
 class Sample(NamedTuple):
     """A sample read back: its sidecar, the scene and material it was rendered with (the
-    scene's ``material`` is the sample's for Strauss), and the paths of its files."""
+    scene's ``material`` is the sample's for Strauss), and the paths of its files. For a
+    Mitsuba sample (``sidecar["model"] == "mitsuba"``) ``material`` is None: no Strauss or
+    Phong material is the truth (the scene keeps its default material); the BSDF is
+    ``sidecar["parameters"]`` and ``files`` holds ``exr``, ``coverage`` and ``mask``."""
 
     sidecar: dict[str, Any]
     scene: Any
@@ -82,7 +91,12 @@ class Sample(NamedTuple):
 
 def load_sample(sidecar_path: str | Path, scene_dir: str | Path | None = None) -> Sample:
     """Rebuild a sample from its sidecar. ``scene_dir`` resolves relative paths inside the
-    scene definition (an environment image); by default the sidecar's folder."""
+    scene definition (an environment image); by default the sidecar's folder.
+
+    Reads the sidecars of :func:`data_synth.generate` (models ``strauss`` and ``phong``) and
+    of the bundled Mitsuba targets (model ``mitsuba``: the BSDF is checked with
+    :func:`~data_synth.mitsuba_backend.validate_bsdf`, which needs no Mitsuba, and
+    ``material`` is None)."""
     import equinox as eqx
 
     from strauss_fit.scene.loading import parse_scene
@@ -91,10 +105,20 @@ def load_sample(sidecar_path: str | Path, scene_dir: str | Path | None = None) -
 
     sidecar_path = Path(sidecar_path)
     sidecar = read_json(sidecar_path, "sample sidecar")
-    if not isinstance(sidecar, dict) or sidecar.get("model") not in MODELS:
+    if (
+        not isinstance(sidecar, dict)
+        or sidecar.get("model") not in (*MODELS, *EXTERNAL_MODELS)
+        or not isinstance(sidecar.get("parameters"), dict)
+        or not isinstance(sidecar.get("scene"), dict)
+    ):
         raise StraussFitError(f"{sidecar_path} is not a strauss-fit synth sample sidecar")
-    model = MODELS[sidecar["model"]]
-    material = model.make_material(dict(sidecar["parameters"]))
+    if sidecar["model"] == "mitsuba":
+        from .mitsuba_backend import validate_bsdf
+
+        validate_bsdf(sidecar["parameters"], f"{sidecar_path}: parameters")
+        material = None
+    else:
+        material = MODELS[sidecar["model"]].make_material(dict(sidecar["parameters"]))
     base = Path(scene_dir) if scene_dir is not None else sidecar_path.parent
     scene = parse_scene(dict(sidecar["scene"]["definition"]), source=str(sidecar_path), base_dir=base)
     if sidecar["model"] == "strauss":

@@ -18,12 +18,12 @@ import tomllib
 import numpy as np
 import pytest
 
+from data_synth import BUNDLED_MITSUBA as BUNDLED
 from data_synth import SCENES
 from data_synth import mitsuba_backend as mb
 from strauss_fit import Material, parse_scene, render
 from strauss_fit.errors import SceneError, StraussFitError
 
-BUNDLED = SCENES.parent / "bundled_mitsuba"
 LAMBERT = {"smoothness": 0.0, "metalness": 0.0, "transparency": 0.0, "ior": 1.5}
 
 
