@@ -12,10 +12,11 @@ def add_parser(subparsers) -> None:
         "report",
         help="write an HTML and Markdown report of a fit's uncertainty",
         description="Write REPORT.html (self-contained: images embedded, no network), REPORT.md and the PNGs in "
-        "REPORT_files/: the target, fit and residual images, the parameter table (fit, Laplace ±, posterior median "
-        "and 16/84, 2.5/97.5 percentiles), the correlation matrix, a corner plot, trace plots, the sampler's "
-        "diagnostics, the Laplace-versus-posterior comparison and plain-language warnings about degeneracies. "
-        "Give a fit result (--fit), a chain (--chain), or both; without a chain the intervals are the Laplace ones.",
+        "REPORT_files/: the target, fit and residual images, the parameter table (fit, the fit's ± headed by its "
+        "kind, noise sandwich or Laplace, posterior median and 16/84, 2.5/97.5 percentiles), "
+        "the correlation matrix, a corner plot, trace plots, the sampler's diagnostics, the fit's ± against the "
+        "posterior and plain-language warnings about degeneracies. Give a fit result (--fit), a chain (--chain), "
+        "or both; without a chain the intervals are the fit's Gaussian ones (x +/- sd, x +/- 1.96 sd).",
     )
     parser.add_argument(
         "--fit", metavar="RESULT.json", help="fit result of 'strauss-fit fit' (default: the fit stored in --chain)"

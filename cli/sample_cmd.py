@@ -46,17 +46,21 @@ def add_parser(subparsers) -> None:
         "sample",
         help="sample the posterior of the parameters with emcee",
         description="Sample the posterior of the Strauss parameters of SCENE given the image TARGET with emcee's "
-        "ensemble sampler, started around the least-squares optimum (from --fit, or fitted first). Gaussian noise "
-        "of standard deviation sigma (--sigma, or estimated from the fit's residual), uniform priors over the "
-        "parameters' ranges. Runs until the chain is --min-tau-multiple autocorrelation times long (or "
-        "--max-steps). Writes CHAIN.h5 (emcee's HDF5 format) and a summary CHAIN.json beside it. Ctrl-C keeps "
-        "every step sampled; continue with --resume.",
+        "ensemble sampler, started around the least-squares optimum (from --fit, a fit made with --loss linear, "
+        "or fitted first by least squares). Gaussian noise of standard deviation sigma (--sigma; else the "
+        "target's noise as the fit found it when the fit knew it; else estimated from the fit's residual), "
+        "uniform priors over the parameters' ranges. Runs until the chain is --min-tau-multiple autocorrelation "
+        "times long and its estimate has settled (or --max-steps). Writes CHAIN.h5 (emcee's HDF5 format) and a "
+        "summary CHAIN.json beside it. Ctrl-C keeps every step sampled; continue with --resume.",
     )
     parser.add_argument("target", metavar="TARGET", help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB)")
     parser.add_argument("--scene", required=True, metavar="SCENE.toml", help="the scene the target was taken in")
     parser.add_argument("-o", "--output", required=True, metavar="CHAIN.h5", help="chain file (HDF5)")
     parser.add_argument(
-        "--fit", metavar="RESULT.json", help="start from this fit result (strauss-fit fit) instead of fitting first"
+        "--fit",
+        metavar="RESULT.json",
+        help="start from this fit result (strauss-fit fit) instead of fitting first; it must be a least-squares "
+        "fit (fit --loss linear): the likelihood sampled is least squares",
     )
     parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
     parser.add_argument(
@@ -79,9 +83,10 @@ def add_parser(subparsers) -> None:
         metavar="{affine,temperature,none}",
         help="make the posterior's width match the fit's noise sandwich on a target the model cannot "
         "reproduce: affine maps the draws (theta' = theta_hat + A (theta - theta_hat), A Sigma_post A^T = V; "
-        "the raw chain is kept and A stored with it), temperature samples with sigma x sqrt(T) (T the largest "
-        "generalised eigenvalue: conservative), none samples the Gaussian likelihood as it is (default: affine "
-        "when the fit's uncertainty is the noise sandwich and its verdict is 'mismatch', else none)",
+        "the raw chain is kept and A stored with it), temperature samples with sigma x sqrt(T) (T = max(1, the "
+        "largest generalised eigenvalue): conservative, never narrower), none samples the Gaussian likelihood as "
+        "it is (default: affine when the fit's uncertainty is the noise sandwich and its verdict is 'mismatch', "
+        "else none)",
     )
     parser.add_argument(
         "--prior",
@@ -160,7 +165,14 @@ def add_parser(subparsers) -> None:
 
 class ProgressBar:
     """Progress on stderr: a bar redrawn in place on a terminal, else a line at most
-    every few seconds."""
+    every few seconds.
+
+    The goal shown is the length the stopping rule needs (``min_tau_multiple`` times τ̂)
+    while the chain is shorter. Once it is that long the run still goes on until τ̂ has
+    settled (:data:`strauss_fit.inference.sampler.TAU_STABILITY`), at a step nobody knows
+    in advance: the goal is then the cap, ``max_steps``, and the line says what it waits
+    for — rather than a goal equal to the steps done, a full bar on every line while
+    sampling goes on."""
 
     def __init__(self, quiet: bool, stream=None):
         self.quiet = quiet
@@ -168,21 +180,25 @@ class ProgressBar:
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
         self.last = 0.0
         self.drawn = False
+        self.width = 0  # of the line drawn last on a terminal (a shorter one pads it out)
 
     def __call__(self, p) -> None:
         if self.quiet:
             return
-        goal = min(p.max_steps, max(p.needed_steps, p.steps))
+        waiting = p.needed_steps <= p.steps < p.max_steps  # long enough; tau not yet settled
+        goal = p.max_steps if waiting else min(p.max_steps, max(p.needed_steps, p.steps))
         fraction = min(p.steps / max(goal, 1), 1.0)
         bar = "#" * int(30 * fraction) + "." * (30 - int(30 * fraction))
+        wait = f" (needed {p.needed_steps}: waiting for tau to settle)" if waiting else ""
         text = (
-            f"sample [{bar}] {p.steps}/{goal} steps | tau {p.tau_max:.1f} (x{p.steps / p.tau_max:.0f}) | "
+            f"sample [{bar}] {p.steps}/{goal} steps{wait} | tau {p.tau_max:.1f} (x{p.steps / p.tau_max:.0f}) | "
             f"acceptance {p.acceptance:.2f} | {p.steps_per_s:.0f} steps/s"
         )
         if self.tty:
-            self.stream.write("\r" + text)
+            self.stream.write("\r" + text.ljust(self.width))
             self.stream.flush()
             self.drawn = True
+            self.width = len(text)
         elif time.monotonic() - self.last > 3.0 or p.steps >= goal:
             print(text, file=self.stream)
             self.last = time.monotonic()
@@ -294,6 +310,24 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result.trustworthy else 1
 
 
+#: Significant digits of the summary's values: at least, and at most.
+MIN_DIGITS = 4
+MAX_DIGITS = 10
+
+
+def separating_digits(values: tuple[float, ...]) -> int:
+    """The fewest significant digits, from :data:`MIN_DIGITS` to :data:`MAX_DIGITS`, that
+    print the distinct ``values`` (a row's 16 %, median and 84 %) as distinct strings. A
+    narrow posterior (a deviation of 10⁻⁵ on a value near 0.2) needs more than four digits,
+    or its interval collapses to one number in every column; a wide one keeps four."""
+    finite = [float(v) for v in values if math.isfinite(v)]
+    distinct = len(set(finite))
+    for digits in range(MIN_DIGITS, MAX_DIGITS + 1):
+        if len({f"{v:.{digits}g}" for v in finite}) == distinct:
+            return digits
+    return MAX_DIGITS
+
+
 def format_summary(payload: dict[str, Any]) -> str:
     d = payload["diagnostics"]
     method = payload.get("uncertainty_method", "laplace")
@@ -314,16 +348,17 @@ def format_summary(payload: dict[str, Any]) -> str:
     lap = payload["laplace"]
     for k, label in enumerate(payload["labels"]):
         p = payload["posterior"]["parameters"][label]
+        digits = separating_digits((p["p16"], p["median"], p["p84"]))
         rows.append(
             (
                 label,
-                f"{lap['x_hat'][k]:.4g}",
+                f"{lap['x_hat'][k]:.{digits}g}",
                 f"{lap['sd'][k]:.2g}",
-                f"{p['median']:.4g}",
-                f"{p['p16']:.4g}",
-                f"{p['p84']:.4g}",
-                f"{p['p2.5']:.4g}",
-                f"{p['p97.5']:.4g}",
+                f"{p['median']:.{digits}g}",
+                f"{p['p16']:.{digits}g}",
+                f"{p['p84']:.{digits}g}",
+                f"{p['p2.5']:.{digits}g}",
+                f"{p['p97.5']:.{digits}g}",
                 f"{d['tau'][k]:.1f}",
                 f"{d['ess'][k]:.0f}",
             )
@@ -347,9 +382,13 @@ def format_summary(payload: dict[str, Any]) -> str:
             f"{adjustment.get('dropped', 0) + adjustment.get('kept', 0)} fell outside the prior and were dropped"
         )
     elif adjustment.get("method") == "temperature":
+        factor = adjustment.get("temperature", float("nan"))
         lines.append(
-            f"tempered: sampled with sigma x sqrt(T), T = {adjustment.get('temperature', float('nan')):.3g}, so that "
-            "every interval is at least as wide as the fit's noise sandwich"
+            "tempered: T = 1, the chain as sampled is already at least as wide as the fit's noise sandwich in every "
+            "direction (tempering only widens)"
+            if factor == 1
+            else f"tempered: sampled with sigma x sqrt(T), T = {factor:.3g}, so that every interval is at least as "
+            "wide as the fit's noise sandwich"
         )
     if adjustment.get("reason"):
         lines.append(f"adjustment: {adjustment['method']} ({adjustment['reason']})")

@@ -12,6 +12,12 @@ error; the others go on.
 Targets can be files, folders (their images: every file OpenImageIO reads, sorted), lists
 (``@list.txt``: one path per line, ``#`` comments) or a manifest (CSV or JSON) that pairs
 each target with its own scene, mask and encoding.
+
+What every target shares — the ``--scene`` and ``--mask`` of the command line — is read
+before any work (:func:`jobs_from_arguments`): a missing or broken one would fail every
+target, so it is bad input (one line, exit status 2), as with a single target. What
+belongs to one target — the image, a manifest row's own scene or mask — fails that target
+alone.
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ from typing import Any
 
 from ..errors import OutputExistsError, StraussFitError
 from ..io.files import Outputs, read_json
+from ..io.images import read_image
+from ..scene.loading import load_scene
 from .batch import DEFAULT_CHUNK, BatchProgress, FitFailure, FitJob, fit_many
 from .options import FitOptions
 from .result import FitResult
@@ -199,11 +207,17 @@ def fit_to_folder(
         else:
             todo.append(index)
     if not (resume or force):
-        existing = [p for p in paths if p.exists()] + ([summary] if summary.exists() else [])
+        # results are the targets' JSON files; summary.csv is not one, but would be replaced
+        existing = [p for p in paths if p.exists()]
         if existing:
             raise OutputExistsError(
                 f"{len(existing)} result(s) already in {folder} (e.g. {existing[0].name}); pass --resume to keep "
                 "them and fit the rest, or --force to fit everything again"
+            )
+        if summary.exists():
+            raise OutputExistsError(
+                f"{folder} already holds a {SUMMARY_NAME} from an earlier run; pass --resume to keep its results "
+                "and fit the rest, or --force to replace it"
             )
     counts = {"failed": 0}
 
@@ -269,7 +283,13 @@ def jobs_from_arguments(
     encoding: str = "auto",
 ) -> list[FitJob]:
     """The jobs of the command line: TARGET arguments (files, folders, ``@LIST``) with one
-    scene, and/or a manifest's rows with their own scenes."""
+    scene, and/or a manifest's rows with their own scenes. The shared ``scene`` and ``mask``
+    are read here, before any work: every target would fail on them (see the module
+    docstring)."""
+    if scene is not None:
+        load_scene(scene)
+    if mask is not None:
+        read_image(mask, encoding="linear")
     jobs: list[FitJob] = []
     if targets:
         if scene is None:

@@ -26,10 +26,15 @@ Two adjustments (``sample --adjust``):
   (:func:`adjust_samples`). Entries the fit pinned at a bound (V = 0 there) are not
   adjusted.
 - **temperature**: one scalar, the likelihood tempered as :math:`L^{1/T}`, i.e. σ → √T σ,
-  with T the largest generalised eigenvalue of (:math:`\Sigma_\text{post}` predicted as
-  :math:`\sigma^2(J^\top J)^{-1}`, V) (:func:`temperature`): every interval is then at
+  with :math:`T = \max(1, \lambda_\max)`, :math:`\lambda_\max` the largest generalised
+  eigenvalue of (:math:`\Sigma_\text{post}` predicted as :math:`\sigma^2 H^{-1}`, V)
+  (:func:`temperature`), both matrices over the same entries — those the fit did not pin
+  at a bound, the others held where the fit put them, as the sandwich holds them
+  (:func:`strauss_fit.inference.laplace.posterior_covariance`). Every interval is then at
   least as wide as the sandwich's — conservative, and wider than needed in the other
-  directions.
+  directions. Tempering only ever widens: where the chain is already at least as wide as V
+  in every direction (:math:`\lambda_\max < 1`), T = 1 and the likelihood is left as it
+  is, since T < 1 would narrow the chain below the sandwich.
 """
 
 from __future__ import annotations
@@ -65,9 +70,13 @@ def generalized_eigenvalues(cov_post: np.ndarray, cov_target: np.ndarray) -> np.
 
 
 def temperature(cov_post: np.ndarray, cov_target: np.ndarray) -> float:
-    """T = the largest generalised eigenvalue: T·Σ_post ⪰ V (every linear combination's
-    interval at least as wide as V's)."""
-    return float(generalized_eigenvalues(cov_post, cov_target)[-1])
+    """T = max(1, the largest generalised eigenvalue): the smallest T ≥ 1 with T·Σ_post ⪰ V
+    (every linear combination's interval at least as wide as V's). Never below 1: tempering
+    is there to widen a chain narrower than the sandwich, and T < 1 would make one that is
+    already wide enough narrower than V in some direction. ``cov_post`` and ``cov_target``
+    must cover the same entries (a block of one conditional on entries held in the other
+    would compare different things)."""
+    return max(1.0, float(generalized_eigenvalues(cov_post, cov_target)[-1]))
 
 
 def adjustment_matrix(cov_post: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
@@ -106,6 +115,13 @@ def adjust_samples(
     moved = center + (samples - center) @ np.asarray(matrix, dtype=np.float64).T
     inside = np.all((moved >= lower) & (moved <= upper), axis=1)
     return moved[inside], int(np.sum(~inside))
+
+
+def loss_of(fit: dict[str, Any]) -> str:
+    """The loss a fit result (JSON) minimised (``solver.loss``): ``"linear"`` for least
+    squares, and for results written before fits had a choice of loss."""
+    loss = (fit.get("solver") or {}).get("loss")
+    return str(loss) if loss else "linear"
 
 
 def default_method(fit: dict[str, Any]) -> tuple[str, str]:

@@ -1,18 +1,19 @@
-r"""Summaries of uncertainty, the Laplace-versus-emcee comparison, and degeneracy warnings
-in plain language. Pure NumPy, no plotting (:mod:`strauss_fit.reporting.fit_report` draws).
+r"""Summaries of uncertainty, the fit's ± against the emcee posterior, and degeneracy
+warnings in plain language. Pure NumPy, no plotting (:mod:`strauss_fit.reporting.fit_report` draws).
 
 Percentiles: the posterior median and the central 68 % (16th–84th percentile) and 95 %
 (2.5th–97.5th) intervals of the samples after burn-in.
 
-Comparison (per parameter, when a chain and a Laplace estimate both exist). With
-:math:`\hat\theta` and :math:`s_L` the optimum and Laplace deviation, and
+Comparison (per parameter, when a chain and the fit's ± both exist; the ± is the noise
+sandwich or the Laplace estimate, as the fit computed it, and the notes name it). With
+:math:`\hat\theta` and :math:`s_L` the optimum and the fit's deviation, and
 :math:`m, q_{16}, q_{84}` the posterior median and percentiles, :math:`s_P = (q_{84}-q_{16})/2`:
 
 - *width*: disagree if :math:`s_P / s_L \notin [0.8, 1.25]`;
 - *shift*: disagree if :math:`|m - \hat\theta| > 0.5\, s_P`;
 - a width or shift is blamed on a parameter the fit pinned on a bound when the two
-  correlate (|ρ| > 0.5) in the posterior: the Laplace estimate holds it fixed, the
-  posterior does not; otherwise on the model's non-linearity;
+  correlate (|ρ| > 0.5) in the posterior: the fit's ± holds it fixed, the posterior does
+  not; otherwise on the model's non-linearity;
 - *skew*: disagree if the tails differ, :math:`|u - d|/(u + d) > 0.2` with
   :math:`u = q_{84} - m`, :math:`d = m - q_{16}`;
 - *bound*: the prior bound lies within :math:`2 s_P` of the median (the posterior is cut
@@ -40,6 +41,7 @@ import numpy as np
 from ..fit.identifiability import deviation_scale
 from ..fit.result import FitResult
 from . import laplace as _laplace
+from .adjustment import loss_of
 
 if TYPE_CHECKING:
     from .sampler import Chain
@@ -102,16 +104,25 @@ def posterior_summary(samples: np.ndarray, labels: Sequence[str]) -> dict[str, A
     return out
 
 
+#: What :class:`Laplace` calls the fit's ± in words, by ``uncertainty_method.name``.
+SANDWICH = "noise sandwich"
+LAPLACE = "Laplace estimate"
+
+
 @dataclass
 class Laplace:
-    """The fit's Laplace estimate per vector entry: optimum, deviation (0 where the fit
-    pinned the entry at a bound) and correlation matrix."""
+    """The fit's Gaussian uncertainty per vector entry: optimum, deviation (0 where the fit
+    pinned the entry at a bound) and correlation matrix; ``method`` names it in words
+    (:data:`SANDWICH` or :data:`LAPLACE`, as the fit computed its ±), so that notes about it
+    say which interval they mean. The class keeps its old name: it began as the Laplace
+    estimate only."""
 
     labels: list[str]
     x_hat: np.ndarray
     sd: np.ndarray
     correlation: np.ndarray
     at_bound: list[str] = field(default_factory=list)
+    method: str = LAPLACE
 
     @property
     def covariance(self) -> np.ndarray:
@@ -138,8 +149,14 @@ class Laplace:
         matrix = np.asarray(corr.get("matrix", np.eye(len(labels))), dtype=np.float64)
         if corr.get("labels", labels) != labels or matrix.shape != (len(labels), len(labels)):
             matrix = np.eye(len(labels))
+        method = SANDWICH if (fit.uncertainty_method or {}).get("name") == "noise sandwich" else LAPLACE
         return cls(
-            labels, np.asarray(values, dtype=np.float64), np.asarray(sds, dtype=np.float64), matrix, fit.at_bound
+            labels,
+            np.asarray(values, dtype=np.float64),
+            np.asarray(sds, dtype=np.float64),
+            matrix,
+            fit.at_bound,
+            method,
         )
 
 
@@ -234,7 +251,8 @@ def _fmt(value: Any) -> str:
 
 @dataclass
 class ComparisonRow:
-    """One parameter's Laplace and posterior widths, and what disagrees."""
+    """One parameter's widths from the fit's ± (``laplace_sd``, whichever kind it is) and
+    from the posterior, and what disagrees."""
 
     label: str
     x_hat: float
@@ -253,9 +271,10 @@ class ComparisonRow:
 def compare(
     laplace: Laplace, summary: dict[str, Any], samples: np.ndarray, lower: np.ndarray, upper: np.ndarray
 ) -> tuple[list[ComparisonRow], list[str]]:
-    """Rows per parameter and plain-language notes where the Laplace estimate and the
-    posterior disagree (the rules of the module docstring)."""
+    """Rows per parameter and plain-language notes where the fit's ± (named by
+    ``laplace.method``) and the posterior disagree (the rules of the module docstring)."""
     rows, notes = [], []
+    name = laplace.method
     corr = np.asarray(summary["correlation"], dtype=np.float64)
     pinned = [j for j, label in enumerate(laplace.labels) if label in laplace.at_bound or laplace.sd[j] == 0]
 
@@ -266,7 +285,7 @@ def compare(
             return "the model is not linear over the uncertainty, so trust the posterior"
         _, j = max(partners)
         return (
-            f"the Laplace estimate holds {describe(laplace.labels[j])} fixed on its bound, while the posterior "
+            f"the {name} holds {describe(laplace.labels[j])} fixed on its bound, while the posterior "
             f"lets it move inward and this parameter moves with it (correlation {corr[k, j]:+.2f}); "
             "trust the posterior"
         )
@@ -291,7 +310,7 @@ def compare(
                 else ("lower", p["p2.5"])
             )
             notes.append(
-                f"{word}: the fit put it on its bound ({laplace.x_hat[k]:.4g}), where the Laplace estimate "
+                f"{word}: the fit put it on its bound ({laplace.x_hat[k]:.4g}), where the {name} "
                 f"gives no interval; the posterior is one-sided with a 95 % {side} limit of {limit:.4g}."
             )
         elif near_low or near_high:
@@ -300,20 +319,20 @@ def compare(
             side, limit = ("upper", p["p97.5"]) if near_low else ("lower", p["p2.5"])
             notes.append(
                 f"{word}: the posterior runs into the bound {bound:g}, so it is cut off there and the "
-                f"symmetric Laplace ±{s_lap:.2g} misleads; quote the 95 % {side} limit {limit:.4g} instead."
+                f"symmetric ±{s_lap:.2g} of the {name} misleads; quote the 95 % {side} limit {limit:.4g} instead."
             )
         if ratio is not None and not WIDTH_RATIO_RANGE[0] <= ratio <= WIDTH_RATIO_RANGE[1]:
             issues.append("width")
             notes.append(
                 f"{word}: the posterior is {'' if ratio > 1 else 'only '}{ratio:.2f} times as wide as "
-                f"the Laplace estimate (±{s_post:.2g} against ±{s_lap:.2g}): {cause(k)}."
+                f"the {name} (±{s_post:.2g} against ±{s_lap:.2g}): {cause(k)}."
             )
         if abs(shift) > SHIFT_LIMIT and "bound" not in issues:
             issues.append("shift")
             notes.append(
                 f"{word}: the posterior median {p['median']:.4g} lies {abs(shift):.1f} posterior "
-                f"standard deviations from the least-squares optimum {laplace.x_hat[k]:.4g}"
-                + (f": {cause(k)}." if pinned and cause(k).startswith("the Laplace estimate holds") else ".")
+                f"standard deviations from the fit's optimum {laplace.x_hat[k]:.4g}"
+                + (f": {cause(k)}." if pinned and cause(k).startswith(f"the {name} holds") else ".")
             )
         if abs(skew) > SKEW_LIMIT and "bound" not in issues:
             issues.append("skew")
@@ -330,8 +349,8 @@ def compare(
     for a, b, gain in curved_pairs(samples, laplace.labels):
         notes.append(
             f"{describe(a)} and {describe(b)}: the posterior is curved (banana-shaped; a quadratic "
-            f"explains {gain:.0%} more of their relation than a straight line), which the Laplace "
-            "estimate's ellipse cannot describe."
+            f"explains {gain:.0%} more of their relation than a straight line), which the ellipse of the "
+            f"{name} cannot describe."
         )
     return rows, notes
 
@@ -377,10 +396,10 @@ def _r2(design: np.ndarray, y: np.ndarray) -> float:
 
 @dataclass
 class ChainPosterior:
-    """A chain's posterior set against the fit's Laplace estimate: the diagnostics, the
-    samples after burn-in (at most ``max_samples`` of them, drawn without replacement),
-    the summary (of *all* samples after burn-in), the prior box, the comparison rows and
-    notes of :func:`compare`, and the samples' covariance."""
+    """A chain's posterior set against the fit's ± (its noise sandwich or Laplace
+    estimate): the diagnostics, the samples after burn-in (at most ``max_samples`` of them,
+    drawn without replacement), the summary (of *all* samples after burn-in), the prior
+    box, the comparison rows and notes of :func:`compare`, and the samples' covariance."""
 
     diagnostics: Any
     samples: np.ndarray
@@ -411,14 +430,17 @@ def chain_posterior(chain: Chain, laplace: Laplace, max_samples: int | None = No
 
 def summarise_chain(chain: Chain) -> dict[str, Any]:
     """The summary JSON of a chain (``strauss-fit sample`` writes it beside the chain):
-    diagnostics, posterior percentiles, the Laplace estimate of the fit it started from,
-    their comparison and the warnings."""
+    diagnostics, posterior percentiles, the ± of the fit it started from (its noise
+    sandwich or Laplace estimate), their comparison and the warnings."""
     meta = chain.meta
     fit = FitResult.from_json(meta["fit"])
     laplace = Laplace.from_fit(fit)
     posterior = chain_posterior(chain, laplace)
     diagnostics = posterior.diagnostics
     warnings = degeneracy_warnings(chain.labels, posterior.covariance, fit.held, values=laplace.x_hat)
+    mismatch = loss_warning(meta["fit"])
+    if mismatch:
+        warnings.insert(0, mismatch)
     return {
         "uncertainty_method": (fit.uncertainty_method or {}).get("name", "laplace"),
         "fit_verdict": fit.verdict,
@@ -444,6 +466,22 @@ def summarise_chain(chain: Chain) -> dict[str, Any]:
         "comparison": {"rows": [r.as_dict() for r in posterior.rows], "notes": posterior.notes},
         "warnings": warnings,
     }
+
+
+def loss_warning(fit: FitResult | dict[str, Any]) -> str | None:
+    """A warning when the fit a chain is set against minimised another loss than least
+    squares (chains written before :func:`strauss_fit.inference.sampler.sample` refused such
+    fits, or a report given another fit than its chain's): the chain's likelihood is least
+    squares, so it centres elsewhere and the fit's ± is another estimator's spread."""
+    data = fit.to_json() if isinstance(fit, FitResult) else fit
+    loss = loss_of(data)
+    if loss == "linear":
+        return None
+    return (
+        f"the chain's likelihood is least squares, but the fit minimised the {loss} loss: the posterior centres on "
+        f"the least-squares optimum, not on the fit's values, and the fit's ± is the spread of the {loss} fit; "
+        "compare them only after refitting with --loss linear (and sampling from that fit)"
+    )
 
 
 def adjustment_summary(chain: Chain, laplace: Laplace, discard: int) -> dict[str, Any]:

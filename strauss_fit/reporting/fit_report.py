@@ -34,7 +34,7 @@ from ..errors import StraussFitError
 from ..fit.result import FitResult
 from ..inference import laplace as _laplace
 from ..inference.sampler import Chain, load_chain
-from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings
+from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings, loss_warning
 from ..io.files import Outputs, check_writable, read_json
 from ..io.targets import Target, load_target, match_scene
 from ..models.strauss import DEFAULT_TABLE_SIZE
@@ -289,6 +289,9 @@ def build_report(
         warnings.insert(0, "The chain is not trustworthy yet: " + "; ".join(diagnostics.reasons) + ".")
     fit_warnings = [w for w in fit.warnings if isinstance(w, dict)]
     warnings = [f"[{w.get('code', '?')}] {w.get('message', '')}" for w in fit_warnings] + warnings
+    other_loss = loss_warning(fit) if chain is not None else None
+    if other_loss:  # first: every comparison with the chain below depends on it
+        warnings.insert(0, other_loss[0].upper() + other_loss[1:] + ".")
     warnings += [f"fit: {note}" for note in fit.notes]
     data["warnings"] = warnings
     data["fit_warnings"] = fit_warnings

@@ -1,5 +1,7 @@
 """``strauss-fit fit`` with several targets into a folder (issue 16): outputs, summary,
-failures, resume, lists, manifests, a killed run, and bad input."""
+failures, resume, lists, manifests, a killed run, and bad input (a scene or mask every
+target shares is checked before any work; existing results are counted without the
+summary)."""
 
 from __future__ import annotations
 
@@ -129,6 +131,57 @@ def test_bad_batch_options_are_one_line_errors_before_any_work(batch, tmp_path, 
     err = capsys.readouterr().err
     assert code == 2 and message in err and "Traceback" not in err
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("missing-scene", "scene file not found"),
+        ("invalid-scene", "not valid TOML"),
+        ("unreadable-scene", "cannot read scene file"),
+        ("missing-mask", "image not found"),
+        ("broken-mask", "mask.png"),
+    ],
+)
+def test_a_bad_scene_or_mask_shared_by_every_target_is_refused_before_any_work(batch, tmp_path, capsys, case, message):
+    # as with one target (exit 2, one line), not a failed row per target and exit 1
+    scene, targets, _ = batch
+    extra = []
+    if case == "missing-scene":
+        scene = tmp_path / "missing.toml"
+    elif case == "invalid-scene":
+        scene = tmp_path / "bad.toml"
+        scene.write_text("garbage = [\n")
+    elif case == "unreadable-scene":
+        scene = tmp_path / "binary.toml"
+        scene.write_bytes(b"\xff\xfe\x00 not text")
+    elif case == "missing-mask":
+        extra = ["--mask", str(tmp_path / "mask.png")]
+    else:
+        (tmp_path / "mask.png").write_bytes(b"not an image")
+        extra = ["--mask", str(tmp_path / "mask.png")]
+    out = tmp_path / "out"
+    code = main(["fit", str(targets[0]), str(targets[1]), "--scene", str(scene), "-o", str(out), *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err, err
+    assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists()  # not even the folder
+
+
+def test_existing_results_are_counted_without_the_summary(batch, tmp_path, capsys):
+    scene, targets, _ = batch
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.csv").write_text("target,status\n")
+    (out / "sphere0.json").write_text("{}")
+    argv = ["fit", str(targets[0]), str(targets[1]), "--scene", str(scene), "-o", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "1 result(s) already in" in err and "sphere0.json" in err  # summary.csv is not a result
+    (out / "sphere0.json").unlink()
+    assert main(argv) == 2  # a summary alone would still be replaced: refused, and said so
+    err = capsys.readouterr().err
+    assert "result(s)" not in err and "already holds a summary.csv" in err and "--force" in err
 
 
 def test_colliding_result_names_and_a_file_as_the_folder_are_refused(batch, tmp_path, capsys):

@@ -225,3 +225,11 @@ def test_damaged_chains_are_one_line_errors_for_report_and_resume(sampled, capsy
         assert pattern in err, f"{command}: {err}"
     assert chain.read_bytes() == before  # nothing was changed
     assert sorted(p.name for p in tmp_path.iterdir()) == ["chain.h5"]
+
+
+def test_report_help_names_both_kinds_of_interval(capsys):
+    # the fit's ± may be the noise sandwich: the help must not call it "Laplace ±"
+    assert main(["report", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "noise sandwich or Laplace" in text
+    assert "Laplace ±" not in text and "Laplace-versus-posterior" not in text

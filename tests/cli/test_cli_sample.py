@@ -235,3 +235,123 @@ def test_ctrl_c_during_sample_exits_130_and_keeps_the_steps(files, capsys, tmp_p
     assert code == 130
     assert f"{chain} keeps all 21 steps sampled so far (continue with --resume)" in err
     assert load_chain(chain).chain.shape == (21, 16, 5)
+
+
+# --- the summary table and the progress line ---------------------------------------------------
+
+
+def summary_payload(samples, labels, x_hat):
+    """A summary as :func:`strauss_fit.inference.summaries.summarise_chain` writes it, for
+    ``format_summary``: the posterior of ``samples``, the fit's ``x_hat`` and made-up
+    diagnostics."""
+    from strauss_fit.inference.summaries import posterior_summary
+
+    n = len(labels)
+    diagnostics = dict(
+        trustworthy=True, tau=[10.0] * n, ess=[1000.0] * n, steps=1000, walkers=32, tau_multiple=100.0,
+        min_tau_multiple=50.0, burn_in=20, acceptance_mean=0.4, reasons=[],
+    )  # fmt: skip
+    return {
+        "diagnostics": diagnostics,
+        "uncertainty_method": "noise sandwich",
+        "labels": labels,
+        "laplace": {"x_hat": list(x_hat), "sd": list(samples.std(axis=0))},
+        "posterior": posterior_summary(samples, labels),
+        "sigma": 0.01,
+        "adjustment": {"method": "none"},
+        "comparison": {"notes": []},
+        "warnings": [],
+    }
+
+
+def test_the_summary_separates_the_percentiles_of_a_narrow_posterior():
+    from strauss_fit_cli.sample_cmd import format_summary
+
+    # the green plastic's colour: 0.2311 ± 4e-5, which four digits print as 0.2311 in every
+    # column; next to it a wide parameter, which keeps four digits
+    rng = np.random.default_rng(5)
+    samples = np.column_stack([rng.normal(0.23112, 4e-5, 20000), rng.normal(0.5, 0.05, 20000)])
+    text = format_summary(summary_payload(samples, ["color_g", "smoothness"], [0.23112, 0.5]))
+    lines = text.splitlines()
+    table = lines[:4]
+    assert table[0].split()[:8] == ["parameter", "fit", "sandwich", "±", "median", "16", "%", "84"]
+    narrow, wide = table[2].split(), table[3].split()
+    median, p16, p84 = narrow[3:6]  # label, fit, ±, median, 16 %, 84 %, ...
+    assert len({p16, median, p84}) == 3, narrow
+    assert float(p16) < float(median) < float(p84)
+    for text_value, key in ((median, "median"), (p16, "p16"), (p84, "p84")):  # the values, rounded
+        true = np.percentile(samples[:, 0], {"median": 50, "p16": 16, "p84": 84}[key])
+        assert abs(float(text_value) - true) < 4e-5 / 2
+    assert len(wide[3].replace("0.", "")) <= 4  # a wide posterior keeps four digits
+    assert len({len(line) for line in table if line and not line.startswith("-")}) == 1  # still aligned
+
+
+def test_the_summary_says_when_tempering_left_the_chain_as_it_was():
+    from strauss_fit_cli.sample_cmd import format_summary
+
+    samples = np.random.default_rng(6).normal(0.5, 0.05, (4000, 1))
+    payload = summary_payload(samples, ["smoothness"], [0.5])
+    payload["adjustment"] = {"method": "temperature", "temperature": 1.0}
+    assert "T = 1, the chain as sampled is already at least as wide" in format_summary(payload)
+    payload["adjustment"] = {"method": "temperature", "temperature": 2.5}
+    assert "sampled with sigma x sqrt(T), T = 2.5" in format_summary(payload)
+
+
+def progress_line(steps, needed, max_steps=2000):
+    import io
+
+    from strauss_fit.inference.sampler import Progress
+    from strauss_fit_cli.sample_cmd import ProgressBar
+
+    stream = io.StringIO()
+    ProgressBar(False, stream)(Progress(steps, max_steps, steps, needed / 10, needed, 0.4, 300.0))
+    return stream.getvalue()
+
+
+def test_the_progress_line_is_not_full_while_sampling_goes_on():
+    # before the chain is K tau long, the goal is that length
+    assert "100/130 steps |" in progress_line(100, 130)
+    # once it is, sampling goes on until tau settles: the goal is the cap, not the steps done
+    # (which showed 800/800 and a full bar on every line)
+    line = progress_line(800, 768)
+    assert "800/2000 steps (needed 768: waiting for tau to settle)" in line
+    assert "[" + "#" * 30 + "]" not in line
+    assert "2000/2000 steps |" in progress_line(2000, 768) and "#" * 30 in progress_line(2000, 768)
+
+
+def test_without_a_terminal_the_progress_line_comes_every_few_seconds():
+    import io
+
+    from strauss_fit.inference.sampler import Progress
+    from strauss_fit_cli.sample_cmd import ProgressBar
+
+    stream = io.StringIO()
+    bar = ProgressBar(False, stream)
+    for steps in (800, 900, 1000):  # long enough, tau not settled: checks seconds apart
+        bar(Progress(steps, 2000, steps, 76.8, 768, 0.4, 300.0))
+    assert len(stream.getvalue().splitlines()) == 1
+
+
+def test_on_a_terminal_a_shorter_line_covers_the_longer_one_before_it():
+    import io
+
+    from strauss_fit.inference.sampler import Progress
+    from strauss_fit_cli.sample_cmd import ProgressBar
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    stream = Terminal()
+    bar = ProgressBar(False, stream)
+    bar(Progress(1900, 2000, 1900, 76.8, 768, 0.4, 300.0))  # waiting for tau: the long line
+    bar(Progress(2000, 2000, 2000, 76.8, 768, 0.4, 300.0))  # at the cap: a shorter one
+    long, short = stream.getvalue().split("\r")[1:]
+    assert "waiting" in long and "waiting" not in short and len(short) >= len(long)
+
+
+def test_sample_help_says_where_sigma_comes_from(capsys):
+    assert main(["sample", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "the target's noise as the fit found it when the fit knew it" in text
+    assert "--loss linear" in text

@@ -3,7 +3,9 @@ the algebra by hand, then whole chains — on a Phong sphere (which Strauss cann
 the affine adjustment gives the sandwich's per-parameter widths within the chain's Monte
 Carlo error, on draws the adjustment matrix was not computed from; on a Strauss target the
 chain already has those widths and the adjustment is close to the identity; the
-temperature is never narrower than the sandwich; the CLI's option and messages."""
+temperature is never narrower than the sandwich, also with entries pinned at a bound, and
+never below 1; a fit made with another loss than least squares is refused (and the fit
+sample makes itself is least squares); the CLI's option and messages."""
 
 from __future__ import annotations
 
@@ -64,8 +66,18 @@ def test_temperature_is_the_largest_generalised_eigenvalue_by_hand():
     # singular: in one direction it is exactly as wide
     rng = np.random.default_rng(1)
     post, target = random_spd(rng, 5), random_spd(rng, 5)
+    assert generalized_eigenvalues(post, target)[-1] > 1
     gap = np.linalg.eigvalsh(temperature(post, target) * post - target)
     assert gap.min() == pytest.approx(0.0, abs=1e-9 * gap.max()) and gap.min() > -1e-9 * gap.max()
+
+
+def test_temperature_never_narrows_a_chain_already_wider_than_the_sandwich():
+    # every variance ratio below 1 (largest 0.25): the chain is wider than V in every
+    # direction, and T = 0.25 would halve its intervals, making them narrower than V's
+    post, target = np.diag([1.0, 4.0]), np.diag([0.25, 0.5])
+    assert generalized_eigenvalues(post, target)[-1] == pytest.approx(0.25)
+    assert temperature(post, target) == 1.0
+    assert np.linalg.eigvalsh(temperature(post, target) * post - target).min() > 0
 
 
 def test_adjusted_draws_outside_the_prior_are_dropped_and_counted():
@@ -290,3 +302,107 @@ def test_sample_command_prints_the_adjustment_the_verdict_and_the_warnings(phong
     # changing --adjust on resume is refused in one line
     code = main([str(a) for a in base + ["--resume", "--adjust", "none"]])
     assert code == 2 and "--adjust cannot change when resuming" in capsys.readouterr().err
+
+
+# --- temperature with entries pinned at a bound; fits with another loss -------------------------
+
+BUNDLED = support.SCENES.parent / "bundled"
+
+
+def test_temperature_with_entries_pinned_at_a_bound_is_never_narrower_than_the_sandwich(tmp_path):
+    # A Phong highlight Strauss cannot reproduce, fitted by least squares: C is pinned at 1 in
+    # red and green and m at 0. V holds those entries there; the full Laplace covariance lets
+    # them move, so its block on the free entries is wider than the chain and gave T = 0.047,
+    # a chain 4 times narrower than the sandwich (the docs writer's repro).
+    target_path, scene_path = BUNDLED / "phong-noisy-0002.exr", support.SCENES / "two_lights.toml"
+    target = sf.load_target(target_path)
+    scene, _ = sf.match_scene(sf.load_scene(scene_path), target)
+    result = sf.fit(scene, target, sf.FitOptions(loss="linear"))
+    assert result.verdict == "mismatch" and {"color_r", "color_g", "metalness"} <= set(result.at_bound)
+    settings = SampleSettings(max_steps=1000, walkers=32, seed=1, min_tau_multiple=1000)
+    out = sample(target_path, scene_path, tmp_path / "t.h5", fit=result, settings=settings, adjust="temperature")
+    chain = load_chain(out.path, required=True)
+    info = chain.adjustment
+    assert info["temperature"] >= 1
+    assert chain.meta["sigma"] >= info["sigma_untempered"]
+    target_cov = fit_covariance(chain)
+    used = np.diag(target_cov) > 0
+    assert used.sum() == 2  # the blue channel and s
+    samples = chain.samples()
+    ess = np.asarray(chain.diagnostics().ess)[used]
+    ratio = samples.std(axis=0, ddof=1)[used] / np.sqrt(np.diag(target_cov))[used]
+    assert np.all(ratio > 1 - 4 / np.sqrt(2 * ess)), ratio
+
+
+def huber_fit(folder):
+    target = sf.load_target(folder / "phong.exr")
+    loaded, _ = sf.match_scene(sf.load_scene(folder / "scene.toml"), target)
+    return sf.fit(loaded, target, sf.FitOptions(noise=NOISE, free=FREE, loss="huber"))
+
+
+def test_a_fit_made_with_another_loss_is_refused(phong_chain, tmp_path, capsys):
+    # the likelihood is least squares: a Huber fit's optimum is not the chain's, and its
+    # sandwich is the Huber fit's spread, so neither the start nor the adjustment fits
+    folder, _, _ = phong_chain
+    huber = huber_fit(folder)
+    assert huber.solver["loss"] == "huber"
+    with pytest.raises(ChainError, match="huber loss, but sample's likelihood is least squares.*--loss linear"):
+        sample(folder / "phong.exr", folder / "scene.toml", tmp_path / "c.h5", fit=huber, settings=SETTINGS)
+    fit_path = tmp_path / "huber.json"
+    fit_path.write_text(json.dumps({**huber.to_json(), "target": "phong.exr"}))
+    argv = ["sample", folder / "phong.exr", "--scene", folder / "scene.toml", "-o", tmp_path / "h.h5"]
+    argv += ["--fit", fit_path]
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and "--loss linear" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "h.h5").exists()
+
+
+def test_sample_fits_first_by_least_squares(phong_chain, tmp_path, monkeypatch):
+    # the fit loss "auto" switches to Huber on a visible mismatch: not for the fit sample makes
+    import strauss_fit.inference.sampler as sampler_module
+
+    folder, _, _ = phong_chain
+    losses = []
+
+    class Fitted(Exception):
+        pass
+
+    def fit_and_stop(scene, target, options, progress=None):
+        losses.append(options.loss)
+        raise Fitted
+
+    monkeypatch.setattr(sampler_module, "run_fit", fit_and_stop)
+    with pytest.raises(Fitted):
+        sample(folder / "phong.exr", folder / "scene.toml", tmp_path / "own.h5", settings=SETTINGS)
+    assert losses == ["linear"]
+    with pytest.raises(ChainError, match="least squares"):
+        sample(
+            folder / "phong.exr",
+            folder / "scene.toml",
+            tmp_path / "own.h5",
+            fit_options=sf.FitOptions(loss="huber"),
+            settings=SETTINGS,
+        )
+    assert losses == ["linear"]  # refused before fitting
+
+
+def test_a_chain_of_a_huber_fit_is_named_in_its_summary_and_not_resumed(phong_chain, tmp_path):
+    # chains written before such fits were refused: the summary says what the chain is
+    import shutil
+
+    from strauss_fit.inference.sampler import write_metadata
+    from strauss_fit.inference.summaries import summarise_chain
+
+    folder, _, out = phong_chain
+    copy = tmp_path / "old.h5"
+    shutil.copy(out.path, copy)
+    chain = load_chain(copy, required=True)
+    meta = json.loads(json.dumps(chain.meta))
+    meta["fit"]["solver"]["loss"] = "huber"
+    write_metadata(copy, meta)
+    assert "least squares" not in " ".join(summarise_chain(load_chain(out.path, required=True))["warnings"])
+    warnings = summarise_chain(load_chain(copy, required=True))["warnings"]
+    assert "likelihood is least squares, but the fit minimised the huber loss" in warnings[0]
+    with pytest.raises(ChainError, match="huber loss.*--loss linear"):
+        sample(folder / "phong.exr", folder / "scene.toml", copy, resume=True, settings=SETTINGS)

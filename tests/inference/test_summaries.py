@@ -1,12 +1,21 @@
-"""Posterior summaries: the Laplace-against-posterior comparison rules and the degeneracy
-warnings in words, on synthetic samples."""
+"""Posterior summaries: the comparison rules of the fit's ± against the posterior (notes
+that name the fit's kind of interval) and the degeneracy warnings in words, on synthetic
+samples."""
 
 import re
 
 import numpy as np
 import pytest
 
-from strauss_fit.inference.summaries import Laplace, compare, degeneracy_warnings, posterior_summary
+from strauss_fit.inference.summaries import (
+    LAPLACE,
+    SANDWICH,
+    Laplace,
+    compare,
+    degeneracy_warnings,
+    loss_warning,
+    posterior_summary,
+)
 
 
 def laplace_of(x_hat, sd, at_bound=()):
@@ -63,6 +72,28 @@ def test_a_width_due_to_a_pinned_partner_is_blamed_on_it():
     assert "width" in rows[1].issues
     width_note = next(n for n in notes if n.startswith("p1: the posterior is"))
     assert "the Laplace estimate holds p0 fixed on its bound" in width_note and "not linear" not in width_note
+
+
+def test_the_notes_name_the_fits_interval():
+    # a fit whose ± is the noise sandwich: its notes must not call it the Laplace estimate
+    rng = np.random.default_rng(7)
+    on_bound = np.abs(rng.normal(0.0, 0.02, size=(40000, 1)))
+    sandwich = Laplace(["p0"], np.array([0.0]), np.array([0.0]), np.eye(1), ["p0"], SANDWICH)
+    _, notes = compare_samples(sandwich, on_bound)
+    assert "where the noise sandwich gives no interval" in notes[0] and "Laplace" not in notes[0]
+    wide = rng.normal(0.5, 0.04, size=(40000, 1))
+    _, notes = compare_samples(Laplace(["p0"], np.array([0.5]), np.array([0.02]), np.eye(1), [], SANDWICH), wide)
+    assert "times as wide as the noise sandwich" in notes[0] and "Laplace" not in notes[0]
+    # the name comes from the fit's uncertainty_method
+    fit = {"color": [0.5] * 3, "smoothness": 0.5, "metalness": 0.0, "transparency": 0.0, "ior": 1.5}
+    fit.update(free=["smoothness"], uncertainty={"smoothness": 0.01})
+    assert Laplace.from_fit({**fit, "uncertainty_method": {"name": "noise sandwich"}}).method == SANDWICH
+    assert Laplace.from_fit({**fit, "uncertainty_method": {"name": "laplace"}}).method == LAPLACE
+    assert Laplace.from_fit(fit).method == LAPLACE
+    # a fit with another loss than the chain's least squares is named; a least-squares one
+    # (or one written before fits had a choice of loss) is not
+    assert "huber loss" in loss_warning({**fit, "solver": {"loss": "huber"}})
+    assert loss_warning({**fit, "solver": {"loss": "linear"}}) is None and loss_warning(fit) is None
 
 
 def test_a_banana_shaped_posterior_is_named():

@@ -4,7 +4,8 @@ computed, the parameter table names the statistical interval (the noise sandwich
 each parameter's equivalence band beside it as the fit computed it, says in one sentence
 what each means, draws both; every warning of the fit (code and message) and its verdict
 are in the Warnings section; a Laplace fit says its ± is conditional on the model; a chain
-adjusted to the sandwich is labelled so."""
+adjusted to the sandwich is labelled so, and a Huber fit set against a chain (whose
+likelihood is least squares) is warned about."""
 
 from __future__ import annotations
 
@@ -103,18 +104,27 @@ def test_a_laplace_fit_says_its_interval_is_conditional_on_the_model(phong_fit):
 
 
 def test_a_chain_adjusted_to_the_sandwich_is_labelled_so(phong_fit):
-    folder, _, target, result, fitted, used = phong_fit
+    folder, loaded, target, result, _, _ = phong_fit
+    # sample takes a least-squares fit (its likelihood is least squares); the fixture's
+    # fit switched to Huber on this visible mismatch
+    assert result.solver["loss"] == "huber"
+    linear = sf.fit(loaded, target, sf.FitOptions(noise=0.01, free=FREE, equivalence=True, loss="linear"))
+    fitted, used = render_fit(loaded, target, linear.to_json())
     out = sample(
         folder / "phong.exr",
         folder / "scene.toml",
         folder / "chain.h5",
-        fit=result,
+        fit=linear,
         settings=SampleSettings(max_steps=300, walkers=32, seed=2),
     )
     chain = load_chain(out.path, required=True)
     assert chain.adjustment["method"] == "affine"
-    report = build_report(result.to_json(), target.pixels, fitted, used, chain=chain)
+    report = build_report(linear.to_json(), target.pixels, fitted, used, chain=chain)
     header = next(line for line in report.markdown.splitlines() if line.startswith("| parameter | fit |"))
     assert "median (posterior, adjusted)" in header and "looks the same" in header
     assert any(m.startswith("Posterior, adjusted") for m in report.data["intervals"]["meanings"])
     assert "The fit's ± (noise sandwich) against the posterior" in report.markdown
+    assert not any("least squares" in w for w in report.data["warnings"])
+    # the Huber fit set against that chain: the report says first that they differ
+    report = build_report(result.to_json(), target.pixels, fitted, used, chain=chain)
+    assert "but the fit minimised the huber loss" in report.data["warnings"][0]
