@@ -88,14 +88,20 @@ def one_process_per_target(targets, scene_text: str, count: int, cache: str) -> 
             path = folder / f"t{i}.exr"
             sf.write_image(path, target.pixels)
             paths.append(path)
-        argv = ["fit", "--scene", str(folder / "scene.toml"), "--free", ",".join(FREE), "--quiet", "--force"]
+        options = ["--scene", str(folder / "scene.toml"), "--free", ",".join(FREE), "--quiet", "--force"]
         subprocess.run(
-            [command, str(paths[0]), *argv, "-o", str(folder / "warm.json")], env=env, check=True, capture_output=True
+            [command, "fit", str(paths[0]), *options, "-o", str(folder / "warm.json")],
+            env=env,
+            check=True,
+            capture_output=True,
         )
         started = time.perf_counter()
         for i, path in enumerate(paths[1:]):
             subprocess.run(
-                [command, str(path), *argv, "-o", str(folder / f"r{i}.json")], env=env, check=True, capture_output=True
+                [command, "fit", str(path), *options, "-o", str(folder / f"r{i}.json")],
+                env=env,
+                check=True,
+                capture_output=True,
             )
         seconds = time.perf_counter() - started
     return {"targets": count, "seconds": seconds, "per_s": count / seconds}

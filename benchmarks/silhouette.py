@@ -5,7 +5,9 @@ A renderer that integrates over each pixel's area (Mitsuba's box filter, a camer
 anti-aliased image) records along the silhouette a mix of sphere and background;
 strauss-fit's model samples each pixel at its centre. This fits, with each rule
 (``include``: every pixel whose centre shows the sphere; ``exclude``: only pixels whose
-whole footprint does), targets of known material:
+whole footprint does; ``auto``, the default: include them when the target's silhouette is
+point-sampled, see :func:`strauss_fit.render.coverage.silhouette_blend`), targets of known
+material:
 
 - *anti-aliased*: the bundled Mitsuba Lambertian spheres, and Strauss renders
   box-filtered from 8 × 8 samples per pixel (matte, plastic, glossy, metal; orthographic
@@ -13,9 +15,9 @@ whole footprint does), targets of known material:
 - *point-sampled*: the same Strauss materials rendered at pixel centres, where including
   the edge pixels is exact — what does leaving them out cost?
 
-and reports the errors of s, m and C against the truth, the fit's deviation of s and the
-pixels used. A table is printed; ``--json`` (default ``benchmarks/results/silhouette.json``)
-keeps every fit.
+and reports the errors of s, m and C against the truth, the fit's deviation of s, the
+pixels used and, for ``auto``, the rule it chose. A table is printed; ``--json`` (default
+``benchmarks/results/silhouette.json``) keeps every fit.
 
     .venv/bin/python benchmarks/silhouette.py [--size 64] [--supersample 8]
 """
@@ -73,6 +75,7 @@ def fit_row(case: str, kind: str, scene: sf.Scene, target: sf.Target, truth: dic
         "kind": kind,
         "rule": rule,
         "pixels": result.pixels_used,
+        "resolved": result.to_json()["settings"]["edge_pixels"],
         "smoothness": found["smoothness"],
         "smoothness_error": found["smoothness"] - truth["smoothness"],
         "smoothness_sd": smoothness_sd,
@@ -109,23 +112,24 @@ def main() -> None:
         f"{'m error':>8} {'C error':>8}  held"
     )
     for case, kind, scene, target, truth in cases:
-        for rule in ("include", "exclude"):
+        for rule in ("include", "exclude", "auto"):
             row = fit_row(case, kind, scene, target, truth, rule)
             rows.append(row)
             sd = "-" if row["smoothness_sd"] is None else f"{row['smoothness_sd']:.2g}"
             print(
                 f"{case:28} {kind:24} {rule:8} {row['pixels']:6d} {row['smoothness']:7.4f} "
                 f"{row['smoothness_error']:+9.4f} {sd:>8} {row['metalness_error']:+8.4f} {row['color_error']:8.4f}"
-                f"  {','.join(row['held'])}",
+                f"  {','.join(row['held'])}" + (f"  (auto: {row['resolved']})" if rule == "auto" else ""),
                 flush=True,
             )
     for kind in ("Mitsuba, box filter", "Strauss, box filter", "Strauss, pixel centres"):
-        for rule in ("include", "exclude"):
+        for rule in ("include", "exclude", "auto"):
             mine = [r for r in rows if r["kind"] == kind and r["rule"] == rule]
             print(
                 f"{kind:24} {rule:8}: median |s error| {np.median([abs(r['smoothness_error']) for r in mine]):.4f}"
                 f", worst {max(abs(r['smoothness_error']) for r in mine):.4f}; "
                 f"median C error {np.median([r['color_error'] for r in mine]):.4f}"
+                + (f"; auto chose {sorted({r['resolved'] for r in mine})}" if rule == "auto" else "")
             )
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(

@@ -106,9 +106,11 @@ def add_parser(subparsers) -> None:
     )
     parser.add_argument(
         "--edge-pixels",
-        choices=("exclude", "include"),
-        default="exclude",
-        help="silhouette pixels the sphere covers only partly: leave out (default) or fit as sphere pixels",
+        choices=("auto", "exclude", "include"),
+        default="auto",
+        help="silhouette pixels the sphere covers only partly: fit them as sphere pixels when the target is "
+        "point-sampled there (auto, the default: checked against the scene's background), leave them out, or "
+        "always include them",
     )
     parser.add_argument(
         "--equivalence",

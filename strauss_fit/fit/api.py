@@ -25,6 +25,7 @@ and again at each optimum, and the fit repeated while the answer is new (at most
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -72,7 +73,14 @@ from .parameters import (
     material_with,
     value_of,
 )
-from .problem import EXPOSURE, Problem, build_problem_steps, coarse_problem_steps, shade_full
+from .problem import (
+    EXPOSURE,
+    Problem,
+    build_problem_steps,
+    coarse_problem_steps,
+    resolve_edge_pixels_steps,
+    shade_full,
+)
 from .result import FitResult
 from .solvers import SOLVERS, Solved, solve_steps
 
@@ -185,17 +193,26 @@ def fit_steps(
     probe_plan = plan_render(scene, material, transparent=False)
     # one prepared scene per render plan, for every problem of this fit
     prepared_cache: dict = {} if cache is None else cache
-    guess_problem, prepared_full, index = yield from build_problem_steps(
-        scene, target, ["color"], material, probe_plan, options, cache=prepared_cache, exposure=exposure
+    edge_pixels, edge_note = yield from resolve_edge_pixels_steps(
+        scene, target, probe_plan, options, prepared_cache, exposure
     )
+    options = dataclasses.replace(options, edge_pixels=edge_pixels)  # what the result records
+    guess_problem, prepared_full, index = yield from build_problem_steps(
+        scene, target, ["color"], material, probe_plan, options, cache=prepared_cache, exposure=exposure, pad=True
+    )
+    if edge_note:
+        say(edge_note)  # after the check that there are pixels to fit
     say("computing the first guess")
     direct = guess_problem.prepared.direct
+    real = guess_problem.real  # host arrays, NumPy only: nothing here compiles per pixel count
     guess = initial_guess(
-        np.asarray(guess_problem.target) / exposure,
+        real(guess_problem.target) / exposure,
         np.ones(index.size, dtype=bool),
-        None if direct is None else np.asarray(direct.cos_alpha),
-        None if direct is None else np.asarray(direct.cos_beta),
-        None if direct is None else np.asarray(guess_problem.prepared.irradiance) * intensity_vector(scene.lights),
+        None if direct is None else real(direct.cos_alpha),
+        None if direct is None else real(direct.cos_beta),
+        None
+        if direct is None
+        else real(guess_problem.prepared.irradiance) * np.asarray(intensity_vector(scene.lights)),
         float(np.asarray(scene.lights.ambient)) if scene.lights.ambient is not None else 0.0,
         {
             **material.to_dict(),
@@ -242,6 +259,7 @@ def fit_steps(
             loss=loss,
             noise_sigma=noise_sigma,
             exposure=exposure,
+            pad=True,
         )
         coarse = yield from coarse_problem_steps(problem, prepared_full, index)
         solved = yield from solve_steps(problem, guess, options, say, coarse, exact_first=attempt > 0)
@@ -333,8 +351,7 @@ def fit_steps(
         kept = refit
     solve_time = time.perf_counter() - solve_started
     result = yield from _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time)
-    if reduction:
-        result.notes.append(reduction)
+    result.notes.extend(note for note in (reduction, edge_note) if note)
     return result
 
 
@@ -360,6 +377,7 @@ def _refit_with_loss(
         loss=loss,
         noise_sigma=noise_sigma,
         exposure=kept.exposure,
+        pad=True,
     )
     layout = problem.layout
     start = {
@@ -400,13 +418,13 @@ def _conclude(
     if exposure != 1.0:
         full_fit = full_fit * exposure
     model = full_fit[kept.index]  # the fitted radiance at the pixels used
-    delta_e = delta_e_2000(model, np.asarray(problem.target))
+    delta_e = delta_e_2000(model, problem.real(problem.target))
     hit = np.asarray(kept.prepared_full.hit).reshape(-1, 1)
     full = np.where(hit, full_fit, np.asarray(kept.prepared_full.miss_radiance).reshape(-1, 3) * exposure)
     say("comparing the fit with the target's noise")
     free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
     pinned = np.asarray(problem.pinned)
-    reach = None if free_lights else (yield from reachable_maximum_steps(problem))
+    reach = None if free_lights else problem.real((yield from reachable_maximum_steps(problem)))
     diagnosis = diagnose(
         problem,
         model,
@@ -449,7 +467,7 @@ def _result(
         if value > 0.05
     ]
     model, diagnosis = outcome.model, outcome.diagnosis
-    residual = model - np.asarray(problem.target)
+    residual = model - problem.real(problem.target)
     rss = float(np.sum(residual**2))
     laplace_sd, laplace_corr, laplace_cov = yield from problem_laplace_steps(
         problem, x_best, rss, None, solved.information if problem.loss == "linear" else None

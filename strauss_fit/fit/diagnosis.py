@@ -162,8 +162,8 @@ def diagnose(
     the fit's mean CIEDE2000, the labels the fit pinned on a bound, and ``reach`` (N, 3),
     the :func:`reachable_maximum` (None when lights or exposure were fitted: then any
     brightness is reachable)."""
-    target = np.asarray(problem.target)
-    regions = pixel_regions(problem.prepared)
+    target = problem.real(problem.target)
+    regions = {name: problem.real(mask) for name, mask in pixel_regions(problem.prepared).items()}
     diagnosis = Diagnosis("undetermined")
     color_at_one = [label[-1] for label in at_bound if label.startswith("color_") and label.endswith(("r", "g", "b"))]
     color_at_one = [c for c in color_at_one if _pinned_at_one(problem, "color_" + c)]

@@ -250,7 +250,7 @@ def decide_free_steps(
     for key in ("smoothness", "metalness", "transparency"):
         probe_values[key] = float(np.clip(probe_values[key], margin, 1 - margin))
     probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), margin, 1 - margin)
-    problem, _, _ = yield from build_problem_steps(scene, target, names, material, plan, options, cache=cache)
+    problem, _, _ = yield from build_problem_steps(scene, target, names, material, plan, options, cache=cache, pad=True)
     probe = problem.layout.join(probe_values)
     jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, probe)))
     decision = numerical_decision(problem.layout, jacobian, probe, sigma, options.threshold, at_bound)

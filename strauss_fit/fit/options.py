@@ -68,7 +68,7 @@ MISMATCH_LOSS = "huber"
 #: that integrates over each pixel) leaves nothing for another loss to improve.
 VISIBLE_DELTA_E = 1.0
 #: What ``FitOptions.edge_pixels`` accepts.
-EDGE_PIXELS = ("exclude", "include")
+EDGE_PIXELS = ("auto", "exclude", "include")
 #: The preset settings that are fit settings (the others are sampling settings).
 FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol", "equivalence")
 
@@ -118,9 +118,12 @@ class FitOptions:
     loss: str = "auto"
     #: ``"exclude"``: fit only pixels whose whole footprint shows the sphere (a partly
     #: covered silhouette pixel of an anti-aliased image or a photograph mixes in the
-    #: background); ``"include"``: every pixel whose centre shows it (chosen by
-    #: ``benchmarks/silhouette.py``, see docs/fitting.md).
-    edge_pixels: str = "exclude"
+    #: background); ``"include"``: every pixel whose centre shows it; ``"auto"``: include
+    #: them when the target's silhouette shows it is point-sampled, else exclude
+    #: (:func:`strauss_fit.render.coverage.silhouette_blend`; measured by
+    #: ``benchmarks/silhouette.py`` and ``benchmarks/recovery.py``, see docs/fitting.md).
+    #: A result records what was used.
+    edge_pixels: str = "auto"
     #: Also compute each free parameter's perceptual equivalence range
     #: (:func:`strauss_fit.inference.equivalence.equivalence_ranges`): on in the
     #: ``accurate`` preset.

@@ -11,6 +11,14 @@ restricted to the usable pixels (:func:`build_problem`); the solver then evaluat
 the material-dependent part, with the intensities applied (:func:`scaled`). On a large
 image the starts run on an evenly strided subsample (:func:`coarse_problem`).
 
+Compiled once for many images: a fit's pixel set is padded (``pad=True``, what
+:func:`strauss_fit.fit` does) to one of a few bucketed sizes (:func:`pixel_bucket`, at
+most about 19 % more pixels), the padding weighted 0 (:attr:`Problem.valid`). Targets of one
+scene whose usable pixels differ in number — clipped highlights in 8-bit images, masks,
+silhouettes — then share the compiled solvers instead of compiling them for every count;
+the padding changes no residual, cost, Jacobian row or statistic
+(:meth:`Problem.value_count` and :meth:`Problem.real` give the real ones).
+
 The jitted helpers here (:func:`costs`, :func:`render_at`, :func:`to_physical`, ...) are
 internal API shared by the fit's modules, the conversions and the study: compiled once per
 problem structure, called inside :func:`strauss_fit.precision.float64`.
@@ -32,8 +40,8 @@ from ..errors import StraussFitError
 from ..io.targets import Target
 from ..models.material import Material
 from ..precision import uses_float64
-from ..render.coverage import fully_covered
-from ..render.strauss import Prepared, RenderPlan, prepare, shade_prepared, take_pixels
+from ..render.coverage import fully_covered, pixel_coverage, silhouette_blend
+from ..render.strauss import Prepared, RenderPlan, first_pixels, prepare, shade_prepared, take_pixels
 from ..scene.lights import Lights
 from ..scene.loading import Scene
 from .parameters import Layout, intensity_vector, lights_with, material_with
@@ -71,6 +79,39 @@ class Problem(eqx.Module):
     loss_norm: Array | None = None
     #: The global exposure (one scale on all rendered radiance) when it is held; None = 1.
     exposure: Array | None = None
+    #: A padded pixel set (:func:`pixel_bucket`): (N,) 1 for the real pixels, which come
+    #: first, 0 for the padding; None = every pixel is real.
+    valid: Array | None = None
+    #: The number of real pixels when padded (a 0-d array, so that it stays dynamic under
+    #: ``jit`` and every count shares one compilation); None = every pixel is real.
+    count: Array | None = None
+
+    def value_count(self) -> int:
+        """The number of real residual values (3 per real pixel), on the host."""
+        return int(self.target.size if self.count is None else 3 * int(self.count))
+
+    def real(self, per_pixel: Any) -> np.ndarray:
+        """A per-pixel host array (N, ...) of this problem without its padding."""
+        array = np.asarray(per_pixel)
+        return array if self.count is None else array[: int(self.count)]
+
+    def unpadded(self) -> Problem:
+        """This problem on its real pixels only (itself when not padded): for code that
+        evaluates one target at a time, such as the sampler, where padding buys nothing."""
+        if self.count is None:
+            return self
+        count = int(self.count)
+        return dataclasses.replace(
+            self,
+            prepared=first_pixels(self.prepared, count),
+            target=np.asarray(self.target)[:count],
+            weights=None if self.weights is None else np.asarray(self.weights)[:count],
+            valid=None,
+            count=None,
+        )
+
+    def _masked(self, per_pixel: Array) -> Array:
+        return per_pixel if self.valid is None else per_pixel * self.valid[:, None]
 
     def physical(self, theta: Array) -> Array:
         """Physical values of θ, with pinned entries (at a bound, see
@@ -91,7 +132,7 @@ class Problem(eqx.Module):
 
     def residual_physical(self, x: Array) -> Array:
         """Model minus target at the usable pixels, flattened (N·3,): what χ² is made of."""
-        return (self.render_physical(x) - self.target).ravel()
+        return self._masked(self.render_physical(x) - self.target).ravel()
 
     def objective_residual(self, x: Array) -> Array:
         """The residuals the solver minimises the squares of, at physical ``x``: the
@@ -100,7 +141,7 @@ class Problem(eqx.Module):
         brightness. For the linear loss, :meth:`residual_physical` / ``residual_scale``."""
         if self.loss == "linear":
             return self.residual_physical(x) / self.residual_scale
-        return loss_residual(self, self.render_physical(x)).ravel() / self.residual_scale
+        return self._masked(loss_residual(self, self.render_physical(x))).ravel() / self.residual_scale
 
     def residual(self, theta: Array, _args: Any = None) -> Array:
         """:meth:`objective_residual` at the unconstrained θ (what optimistix calls)."""
@@ -143,7 +184,8 @@ def loss_residual(problem: Problem, model: Array) -> Array:
         offset, norm = problem.loss_offset, problem.loss_norm
         return (jnp.cbrt(model + offset) - jnp.cbrt(problem.target + offset)) / norm
     weights = 1.0 if problem.weights is None else problem.weights
-    reference = problem.residual_scale / jnp.sqrt(problem.target.size)  # σ_ref
+    values = problem.target.size if problem.count is None else 3 * problem.count
+    reference = problem.residual_scale / jnp.sqrt(values)  # σ_ref
     z = difference * weights / reference
     if problem.loss == "huber":
         large = jnp.abs(z) > HUBER_K
@@ -257,6 +299,7 @@ def build_problem(
     loss: str = "linear",
     noise_sigma: np.ndarray | None = None,
     exposure: float | None = None,
+    pad: bool = False,
 ) -> tuple[Problem, Prepared, np.ndarray]:
     """The :class:`Problem` for the free ``names``, the full prepared image and the
     flat indices of the pixels used (:func:`build_problem_steps`, run directly)."""
@@ -273,6 +316,7 @@ def build_problem(
             loss=loss,
             noise_sigma=noise_sigma,
             exposure=exposure,
+            pad=pad,
         )
     )
 
@@ -290,6 +334,7 @@ def build_problem_steps(
     loss: str = "linear",
     noise_sigma: np.ndarray | None = None,
     exposure: float | None = None,
+    pad: bool = False,
 ) -> Steps:
     """:func:`build_problem` as steps (:mod:`strauss_fit.engine`).
 
@@ -300,17 +345,19 @@ def build_problem_steps(
     :func:`strauss_fit.fit_many`, shares it — and the target's pixels per render plan.
     ``loss`` (:data:`LOSSES`), ``noise_sigma`` (the noise level of every value of the
     image, (H, W, 3), for the robust losses) and ``exposure`` (a held global exposure
-    other than 1) shape the residual."""
+    other than 1) shape the residual. ``pad``: the pixel set padded to its
+    :func:`pixel_bucket` (see the module docstring); the returned indices are the real ones."""
     cache = {} if cache is None else cache
-    geometry = geometry_key(scene, plan, options)
-    if geometry not in cache:
-        cache[geometry] = yield prepare_float64.call(
-            unit_intensity_scene(scene), plan, options.mode, options.table_size
+    if options.edge_pixels == "auto":  # a fit resolves it once, first; here for direct callers
+        edge_pixels, _ = yield from resolve_edge_pixels_steps(
+            scene, target, plan, options, cache, 1.0 if exposure is None else float(exposure)
         )
-    prepared_full = cache[geometry]
+        options = dataclasses.replace(options, edge_pixels=edge_pixels)
+    prepared_full = yield from prepared_full_steps(scene, plan, options, cache)
+    geometry = geometry_key(scene, plan, options)
     key = ("pixels", id(target), geometry, options.edge_pixels)
     if key in cache:
-        _, index, prepared, pixels = cache[key]
+        _, index, pixels = cache[key]
     else:
         used = used_pixels(scene, target, np.asarray(prepared_full.hit), options.edge_pixels)
         if not used.any():
@@ -323,9 +370,15 @@ def build_problem_steps(
         pixels = np.asarray(target.pixels, dtype=np.float64).reshape(-1, 3)[index]
         if float(np.max(pixels)) <= 0:
             raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
-        prepared = yield take_pixels_jit.call(prepared_full, index)
-        cache[key] = target, index, prepared, pixels  # the target is kept: its id stays its own
+        cache[key] = target, index, pixels  # the target is kept: its id stays its own
     extra: dict[str, Any] = {}
+    rows = padded_rows(index.size) if pad else np.arange(index.size)
+    if (*key, pad) not in cache:
+        cache[(*key, pad)] = yield take_pixels_jit.call(prepared_full, index[rows])
+    prepared = cache[(*key, pad)]
+    if pad:
+        extra["valid"] = valid_rows(index.size, rows.size)
+        extra["count"] = np.asarray(index.size)
     if loss != "linear":
         if loss not in LOSSES:
             raise StraussFitError(f"unknown loss {loss!r}; expected one of {', '.join(LOSSES)}")
@@ -336,14 +389,14 @@ def build_problem_steps(
             extra["loss_offset"] = np.asarray(offset)
             extra["loss_norm"] = np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)
         elif noise_sigma is not None:
-            sigma = np.asarray(noise_sigma, dtype=np.float64).reshape(-1, 3)[index]
+            sigma = np.asarray(noise_sigma, dtype=np.float64).reshape(-1, 3)[index[rows]]
             extra["weights"] = reference_noise / np.maximum(sigma, 1e-300)
     if exposure is not None and float(exposure) != 1.0:
         extra["exposure"] = np.asarray(float(exposure))
     layout = Layout(tuple(names))
     problem = Problem(
         prepared=prepared,
-        target=pixels,
+        target=pixels[rows],
         scene=scene,
         material=material.astype(jnp.float64),
         lights=scene.lights,
@@ -355,6 +408,36 @@ def build_problem_steps(
         **extra,
     )
     return problem, prepared_full, index
+
+
+def prepared_full_steps(scene: Scene, plan: RenderPlan, options: FitOptions, cache: dict) -> Steps:
+    """The scene prepared at every pixel (lights at unit intensity), once per
+    :func:`geometry_key` in ``cache``."""
+    geometry = geometry_key(scene, plan, options)
+    if geometry not in cache:
+        cache[geometry] = yield prepare_float64.call(
+            unit_intensity_scene(scene), plan, options.mode, options.table_size
+        )
+    return cache[geometry]
+
+
+def resolve_edge_pixels_steps(
+    scene: Scene, target: Target, plan: RenderPlan, options: FitOptions, cache: dict, exposure: float = 1.0
+) -> Steps:
+    """``options.edge_pixels`` as a fit uses it — ``"include"`` or ``"exclude"`` — and a
+    note saying why when it was ``"auto"`` (:func:`strauss_fit.render.coverage.silhouette_blend`:
+    included for a point-sampled silhouette; excluded for a blended one or when it cannot
+    be told)."""
+    if options.edge_pixels != "auto":
+        return options.edge_pixels, None
+    prepared_full = yield from prepared_full_steps(scene, plan, options, cache)
+    height, width = target.pixels.shape[:2]
+    hit = np.asarray(prepared_full.hit).reshape(height, width)
+    background = np.asarray(prepared_full.miss_radiance, dtype=np.float64).reshape(height, width, 3) * exposure
+    blended, why = silhouette_blend(target.pixels, target.usable, hit, pixel_coverage(scene.camera), background)
+    if blended is False:
+        return "include", f"edge pixels used: {why}"
+    return "exclude", f"edge pixels (partly covered by the sphere) left out: {why}"
 
 
 def used_pixels(scene: Scene, target: Target, hit: np.ndarray, edge_pixels: str = "exclude") -> np.ndarray:
@@ -387,11 +470,48 @@ def coarse_problem_steps(problem: Problem, prepared_full: Prepared, index: np.nd
     if stride < 2:
         return None
     subset = np.arange(0, index.size, stride)
+    real = subset.size
+    extra: dict[str, Any] = {}
+    if problem.count is not None:  # padded as the problem is
+        subset = subset[padded_rows(real)]
+        extra = dict(valid=valid_rows(real, subset.size), count=np.asarray(real))
     prepared = yield take_pixels_jit.call(prepared_full, index[subset])
+    # the problem's first index.size rows are its real pixels, in the order of index
     return dataclasses.replace(
         problem,
         prepared=prepared,
-        target=problem.target[subset],
-        residual_scale=problem.residual_scale * np.sqrt(subset.size / index.size),
-        weights=None if problem.weights is None else problem.weights[subset],
+        target=np.asarray(problem.target)[subset],
+        residual_scale=problem.residual_scale * np.sqrt(real / index.size),
+        weights=None if problem.weights is None else np.asarray(problem.weights)[subset],
+        **extra,
     )
+
+
+#: The smallest padded pixel set (:func:`pixel_bucket`).
+_SMALLEST_BUCKET = 64
+
+
+def pixel_bucket(count: int) -> int:
+    """The padded size of a set of ``count`` pixels: the smallest of 64·2^(k/4), k = 0, 1,
+    ..., rounded up to a multiple of 8, that holds them — four sizes per doubling, so the
+    padding is at most 19 % (a little more below a thousand pixels, from the rounding) and a
+    scene's images share a handful of compiled shapes."""
+    size, k = _SMALLEST_BUCKET, 0
+    while size < count:
+        k += 1
+        size = int(np.ceil(_SMALLEST_BUCKET * 2 ** (k / 4) / 8) * 8)
+    return size
+
+
+def padded_rows(count: int) -> np.ndarray:
+    """Row indices of a padded set of ``count`` rows: 0 … count−1, then row 0 repeated up
+    to :func:`pixel_bucket` (a real pixel, so that the padding renders finite values; its
+    weight is 0)."""
+    rows = np.arange(pixel_bucket(count))
+    rows[count:] = 0
+    return rows
+
+
+def valid_rows(count: int, size: int) -> np.ndarray:
+    """(size,) weights: 1 for the first ``count`` rows (real), 0 for the padding."""
+    return (np.arange(size) < count).astype(np.float64)

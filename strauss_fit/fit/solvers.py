@@ -204,7 +204,7 @@ def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near:
     """
     layout = problem.layout
     lower, upper = layout.lower_bounds(), layout.upper_bounds()
-    count = problem.target.size
+    count = problem.value_count()
     x = physical_values(problem, theta)
     start_theta = theta
     start_cost = float(np.asarray((yield costs.call(problem, x[None])))[0])
@@ -334,7 +334,7 @@ def solve_steps(
     thetas = starts(layout, guess, options.starts, ior_candidates, exact_first and ior_candidates is None)
     say(
         f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}"
-        + (f" on {screen.target.shape[0]} of {problem.target.shape[0]} pixels" if coarse is not None else "")
+        + (f" on {screen.value_count() // 3} of {problem.value_count() // 3} pixels" if coarse is not None else "")
     )
     # A single start too stops after start_steps and is finished by the polish: run on,
     # a start creeping towards a bound (the transforms flatten there) took a median of 63
@@ -373,7 +373,7 @@ def solve_steps(
     # "equally good": within Δχ² = 1 of the best at the reference noise (costs are χ²/N)
     # (on a subsample the costs are the same χ² per value, so the full image's Δχ² = 1
     # is still 1 / N of them)
-    agree = finite & (costs_ <= costs_[best] + 1.0 / problem.target.size)
+    agree = finite & (costs_ <= costs_[best] + 1.0 / problem.value_count())
     spread = {label: float(np.ptp(physical[agree, k])) for k, label in enumerate(layout.labels())}
     near_lower, near_upper = near_bounds(layout, physical[best])
     interior = not (near_lower | near_upper).any()

@@ -45,10 +45,16 @@ IOR_MAX = 3.0
 SCALE_MAX = 10.0
 
 
+def _real(problem: Any, per_pixel: Any) -> np.ndarray:
+    """``per_pixel`` without a padded problem's padding (:meth:`strauss_fit.fit.problem.Problem.real`)."""
+    real = getattr(problem, "real", None)
+    return real(per_pixel) if real is not None else np.asarray(per_pixel)
+
+
 def _perceptual_copy(problem: Any, image: np.ndarray) -> Any:
     from ..fit.problem import PERCEPTUAL_OFFSET
 
-    level = max(float(np.percentile(image, 98)), 1e-12)
+    level = max(float(np.percentile(_real(problem, image), 98)), 1e-12)
     offset = PERCEPTUAL_OFFSET * level
     return dataclasses.replace(
         problem,
@@ -87,8 +93,9 @@ def equivalence_ranges_steps(
         raise StraussFitError(f"the equivalence threshold must be a positive CIEDE2000, got {delta_e}")
     layout = problem.layout
     x = np.asarray(x, dtype=np.float64)
-    best = np.asarray((yield render_at.call(problem, x)))
-    base = _perceptual_copy(problem, best)
+    rendered = np.asarray((yield render_at.call(problem, x)))
+    base = _perceptual_copy(problem, rendered)
+    best = _real(problem, rendered)
     pinned0 = np.asarray(problem.pinned)
     values0 = np.where(pinned0, np.asarray(problem.pinned_values), x)
     lower, upper = layout.lower_bounds(), layout.upper_bounds()
@@ -105,7 +112,7 @@ def equivalence_ranges_steps(
         else:
             thetas, _, _, _ = yield solve_starts.call(trial, warm[None], "lm", rtol, atol, max_steps, False)
             theta = np.asarray(thetas[0])
-        image = np.asarray((yield render_at.call(problem, physical_values(trial, theta))))
+        image = _real(problem, (yield render_at.call(problem, physical_values(trial, theta))))
         return float(np.mean(delta_e_2000(image, best))), theta
 
     start_theta = layout.to_unconstrained(values0)

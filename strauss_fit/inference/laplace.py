@@ -3,7 +3,8 @@ r"""The Laplace (Gauss–Newton) approximation: JᵀJ → covariance → deviati
 The one home of that computation, for every part of the library that needs it: the fit's
 uncertainties (:func:`problem_laplace`), the sampler's starting spread and the report
 (:func:`laplace_covariance`), the Phong fit, the study's Fisher information and the
-identifiability analysis.
+identifiability analysis; the curvature the sampler's posterior has
+(:func:`posterior_covariance`).
 
 At a least-squares optimum :math:`\hat\theta` of residuals :math:`r(\theta)` with Jacobian
 J (with respect to the *physical* parameters), the Fisher information of Gaussian noise
@@ -117,11 +118,18 @@ def problem_laplace_steps(
         info = information(np.asarray((yield jacobian_kernel.call(problem, np.asarray(x, dtype=np.float64)))))
     free = ~np.asarray(problem.pinned)
     info = np.asarray(info) * np.outer(free, free)
-    n, p = problem.target.size, layout.size
+    n, p = _value_count(problem), layout.size
     variance = sigma**2 if sigma else residual_variance(rss, n, p)
     cov = covariance(info, variance)
     uncertainty, corr = by_parameter(layout, cov)
     return uncertainty, corr, cov
+
+
+def _value_count(problem: Any) -> int:
+    """The number of real residual values of a problem (a padded fit problem says; any
+    other counts its target)."""
+    counter = getattr(problem, "value_count", None)
+    return int(counter()) if counter is not None else int(np.asarray(problem.target).size)
 
 
 def by_parameter(layout: Any, cov: np.ndarray) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -221,7 +229,10 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     matters)."""
     j, h, slope = (np.asarray(v) for v in (yield objective_terms_kernel.call(problem, np.asarray(x, dtype=np.float64))))
     free = ~np.asarray(problem.pinned)
-    weight = (slope * np.asarray(noise_sd, dtype=np.float64)) ** 2
+    noise_sd = np.asarray(noise_sd, dtype=np.float64)
+    # a padded pixel set (strauss_fit.fit.problem.pixel_bucket): its padding has slope 0
+    noise_sd = np.concatenate([noise_sd, np.zeros(slope.size - noise_sd.size)])
+    weight = (slope * noise_sd) ** 2
     meat = j.T @ (j * weight[:, None])
     cov = sandwich(h, meat, free)
     uncertainty, corr = by_parameter(problem.layout, cov)
@@ -236,3 +247,43 @@ def laplace_covariance(problem: Any, x_hat: np.ndarray, sigma: float) -> np.ndar
     too: the sampler needs a scale for them)."""
     j = np.asarray(jacobian(problem, jnp.asarray(x_hat, dtype=jnp.float64)))
     return covariance(information(j), sigma**2)
+
+
+def _rss_hessian(problem: Any, x: Array) -> Array:
+    def half_rss(z):
+        r = problem.residual_physical(z)
+        return 0.5 * jnp.sum(r * r)
+
+    return jax.hessian(half_rss)(x)
+
+
+#: :func:`rss_hessian` as a :class:`~strauss_fit.engine.Kernel`.
+rss_hessian_kernel = Kernel(_rss_hessian, "rss_hessian")
+
+
+@uses_float64
+def rss_hessian(problem: Any, x: np.ndarray) -> np.ndarray:
+    """The Hessian of ½RSS (least squares, whatever loss the problem's fit used) at
+    physical ``x``, (P, P): JᵀJ plus each residual's curvature times its value."""
+    return np.asarray(rss_hessian_kernel(problem, jnp.asarray(x, dtype=jnp.float64)))
+
+
+@uses_float64
+def posterior_covariance(problem: Any, x_hat: np.ndarray, sigma: float, free: np.ndarray) -> np.ndarray:
+    r"""The covariance the least-squares posterior has near its optimum ``x_hat``,
+    :math:`\sigma^2 H^{+}` with H the Hessian of ½RSS (:func:`rss_hessian`), over the
+    ``free`` entries with the others held (0 rows and columns) — as the noise sandwich of
+    :func:`problem_sandwich_steps` holds entries pinned at a bound, so that the two can be
+    compared entry for entry (``sample --adjust temperature``).
+
+    H rather than the Gauss–Newton JᵀJ because it is the curvature the chain sees: when the
+    model cannot reproduce the target the misfit's curvature enters it, and σ²(JᵀJ)⁻¹ can
+    then be wider than the chain in some direction. The block of the full σ²(JᵀJ)⁺ on the
+    free entries would be wider still: it lets the held entries move."""
+    free = np.asarray(free, dtype=bool)
+    size = len(free)
+    out = np.zeros((size, size))
+    if free.any():
+        h = rss_hessian(problem, x_hat)
+        out[np.ix_(free, free)] = covariance(h[np.ix_(free, free)], sigma**2)
+    return out

@@ -43,7 +43,18 @@ likelihood's posterior does not have the spread of the fitted values over fresh 
 the sandwich and its verdict a mismatch) the chain is sampled as usual and A, with
 A Σ_post Aᵀ = V, is computed from its draws after burn-in when sampling ends and stored;
 :meth:`Chain.samples` returns the mapped draws θ̂ + A(θ − θ̂) (those outside the prior
-dropped) and ``adjusted=False`` the raw ones. ``"temperature"`` samples with σ√T instead.
+dropped) and ``adjusted=False`` the raw ones. ``"temperature"`` samples with σ√T instead
+(T ≥ 1: it only widens; :func:`strauss_fit.inference.adjustment.temperature`).
+
+Least squares only. The likelihood is Gaussian, so its optimum is the least-squares fit's
+θ̂: a fit made with another loss (Huber, which ``fit --loss auto`` switches to on a visible
+mismatch; Cauchy; perceptual) has its θ̂ elsewhere, and its noise sandwich is the spread of
+*that* estimator. The walkers' start, the temperature and the affine map θ̂ + A(θ − θ̂)
+(A Σ_post Aᵀ = V, V the fit's sandwich) all take θ̂ and V to be the chain's own optimum and
+the spread of the estimator the chain describes; with a Huber fit the chain centres on the
+least-squares optimum instead (many deviations away) and the map moves it to neither. So
+:func:`sample` refuses such a fit (:func:`check_least_squares`), and the fit it makes
+itself is least squares.
 
 Writing the chain safely. HDF5 cannot survive a full disk: a failed write inside it can
 crash the process (a segmentation fault in h5py's clean-up) and leave a file that no
@@ -67,6 +78,7 @@ damaged file is a one-line :class:`ChainError`.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -93,7 +105,15 @@ from ..precision import uses_float64
 from ..scene.loading import load_scene
 from . import laplace
 from .adjustment import METHODS as ADJUST_METHODS
-from .adjustment import AdjustmentError, adjust_samples, default_method, full_matrix, temperature
+from .adjustment import (
+    AdjustmentError,
+    adjust_samples,
+    adjusted_entries,
+    default_method,
+    full_matrix,
+    loss_of,
+    temperature,
+)
 from .posterior import (
     LogPosterior,
     Prior,
@@ -913,6 +933,22 @@ def _adjustment_target(adjust: str, fit_json: dict[str, Any], labels: list[str])
     return method, reason, target
 
 
+def check_least_squares(
+    fit_json: dict[str, Any], what: str = "the fit", remedy: str = "refit with --loss linear"
+) -> None:
+    """Refuse a fit whose loss is not least squares (``solver.loss``; results written
+    before losses existed are least squares): the chain's likelihood is, so such a fit's
+    optimum is not the chain's and its noise sandwich is another estimator's spread (see
+    the module docstring)."""
+    loss = loss_of(fit_json)
+    if loss != "linear":
+        raise ChainError(
+            f"{what} minimised the {loss} loss, but sample's likelihood is least squares: the chain would centre "
+            f"on the least-squares optimum, not on the fit's values, and the fit's ± is the spread of the {loss} "
+            f"fit, not of the chain; {remedy} (or let sample fit first)"
+        )
+
+
 def _noise_level(sigma: float | None, fit_json: dict[str, Any], problem: Any, x_hat: np.ndarray) -> tuple[float, str]:
     """σ of the likelihood and where it comes from: given; the fit's noise level when it
     knew the target's noise; else estimated from the fit's residual."""
@@ -1009,7 +1045,10 @@ def sample(
     ``target``, ``scene`` and ``mask`` are file paths, recorded in the chain so that a
     report or ``resume`` can reload them. The walkers start around the least-squares
     optimum of ``fit`` (a fit result, or the path of one's JSON) or, without it, of a fit
-    made first with ``fit_options`` (default: the ``quality`` preset). The noise level is
+    made first with ``fit_options`` (default: the ``quality`` preset; its loss ``"auto"`` is
+    least squares here). The fit must be a least-squares one (its loss ``"linear"``): the
+    likelihood sampled is, and another loss's optimum and noise sandwich are not the
+    chain's (see the module docstring); any other is refused. The noise level is
     ``sigma``; else the target's noise as the fit found it (the root mean square of its
     per-channel level) when the fit knew it (its uncertainty is the noise sandwich), else
     estimated from the fit's residual. The prior is the default box of
@@ -1039,6 +1078,11 @@ def sample(
     if resume:
         existing = load_chain(out, required=True)  # a damaged chain is refused before any work
         meta = existing.meta
+        check_least_squares(
+            meta["fit"],
+            f"the fit {out} was started from",
+            "start a new chain (--force) from a fit made with --loss linear",
+        )
         check_writable(summary_path, True)
     else:
         check_writable(out, force)
@@ -1074,7 +1118,15 @@ def sample(
         log(f"resuming {out} at step {len(existing.chain)}")
     else:
         if fit is None:
-            result = run_fit(loaded_scene, loaded_target, fit_options or FitOptions.preset(quality), progress=log)
+            options = fit_options or FitOptions.preset(quality)
+            if options.loss == "auto":  # the likelihood sampled is least squares: so is the fit it starts from
+                options = dataclasses.replace(options, loss="linear")
+            if options.loss != "linear":
+                raise ChainError(
+                    f"sample fits first by least squares, the likelihood it samples; a fit with the {options.loss} "
+                    "loss is refused"
+                )
+            result = run_fit(loaded_scene, loaded_target, options, progress=log)
             if result.solver["status"] != "successful":
                 log(f"the fit ended with status '{result.solver['status']}'; sampling from where it stopped")
             fit = result
@@ -1082,11 +1134,13 @@ def sample(
             fit_json = fit.to_json()
             fit_json["target"] = str(target)
             fit_json["scene"] = str(scene)
-            problem, x_hat = fit.problem, fit.x
+            check_least_squares(fit_json)
+            problem, x_hat = fit.problem.unpadded(), fit.x  # one target: no padding
         else:
             fit_json = read_json(fit, "fit result") if isinstance(fit, (str, Path)) else fit
             if isinstance(fit_json, FitResult):
                 fit_json = fit_json.to_json()
+            check_least_squares(fit_json)
             problem, x_hat = problem_from_fit(loaded_scene, loaded_target, fit_json)
         method, reason, target_covariance = _adjustment_target(adjust, fit_json, problem.layout.labels())
         sigma, sigma_source = _noise_level(sigma, fit_json, problem, x_hat)
@@ -1100,9 +1154,12 @@ def sample(
         if method != "none":
             adjustment.update(target_covariance=target_covariance.tolist(), center=[float(v) for v in x_hat])
         if method == "temperature":
-            use = np.diag(target_covariance) > 0
+            # the chain's covariance over the entries V covers, the others held as V holds
+            # them (the block of the full Laplace covariance lets them move: wider, so T too small)
+            use = adjusted_entries(target_covariance) & ~np.asarray(problem.pinned)
+            post = laplace.posterior_covariance(problem, x_hat, sigma, use)
             try:
-                factor = temperature(covariance[np.ix_(use, use)], target_covariance[np.ix_(use, use)])
+                factor = temperature(post[np.ix_(use, use)], target_covariance[np.ix_(use, use)])
             except AdjustmentError as exc:
                 raise ChainError(f"cannot temper the likelihood: {exc}") from None
             adjustment.update(temperature=factor, sigma_untempered=sigma)

@@ -208,6 +208,19 @@ def take_pixels(prepared: Prepared, index: Any) -> Prepared:
     return dataclasses.replace(prepared, **replacements)
 
 
+def first_pixels(prepared: Prepared, count: int) -> Prepared:
+    """The :class:`Prepared` terms of the first ``count`` pixels of a prepared set of pixels
+    (one pixel axis, as :func:`take_pixels` returns): a padded set without its padding."""
+
+    def first(x):
+        return None if x is None else x[:count]
+
+    replacements = {name: first(getattr(prepared, name)) for name in _PER_PIXEL_FIELDS}
+    if prepared.direct is not None:
+        replacements["direct"] = AngularTerms(*(first(f) for f in prepared.direct))
+    return dataclasses.replace(prepared, **replacements)
+
+
 def local_radiance(material: Material, prepared: Prepared) -> Array:
     """The local model at every pixel: ambient plus every light, (H, W, 3)."""
     radiance = jnp.zeros(prepared.normal.shape, dtype=prepared.normal.dtype)

@@ -77,6 +77,49 @@ def test_edge_pixels_of_an_antialiased_lambertian_do_not_make_it_glossy():
     assert "smoothness" in excluded.held or s <= 0.03
     np.testing.assert_allclose(excluded.material.to_dict()["color"], truth, rtol=5e-3)
     assert excluded.pixels_used == int(fully_covered(scene.camera).sum())
+    # left out by the default ("auto"), which saw the blended silhouette and says so
+    assert excluded.to_json()["settings"]["edge_pixels"] == "exclude"
+    assert any("the silhouette is blended" in note for note in excluded.notes)
+
+
+def _edge_choice(scene: sf.Scene, pixels: np.ndarray, usable: np.ndarray | None = None) -> tuple[str, str]:
+    from strauss_fit.engine import run
+    from strauss_fit.fit.problem import resolve_edge_pixels_steps
+    from strauss_fit.precision import float64
+    from strauss_fit.render.strauss import plan_render
+
+    usable = np.ones(pixels.shape[:2], dtype=bool) if usable is None else usable
+    target = sf.Target(pixels, usable, "t.exr", "linear", 0, 0)
+    with float64():  # as a fit runs it
+        plan = plan_render(scene, scene.material, transparent=False)
+        return run(resolve_edge_pixels_steps(scene, target, plan, sf.FitOptions(), {}))
+
+
+def test_auto_edge_pixels_are_used_on_point_sampled_targets_only():
+    """``edge_pixels="auto"``: a point-sampled render (strauss-fit's own) keeps its exact
+    edge pixels; the same sphere box-filtered (rendered 4x larger and averaged, as an
+    anti-aliased renderer or a camera records it) leaves them out; a target whose
+    surroundings are masked out, or whose background is not the scene's, cannot be checked
+    and leaves them out too."""
+    material = dict(color=(0.7, 0.4, 0.2), smoothness=0.3)
+    background = {"color": [0.3, 0.3, 0.3]}
+    scene = support.key_and_fill_scene(48, material=material, background=background)
+    sampled, hit = sf.render(scene, sf.Material(**material))
+    large, _ = sf.render(
+        support.key_and_fill_scene(192, material=material, background=background), sf.Material(**material)
+    )
+    boxed = np.asarray(large).reshape(48, 4, 48, 4, 3).mean(axis=(1, 3))
+    for sigma in (0.0, 0.003, 0.015):  # noise-free to 5 % of the sphere's brightness
+        noise = np.random.default_rng(5).normal(0.0, sigma, (48, 48, 3))
+        choice, why = _edge_choice(scene, np.asarray(sampled) + noise)
+        assert choice == "include" and "point-sampled" in why, (sigma, why)
+        choice, why = _edge_choice(scene, boxed + noise)
+        assert choice == "exclude" and "blended" in why, (sigma, why)
+    noise = np.random.default_rng(5).normal(0.0, 0.003, (48, 48, 3))
+    choice, why = _edge_choice(scene, np.asarray(sampled) + noise, usable=np.asarray(hit))
+    assert choice == "exclude" and "too few usable pixels" in why
+    choice, why = _edge_choice(scene, np.where(np.asarray(hit)[..., None], np.asarray(sampled), 0.6) + noise)
+    assert choice == "exclude" and "differs from the scene's" in why
 
 
 # --- the target's noise ---------------------------------------------------------------------
