@@ -84,7 +84,8 @@ def measure(sidecar_path: Path, loss: str) -> dict:
     index = result.used_index
     model = result.fitted_image.reshape(-1, 3)[index]
     observed = target.pixels.reshape(-1, 3)[index]
-    regions = pixel_regions(result.problem.prepared)
+    # the problem's pixel set may be padded (strauss_fit.fit.problem.pixel_bucket): its real rows
+    regions = {name: result.problem.real(mask) for name, mask in pixel_regions(result.problem.prepared).items()}
     body = regions["body"]
     row = {
         "case": sidecar["id"],

@@ -359,7 +359,10 @@ def build_problem_steps(
     if key in cache:
         _, index, pixels = cache[key]
     else:
-        used = used_pixels(scene, target, np.asarray(prepared_full.hit), options.edge_pixels)
+        covered_key = ("fully covered", geometry)
+        if options.edge_pixels == "exclude" and covered_key not in cache:
+            cache[covered_key] = fully_covered(scene.camera)  # once per scene
+        used = used_pixels(scene, target, np.asarray(prepared_full.hit), options.edge_pixels, cache.get(covered_key))
         if not used.any():
             raise StraussFitError(
                 f"target {target.path} has no usable sphere pixels (all masked, clipped or outside the sphere"
@@ -434,20 +437,25 @@ def resolve_edge_pixels_steps(
     height, width = target.pixels.shape[:2]
     hit = np.asarray(prepared_full.hit).reshape(height, width)
     background = np.asarray(prepared_full.miss_radiance, dtype=np.float64).reshape(height, width, 3) * exposure
-    blended, why = silhouette_blend(target.pixels, target.usable, hit, pixel_coverage(scene.camera), background)
+    coverage_key = ("coverage", geometry_key(scene, plan, options))
+    if coverage_key not in cache:  # a property of the camera: once per scene, not per target
+        cache[coverage_key] = pixel_coverage(scene.camera)
+    blended, why = silhouette_blend(target.pixels, target.usable, hit, cache[coverage_key], background)
     if blended is False:
         return "include", f"edge pixels used: {why}"
     return "exclude", f"edge pixels (partly covered by the sphere) left out: {why}"
 
 
-def used_pixels(scene: Scene, target: Target, hit: np.ndarray, edge_pixels: str = "exclude") -> np.ndarray:
+def used_pixels(
+    scene: Scene, target: Target, hit: np.ndarray, edge_pixels: str = "exclude", covered: np.ndarray | None = None
+) -> np.ndarray:
     """(H, W) bool: the pixels a fit uses — on the sphere (``hit``: the ray through the
     centre hits it), usable in ``target`` (not masked out or clipped) and, with
     ``edge_pixels="exclude"``, wholly covered by the sphere
-    (:func:`strauss_fit.render.coverage.fully_covered`)."""
+    (:func:`strauss_fit.render.coverage.fully_covered`; ``covered``, when already known)."""
     used = np.asarray(hit) & target.usable
     if edge_pixels == "exclude":
-        used &= fully_covered(scene.camera)
+        used &= fully_covered(scene.camera) if covered is None else covered
     return used
 
 

@@ -71,7 +71,9 @@ class FitResult:
     mask: np.ndarray | None = None
     #: The solved problem (entries pinned at bounds included) and the optimum ``x``
     #: (physical values in ``problem.layout`` order), for sampling and reports. None for a
-    #: result read back with :meth:`from_json`.
+    #: result read back with :meth:`from_json`. Its pixel set is padded (see
+    #: :func:`strauss_fit.fit.problem.pixel_bucket`): ``problem.real(array)`` drops the
+    #: padding from a per-pixel array, ``problem.unpadded()`` gives the problem without it.
     problem: Problem | None = None
     x: np.ndarray | None = None
     #: Other top-level keys of the JSON (``target``, ``scene``, ``mask``, ``encoding``

@@ -143,7 +143,7 @@ def silhouette_blend(
         )
     blended = blend > 0.5
     return blended, (
-        f"pixels just outside the silhouette show {blend:.2f} ± {error:.2f} of the sphere's blend "
+        f"pixels just outside the silhouette show {round(blend, 2) + 0.0:.2f} ± {error:.2f} of the sphere's blend "
         "(0: none, 1: as much as they are covered): "
         + ("the silhouette is blended" if blended else "the image is point-sampled")
     )

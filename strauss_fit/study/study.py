@@ -474,7 +474,7 @@ def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, A
         ["color", "smoothness", "metalness", "transparency"],
         base,
         plan_render(converter.scene, base, transparent=True),
-        FitOptions(),
+        FitOptions(edge_pixels="exclude"),  # the pixels the conversions fit
     )
     records = []
     images = []
@@ -640,7 +640,7 @@ def uniformity(config: StudyConfig, rng: np.random.Generator, say: Callable[[str
         ["color", "smoothness", "metalness", "transparency"],
         base,
         plan_render(scene, base, transparent=True),
-        FitOptions(),
+        FitOptions(edge_pixels="exclude"),  # the pixels the conversions fit
     )
     p_problem = converter.phong_template
     strauss = draw_strauss(rng, config.uniformity_bases)
