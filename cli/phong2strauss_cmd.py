@@ -96,6 +96,8 @@ def _table(results: list[dict], direction: str) -> str:
                 f"Cd=({', '.join(f'{c:.3f}' for c in v['diffuse_color'])}) "
                 f"Cs=({', '.join(f'{c:.3f}' for c in v['specular_color'])})"
             )
+        if r.get("held"):  # what the conversion image does not determine (the JSON says why)
+            text += f" (held: {', '.join(r['held'])})"
         res = r["residual"]
         rows.append((r["name"], "ok", text, f"{res['rms']:.3g}", f"{res['delta_e2000_mean']:.3g}"))
     widths = [min(40, max(len(row[i]) for row in rows)) for i in range(2)]

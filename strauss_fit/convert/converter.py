@@ -705,7 +705,7 @@ class Converter:
             if "metalness" in decision.held and not mirror:
                 values["metalness"] = canonical
                 reasons["metalness"] = (
-                    f"the conversion image does not determine it ({decision.held['metalness']}); held at "
+                    f"the conversion image does not determine it: {decision.held['metalness']}; held at "
                     + (
                         f"{canonical:.3g}, the closed-form guess from the highlight's tint"
                         if tinted

@@ -227,3 +227,4 @@ def test_a_held_parameter_has_an_empty_deviation_in_the_csv(tmp_path, capsys):
     assert row["metalness"] == "0" and row["sd_metalness"] == ""
     assert float(row["sd_color_r"]) > 0
     assert "metalness held at 0" in row["notes"]
+    assert "(held: " in out and "metalness" in out.split("(held: ")[1]  # the console table says so too
