@@ -25,11 +25,11 @@ and any scene given is rendered at depth 1). Each light's highlight sits on its 
 of the sphere, so one image holds the lobes at three angles between light and viewer, and
 across the sphere every angle of incidence and of view from 0° to 90°.
 
-Batches are vectorised: the starts of :data:`CHUNK` materials are solved in one call
-(:func:`strauss_fit.convert.phong_fit.solve_batch`, one generic chunk solver for both
-directions), then each material is polished and its
-uncertainty computed. A material that fails is reported with ``status: "error"`` and a
-message, and the batch goes on.
+Batches: :data:`CHUNK` materials are converted together, each written as steps whose
+kernel calls (the starts, the polish, the Jacobian, the renders) run as one compiled call
+over the materials (:meth:`Converter._stream`, :func:`strauss_fit.engine.run_batched`).
+A material that fails is reported with ``status: "error"`` and a message, and the batch
+goes on.
 
 Residuals are over the sphere's pixels of the conversion image: RMS of the linear RGB
 difference, its largest absolute value, and the mean and 95th percentile of the per-pixel

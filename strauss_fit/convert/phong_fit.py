@@ -16,14 +16,13 @@ each through the same smooth sine transform as the Strauss fit
 :math:`k_s`, :math:`C_{sp}`. The ambient coefficient is not fitted: it is given
 (``ambient_ka``, a scalar), and the ambient term is :math:`k_a I_a C_d`.
 
-:func:`solve_batch` is a vectorised Levenberg–Marquardt solve (optimistix) of many
-materials × many starts of any problem whose ``target`` and ``residual_scale`` can be
-swapped — it serves both directions of the conversion (:mod:`strauss_fit.convert.converter`).
+:data:`solve_phong_starts` solves one material from several starts (Levenberg–Marquardt,
+optimistix) as a :class:`strauss_fit.engine.Kernel`, so that the conversions run it over
+many materials at once (:mod:`strauss_fit.convert.converter`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -180,57 +179,6 @@ def phong_problem(scene: Scene, index: np.ndarray, *, blinn: bool = False) -> Ph
     )
 
 
-@eqx.filter_jit
-def solve_batch(
-    problem: Any,
-    targets: Array,
-    scales: Array,
-    thetas: Array,
-    rtol: float,
-    atol: float,
-    max_steps: int,
-    extra: Any = None,
-):
-    """Levenberg–Marquardt from every start of every material, vectorised.
-
-    ``problem`` is a template (a :class:`PhongProblem` or a Strauss
-    :class:`strauss_fit.fit.problem.Problem`) whose ``target`` (B, N, 3) and ``residual_scale``
-    (B,) are replaced per material, and ``extra`` (a dict of field name → (B, ...) arrays,
-    e.g. ``ambient_ka``) likewise; ``thetas`` is (B, S, P). Returns θ (B, S, P), the
-    normalised cost Σr² (B, S), the step counts (B, S) and whether each solve succeeded.
-    """
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    extra = extra or {}
-
-    def per_material(target, scale, starts, more):
-        local = dataclasses.replace(problem, target=target, residual_scale=scale, **more)
-
-        def one(theta0):
-            solution = optx.least_squares(local.residual, solver, theta0, max_steps=max_steps, throw=False)
-            r = local.residual(solution.value)
-            return (
-                solution.value,
-                jnp.sum(r * r),
-                solution.stats["num_steps"],
-                solution.result == optx.RESULTS.successful,
-            )
-
-        return jax.vmap(one)(starts)
-
-    return jax.vmap(per_material)(targets, scales, thetas, extra)
-
-
-def laplace_deviations(problem: PhongProblem, x: np.ndarray, rss: float) -> tuple[np.ndarray, np.ndarray]:
-    """Standard deviations and correlation matrix of the physical parameters from the
-    Gauss–Newton (Laplace) approximation :math:`\\Sigma = \\sigma^2 (J^\\top J)^{-1}`,
-    :math:`\\sigma^2 = \\mathrm{RSS}/(N - P)` (:mod:`strauss_fit.inference.laplace`), as
-    for a Strauss fit."""
-    j = np.asarray(laplace.jacobian(problem, jnp.asarray(x)))
-    n, p = j.shape
-    covariance = laplace.covariance(laplace.information(j), laplace.residual_variance(rss, n, p))
-    return laplace.deviations(covariance), laplace.correlation(covariance)
-
-
 def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, max_steps: int, batched: bool):
     """Levenberg–Marquardt (optimistix's) from every row of ``thetas`` of one problem, each
     start to its own convergence: one after the other (``lax.map``) on a CPU, vectorised
@@ -259,8 +207,11 @@ solve_phong_starts = Kernel(_solve_phong_starts, "phong_solve_starts")
 def laplace_deviations_from(
     jacobian: np.ndarray, rss: float, free: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`laplace_deviations` from a Jacobian already computed, with the entries not
-    ``free`` (held) left out of the inverse (deviation 0, the others conditional on them)."""
+    """Standard deviations and correlation matrix of the physical parameters from the
+    Gauss–Newton (Laplace) approximation :math:`\\Sigma = \\sigma^2 (J^\top J)^{-1}`,
+    :math:`\\sigma^2 = \\mathrm{RSS}/(N - P)` (:mod:`strauss_fit.inference.laplace`), as for a
+    Strauss fit, from the Jacobian ``jacobian`` already computed; the entries not ``free``
+    (held) are left out of the inverse (deviation 0, the others conditional on them)."""
     j = np.asarray(jacobian)
     n, p = j.shape
     info = laplace.information(j)
