@@ -498,11 +498,18 @@ class Converter:
     ) -> Iterator[tuple[int, dict[str, Any]]]:
         """Prepare the entries one by one, convert them :attr:`Settings.chunk` at a time and
         yield ``(index, result)`` in input order as soon as every earlier one is done (a
-        bad material is an error result; the batch goes on)."""
+        bad material is an error result; the batch goes on).
+
+        Chunks are fixed by index (entries ``[k·chunk, (k + 1)·chunk)``), and a run from
+        ``start`` (a resumed conversion) converts again the entries of its first chunk
+        before ``start`` without reporting them: a material's result depends, in its last
+        digits, on the batch it was computed in, and so a resumed run writes exactly what
+        an uninterrupted one does."""
         report = _Reporter(progress, len(entries), start)
         done: dict[int, dict[str, Any]] = {}
         queue: list[tuple] = []
         following = start
+        chunk = self.settings.chunk
 
         def ready() -> Iterator[tuple[int, dict[str, Any]]]:
             nonlocal following
@@ -512,21 +519,24 @@ class Converter:
 
         def solve() -> None:
             for item, outcome in zip(queue, self._run_chunk(queue, direction)):
-                done[item[0]] = report(item[1], outcome)
+                if item[0] >= start:  # the others were done before (only their batch is needed)
+                    done[item[0]] = report(item[1], outcome)
                 item[1].release()
             queue.clear()
 
-        for i in range(start, len(entries)):
+        for i in range(start - start % chunk, len(entries)):
             entry = entries[i]
             if entry.error:
-                done[i] = report(entry, _error(entry, entry.error))
+                if i >= start:
+                    done[i] = report(entry, _error(entry, entry.error))
             else:
                 try:
                     queue.append(direction.prepare(i, entry))
                 except Exception as exc:  # noqa: BLE001 - one bad material never stops the batch
                     entry.release()
-                    done[i] = report(entry, _error(entry, _message(exc)))
-            if len(queue) >= self.settings.chunk:
+                    if i >= start:
+                        done[i] = report(entry, _error(entry, _message(exc)))
+            if (i + 1) % chunk == 0 and queue:
                 solve()
             yield from ready()
         if queue:

@@ -151,8 +151,13 @@ def test_input_warnings_are_shown_even_when_quiet_and_kept_in_the_output(tmp_pat
     assert wood["notes"][0].startswith("warning: line 21: d 0")
 
 
-LIBRARY_OF_24 = "".join(
-    f"newmtl m{i:02d}\nKd {0.1 + 0.8 * (i % 7) / 7:.3f} 0.3 0.2\nKs 0.2 0.2 0.2\nNs {5 + 3 * i}\n" for i in range(24)
+# More materials than two conversion chunks (strauss_fit.convert.converter.CHUNK, 32): the
+# results reach the progress file a chunk at a time, so a kill must land between chunks,
+# before the last one (with a single chunk the run could finish between two polls).
+LIBRARY_SIZE = 72
+LIBRARY = "".join(
+    f"newmtl m{i:02d}\nKd {0.1 + 0.8 * (i % 7) / 7:.3f} 0.3 0.2\nKs 0.2 0.2 0.2\nNs {5 + 3 * (i % 24)}\n"
+    for i in range(LIBRARY_SIZE)
 )
 
 
@@ -169,7 +174,7 @@ def test_a_killed_conversion_resumes_to_what_an_uninterrupted_run_writes(tmp_pat
     import time
 
     library = tmp_path / "lib.mtl"
-    library.write_text(LIBRARY_OF_24)
+    library.write_text(LIBRARY)
     whole = tmp_path / "whole.json"
     assert run(capsys, "phong2strauss", library, "-o", whole, *FAST, "--quiet")[0] == 0
 
@@ -199,8 +204,8 @@ def test_a_killed_conversion_resumes_to_what_an_uninterrupted_run_writes(tmp_pat
     assert code == 2 and "progress of another run" in err  # other settings
     code, _, err = run(capsys, "phong2strauss", library, "-o", out, *FAST, "--resume")
     assert code == 0, err
-    assert f"resuming: {kept} of 24 material(s) done before" in err
-    assert f"[{kept + 1}/24]" in err and "[1/24]" not in err
+    assert f"resuming: {kept} of {LIBRARY_SIZE} material(s) done before" in err
+    assert f"[{kept + 1}/{LIBRARY_SIZE}]" in err and f"[1/{LIBRARY_SIZE}]" not in err
     assert not partial.exists()
     assert without_wall_time(out) == without_wall_time(whole)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lib.mtl", "out.json", "whole.json"]
