@@ -42,6 +42,9 @@ import types
 from typing import TYPE_CHECKING, Any
 
 from .errors import ImageError, MaterialError, OutputExistsError, SceneError, StraussFitError
+from .runtime import use_cpu_cores
+
+use_cpu_cores()  # before JAX starts: one CPU device per core, for batches (strauss_fit.runtime)
 
 if TYPE_CHECKING:
     from .convert.converter import phong_to_strauss, strauss_to_phong

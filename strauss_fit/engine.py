@@ -19,9 +19,12 @@ Jacobian, a render). The fit is written once, as a generator of *steps*
 How a batch runs: on a CPU one item after the other inside the compiled program
 (``jax.lax.map``): under ``vmap`` every iteration of a solver's loop would run every item's
 branches and continue until the slowest item converged, which on two cores cost five
-times more (36 ms against 7 ms per 64² target, measured); on an accelerator the items run
-side by side (``jax.vmap``), each stopping at its own convergence (a finished item's state
-is carried unchanged by the batched loop), which is where the batch fills the device.
+times more (36 ms against 7 ms per 64² target, measured). With several CPU devices (one
+per core, :func:`strauss_fit.runtime.use_cpu_cores`) the batch is split evenly across
+them (``jax.shard_map``), each device running its share one item after the other: one
+compiled program, every core busy. On an accelerator the items run side by side
+(``jax.vmap``), each stopping at its own convergence (a finished item's state is carried
+unchanged by the batched loop), which is where the batch fills the device.
 
 A failure stays with its target: an exception raised inside one generator ends that
 target only (its slot holds the exception), and a batched call that fails is retried item
@@ -30,12 +33,14 @@ by item, so that the item that broke it fails alone.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Generator, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 import equinox as eqx
 import jax
+from equinox.internal import Static
 import numpy as np
 
 #: A fit (or any computation) written as steps: it yields :class:`Call` and receives results.
@@ -50,8 +55,8 @@ class Kernel:
     def __init__(self, fn: Callable[..., Any], name: str | None = None):
         self.fn = fn
         self.name = name or getattr(fn, "__name__", "kernel")
-        self._one = eqx.filter_jit(fn)
-        self._many = eqx.filter_jit(self._batched)
+        self._one = _DispatchingJit(fn)
+        self._many = _DispatchingJit(self._batched)
 
     def __repr__(self) -> str:
         return f"Kernel({self.name})"
@@ -72,13 +77,51 @@ class Kernel:
     def run_many(self, argument_lists: list[tuple], sequential: bool | None = None) -> list[Any]:
         """The kernel on every argument tuple (all of one structure, see :func:`batch_key`),
         as one compiled call; results as NumPy pytrees, one per tuple."""
+        return self.start_many(argument_lists, sequential)()
+
+    def start_many(self, argument_lists: list[tuple], sequential: bool | None = None) -> Callable[[], list[Any]]:
+        """:meth:`run_many` started: JAX dispatches the compiled call and returns at once;
+        the returned function waits for it and gives the results."""
         if sequential is None:
             sequential = jax.default_backend() == "cpu"
         parts = [eqx.partition(args, eqx.is_array) for args in argument_lists]
         static = parts[0][1]
         stacked = jax.tree.map(lambda *leaves: np.stack([np.asarray(x) for x in leaves]), *[p[0] for p in parts])
-        out = jax.device_get(self._many(stacked, static, bool(sequential)))
-        return [jax.tree.map(lambda leaf, i=i: leaf[i], out) for i in range(len(argument_lists))]
+        running = self._many(stacked, static, bool(sequential))
+
+        def results() -> list[Any]:
+            out = jax.device_get(running)
+            return [jax.tree.map(lambda leaf, i=i: leaf[i], out) for i in range(len(argument_lists))]
+
+        return results
+
+
+class _DispatchingJit:
+    """``jax.jit`` over the array leaves of the arguments, everything else static — as
+    equinox's ``filter_jit``, but returning as soon as JAX has dispatched the call:
+    ``filter_jit`` waits for every call to finish (to word its runtime errors), which
+    would keep the Python of other targets from running meanwhile (:func:`run_batched`).
+    A runtime error then surfaces when the result is read. Arguments whose static part
+    cannot be hashed go through ``filter_jit``."""
+
+    def __init__(self, fn: Callable[..., Any]):
+        self._filtered = eqx.filter_jit(fn)
+
+        def arrays_only(dynamic: Any, static: Any) -> Any:
+            arrays, rest = eqx.partition(fn(*eqx.combine(dynamic, static)), eqx.is_array)
+            return arrays, Static(rest)
+
+        arrays_only.__name__ = getattr(fn, "__name__", "kernel")
+        self._jitted = jax.jit(arrays_only, static_argnums=1)
+
+    def __call__(self, *args: Any) -> Any:
+        dynamic, static = eqx.partition(args, eqx.is_array)
+        try:
+            hash(static)
+        except TypeError:
+            return self._filtered(*args)
+        arrays, rest = self._jitted(dynamic, static)
+        return eqx.combine(arrays, rest.value)
 
 
 @dataclass(frozen=True)
@@ -123,14 +166,21 @@ def run_batched(
     sequential: bool | None = None,
     on_done: Callable[[int, Any], None] | None = None,
     max_batch: int | None = None,
+    cohorts: int | None = None,
 ) -> list[Any]:
     """Drive many step generators together (see the module docstring). Returns, in order,
     each generator's value, or the exception that ended it. ``on_done(index, value)`` is
     called as each finishes (value: the result or the exception). ``max_batch`` caps the
-    items of one compiled call (memory)."""
+    items of one compiled call (memory). ``cohorts``: into how many groups the generators
+    are split (default :func:`cohort_devices`); each advances while the others' compiled
+    calls run."""
     generators = list(step_lists)
     results: list[Any] = [None] * len(generators)
-    pending: dict[int, Call] = {}
+    devices = cohort_devices(len(generators), cohorts)
+    count = len(devices)
+    # generator i belongs to cohort i % count: fixed by position, so that a run is repeatable
+    pending: list[dict[int, Call]] = [{} for _ in range(count)]
+    running: list[list[tuple[list[int], Callable[[], list[Any]]]]] = [[] for _ in range(count)]
 
     def advance(index: int, value: Any) -> None:
         generator = generators[index]
@@ -141,27 +191,63 @@ def run_batched(
         except Exception as error:  # the target fails alone
             finish(index, error)
         else:
-            pending[index] = request
+            pending[index % count][index] = request
 
     def finish(index: int, value: Any) -> None:
         results[index] = value
         if on_done is not None:
             on_done(index, value)
 
-    for index in range(len(generators)):
-        advance(index, None)
-    while pending:
+    def start(cohort: int) -> None:
+        calls = pending[cohort]
         groups: dict[Any, list[int]] = {}
-        for index, call in pending.items():
+        for index, call in calls.items():
             groups.setdefault(batch_key(call), []).append(index)
-        current = dict(pending)
-        pending.clear()
         for members in groups.values():
             for chunk in _chunks(members, max_batch):
-                outputs = _run_group([current[i] for i in chunk], sequential)
-                for index, output in zip(chunk, outputs):
+                waiter = _start_group([calls[i] for i in chunk], sequential, devices[cohort])
+                running[cohort].append((chunk, waiter))
+        calls.clear()
+
+    for index in range(len(generators)):
+        advance(index, None)
+    for cohort in range(count):
+        start(cohort)
+    while any(running):
+        for cohort in range(count):
+            batches, running[cohort] = running[cohort], []
+            for chunk, waiter in batches:
+                for index, output in zip(chunk, waiter()):
                     advance(index, output)
+            start(cohort)
     return results
+
+
+def cohort_devices(items: int, cohorts: int | None = None) -> list[Any]:
+    """The device of each cohort of :func:`run_batched` (None: JAX's default device).
+
+    Two cohorts at least, so that one cohort's Python (the fits' decisions, the noise
+    estimate) runs while the other's compiled calls do: JAX dispatches a compiled call
+    and returns at once. But a device runs its work in order, so a small eager JAX
+    operation in that Python (``jnp.asarray``, ``.at[].set``) would wait for the batch
+    running on the same device. On a CPU with several devices
+    (:func:`strauss_fit.runtime.use_cpu_cores`) the batches therefore run on the devices
+    after the first, which is left to the eager operations, one cohort per device. Each
+    device compiles its own programs, so a batch uses a further device only from
+    :data:`ITEMS_PER_DEVICE` items per device on (fewer would spend more on compiling
+    than they gain)."""
+    devices = jax.local_devices() if jax.default_backend() == "cpu" else []
+    if cohorts is None:
+        cohorts = 2
+        if len(devices) >= 2:
+            compute = devices[1 : 1 + max(1, min(len(devices) - 1, items // ITEMS_PER_DEVICE))]
+            cohorts = max(cohorts, len(compute))
+            return [compute[c % len(compute)] for c in range(max(1, min(cohorts, items)))]
+    return [None] * max(1, min(cohorts, items))
+
+
+#: Items per CPU device from which :func:`run_batched` spreads a batch over one more device.
+ITEMS_PER_DEVICE = 16
 
 
 def _chunks(items: list[int], size: int | None) -> list[list[int]]:
@@ -175,9 +261,11 @@ def _power_of_two_parts(count: int) -> list[int]:
     return [1 << bit for bit in range(count.bit_length() - 1, -1, -1) if count >> bit & 1]
 
 
-def _run_group(calls: list[Call], sequential: bool | None) -> list[Any]:
-    """The results of calls of one structure: batched calls, or, for a single call or
-    when a batch fails, one call each (each failure then goes to its own target).
+def _start_group(calls: list[Call], sequential: bool | None, device: Any = None) -> Callable[[], list[Any]]:
+    """Start the calls of one structure on ``device`` (None: the default); the returned
+    function waits for them and gives their results: from batched calls, or, for a single
+    call or when a batch fails, from one call each (each failure then goes to its own
+    target).
 
     Batches come in power-of-two sizes only, so that the programs compiled per kernel
     stay few (at most seven up to 64 items) however the targets split up as their fits
@@ -186,27 +274,44 @@ def _run_group(calls: list[Call], sequential: bool | None) -> list[Any]:
     dropped."""
     if sequential is None:
         sequential = jax.default_backend() == "cpu"
-    if len(calls) > 1:
-        try:
+    placed = jax.default_device(device) if device is not None else contextlib.nullcontext()
+
+    def one_by_one() -> list[Any]:
+        outputs = []
+        with placed:
+            for call in calls:
+                try:
+                    outputs.append(call.kernel(*call.args))
+                except Exception as error:
+                    outputs.append(_Failed(error))
+        return outputs
+
+    if len(calls) == 1:
+        outputs = one_by_one()
+        return lambda: outputs
+    try:
+        with placed:
             if not sequential:
                 size = 1 << (len(calls) - 1).bit_length()
                 padded = [c.args for c in calls] + [calls[0].args] * (size - len(calls))
-                return calls[0].kernel.run_many(padded, sequential)[: len(calls)]
-            outputs, start = [], 0
-            for part in _power_of_two_parts(len(calls)):
-                chunk = calls[start : start + part]
-                if part == 1:
-                    outputs.append(chunk[0].kernel(*chunk[0].args))
-                else:
-                    outputs.extend(chunk[0].kernel.run_many([c.args for c in chunk], sequential))
-                start += part
-            return outputs
-        except Exception:  # one item broke the batch: find it by running them alone
-            pass
-    outputs = []
-    for call in calls:
+                waiters = [calls[0].kernel.start_many(padded, sequential)]
+            else:
+                waiters, first = [], 0
+                for part in _power_of_two_parts(len(calls)):
+                    chunk = calls[first : first + part]
+                    if part == 1:
+                        single = chunk[0].kernel(*chunk[0].args)
+                        waiters.append(lambda single=single: [single])
+                    else:
+                        waiters.append(chunk[0].kernel.start_many([c.args for c in chunk], sequential))
+                    first += part
+    except Exception:  # one item broke the batch: find it by running them alone
+        return one_by_one
+
+    def collect() -> list[Any]:
         try:
-            outputs.append(call.kernel(*call.args))
-        except Exception as error:
-            outputs.append(_Failed(error))
-    return outputs
+            return [output for waiter in waiters for output in waiter()][: len(calls)]
+        except Exception:
+            return one_by_one()
+
+    return collect

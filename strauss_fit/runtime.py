@@ -23,17 +23,59 @@ gigabytes of memory free. Measured here: about 700 mappings per configuration, s
 :data:`MAP_FRACTION` of the limit it clears JAX's caches (the programs are compiled again
 when next needed, which costs time, never correctness). Where ``/proc`` does not exist it
 does nothing.
+
+One CPU device per core (:func:`use_cpu_cores`): XLA:CPU runs one compiled program at a
+time per device, on one core, for the small programs of a fit. A batch of targets
+(:mod:`strauss_fit.engine`) is split across devices, so that on a machine with several
+cores the batch's items run side by side. Importing :mod:`strauss_fit` asks JAX for one
+CPU device per usable core through ``JAX_NUM_CPU_DEVICES``, unless it is already set (set
+``JAX_NUM_CPU_DEVICES=1`` to keep JAX's single CPU device) or ``XLA_FLAGS`` chooses a
+device count. A single fit uses the first device only, as before.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 #: Clear JAX's caches once the process holds this fraction of the mapping limit.
 MAP_FRACTION = 0.5
 _MAPS = Path("/proc/self/maps")
 _LIMIT = Path("/proc/sys/vm/max_map_count")
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where known)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def use_cpu_cores() -> None:
+    """Ask JAX for one CPU device per usable core (see the module docstring), unless the
+    user chose a count (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count) or JAX
+    already started its backends (it cannot change then: batches use one core)."""
+    if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get(
+        "XLA_FLAGS", ""
+    ):
+        return
+    cores = usable_cores()
+    if cores < 2:
+        return
+    jax = sys.modules.get("jax")
+    if jax is None:  # JAX reads its settings from the environment when first imported
+        os.environ["JAX_NUM_CPU_DEVICES"] = str(cores)
+        return
+    try:
+        from jax._src import xla_bridge
+
+        if xla_bridge.backends_are_initialized() or jax.config.jax_num_cpu_devices != -1:
+            return
+        jax.config.update("jax_num_cpu_devices", cores)
+    except (ImportError, AttributeError, RuntimeError):
+        return
 
 
 def cache_folder() -> Path | None:

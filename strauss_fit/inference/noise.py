@@ -78,6 +78,7 @@ is uncorrelated with the residual, so the selection does not bias it) is within
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Literal
@@ -265,6 +266,13 @@ def kernel_kappa(kernel: np.ndarray) -> float:
     """Var[mean of (r/σ)² over n positions] ≈ κ/n for white noise: κ = 2·Σ ρ(lag)², ρ the
     autocorrelation of the residual (overlapping footprints make neighbours correlated).
     d2: 7.56, d3: 10.67, haar: 4.5, lap: 3.38."""
+    kernel = np.asarray(kernel, dtype=np.float64)
+    return _kernel_kappa(kernel.shape, kernel.tobytes())
+
+
+@functools.lru_cache(maxsize=32)
+def _kernel_kappa(shape: tuple[int, int], data: bytes) -> float:
+    kernel = np.frombuffer(data, dtype=np.float64).reshape(shape)
     kh, kw = kernel.shape
     padded = np.pad(kernel, ((kh - 1, kh - 1), (kw - 1, kw - 1)))
     ac = np.array(
@@ -307,27 +315,35 @@ def _robust_scale(
     tf = _truncated_variance_factor(clip)
     structure = np.ones((2 * dilate + 1, 2 * dilate + 1), bool) if dilate > 0 else None
     n_window_flagged = 0
+    # what the iterations reuse: |r| and r² per channel, flattened positions × channels
+    # (0 outside ``valid``, where nothing is read: no stray non-finite value enters a sum)
+    magnitude = np.where(valid[..., None], np.abs(z), 0.0)
+    square = (magnitude * magnitude).reshape(-1, C)
     for it in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
-        flagged = np.any(np.abs(z) > clip * s, axis=-1) & valid
+        flagged = np.any(magnitude > clip * s, axis=-1) & valid
         if structure is not None and flagged.any():
             flagged = ndimage.binary_dilation(flagged, structure=structure)
         kept = valid & ~flagged
         if window > 0:
             size = 2 * window + 1
-            q = np.where(kept, np.mean((z / s) ** 2, axis=-1) / tf, 0.0)
-            cnt = ndimage.uniform_filter(kept.astype(np.float64), size=size, mode="constant") * size * size
-            tot = ndimage.uniform_filter(q, size=size, mode="constant") * size * size
+            # mean over channels of (r/s)², at the kept positions (0 elsewhere)
+            q = np.where(kept, (square @ (1.0 / (s * s))).reshape(kept.shape) / (C * tf), 0.0)
+            both = ndimage.uniform_filter(
+                np.stack([kept.astype(np.float64), q]), size=(1, size, size), mode="constant"
+            ) * (size * size)
+            cnt, tot = both[0], both[1]
             local = tot / np.maximum(cnt, 1.0)
             n_local = np.maximum(cnt, 1.0) * C
             wflag = kept & (cnt >= size) & (local > 1.0 + window_k * np.sqrt(kappa / n_local))
             n_window_flagged = int(wflag.sum())
             kept = kept & ~wflag
-        rows = z[kept]
-        if rows.shape[0] < 10:
+        n_kept = int(np.count_nonzero(kept))
+        if n_kept < 10:
             break
         if robust == "clipped":
-            s_new = np.sqrt(np.mean(rows * rows, axis=0) / tf)
+            s_new = np.sqrt((kept.reshape(-1) @ square) / n_kept / tf)
         else:  # "mad": median of the kept |r|, corrected for the truncation
+            rows = z[kept]
             s_new = np.median(np.abs(rows), axis=0) / _truncated_median_factor(clip)
             zero = s_new <= 0
             if zero.any():
@@ -692,6 +708,33 @@ def _fit_line(x: np.ndarray, y: np.ndarray, se: np.ndarray) -> tuple[float, floa
     return float(a), float(b), float(sa), float(sb), float(red)
 
 
+def _bin_variances(
+    mu: np.ndarray, r: np.ndarray, qv: np.ndarray, idx: np.ndarray, bins: int, *, first: bool, factor: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per level bin (``idx``: each position's bin) with at least 30 positions: the mean
+    level, the residuals' variance less the mean quantisation variance ``qv``, the count
+    and the mean ``qv``. The variance is (MAD/0.6745)² on the ``first`` pass (no model
+    yet, nothing clipped; the mean square where the MAD is 0), else the mean square
+    times ``factor`` (the truncation and calibration of clipped residuals)."""
+    counts = np.bincount(idx, minlength=bins)
+    used = counts >= 30
+    n = np.maximum(counts, 1)
+    level = np.bincount(idx, weights=mu, minlength=bins) / n
+    quantisation = np.bincount(idx, weights=qv, minlength=bins) / n
+    mean_square = np.bincount(idx, weights=r * r, minlength=bins) / n
+    if first:
+        # each bin's median |r|: sorted by bin, then by |r|, the middle one (two) of each bin
+        magnitude = np.abs(r)[np.lexsort((np.abs(r), idx))]
+        start = np.concatenate(([0], np.cumsum(counts)[:-1]))
+        low, high = start + (n - 1) // 2, start + counts // 2
+        median = (magnitude[np.minimum(low, len(r) - 1)] + magnitude[np.minimum(high, len(r) - 1)]) / 2
+        variance = (median / MAD_CONSTANT) ** 2
+        variance = np.where(variance > 0, variance, mean_square)
+    else:
+        variance = mean_square * factor
+    return level[used], (variance - quantisation)[used], counts[used], quantisation[used]
+
+
 def estimate_noise_model(
     image: np.ndarray,
     usable_mask: np.ndarray | None = None,
@@ -790,27 +833,9 @@ def estimate_noise_model(
             qv = qvar[..., c][kept]
             edges = np.quantile(mu, np.linspace(0, 1, nb + 1))
             idx = np.clip(np.searchsorted(edges, mu, side="right") - 1, 0, nb - 1)
-            xs, vs, ns, qs = [], [], [], []
-            for i in range(nb):
-                sel = idx == i
-                n = int(sel.sum())
-                if n < 30:
-                    continue
-                r_i = rr[sel]
-                if it == 0:
-                    v = (np.median(np.abs(r_i)) / MAD_CONSTANT) ** 2
-                    if v <= 0:
-                        v = np.mean(r_i**2)
-                else:
-                    # truncated second moment (the kept residuals are within clip·σ(μ))
-                    v = np.mean(r_i**2) / tf * calib**2
-                xs.append(float(np.mean(mu[sel])))
-                vs.append(float(v - np.mean(qv[sel])))
-                ns.append(n)
-                qs.append(float(np.mean(qv[sel])))
+            xs, vs, ns, qs = _bin_variances(mu, rr, qv, idx, nb, first=it == 0, factor=calib**2 / tf)
             if len(xs) < 3:
                 raise NoiseEstimationError("too few populated level bins to fit a noise model")
-            xs, vs, ns, qs = map(np.asarray, (xs, vs, ns, qs))
             # SE of each bin's variance: from the model's prediction once there is a model
             # (weights from the noisy bin values themselves would favour low-variance bins)
             total = np.maximum(a[c] * np.maximum(xs, 0) + b[c] + qs, 1e-300) if it else np.maximum(vs + qs, 1e-300)
