@@ -19,12 +19,18 @@ Jacobian, a render). The fit is written once, as a generator of *steps*
 How a batch runs: on a CPU one item after the other inside the compiled program
 (``jax.lax.map``): under ``vmap`` every iteration of a solver's loop would run every item's
 branches and continue until the slowest item converged, which on two cores cost five
-times more (36 ms against 7 ms per 64² target, measured). With several CPU devices (one
-per core, :func:`strauss_fit.runtime.use_cpu_cores`) the batch is split evenly across
-them (``jax.shard_map``), each device running its share one item after the other: one
-compiled program, every core busy. On an accelerator the items run side by side
-(``jax.vmap``), each stopping at its own convergence (a finished item's state is carried
-unchanged by the batched loop), which is where the batch fills the device.
+times more (36 ms against 7 ms per 64² target, measured). On an accelerator the items run
+side by side (``jax.vmap``), each stopping at its own convergence (a finished item's state
+is carried unchanged by the batched loop), which is where the batch fills the device.
+
+While compiled work runs, Python runs too: the generators are split into *cohorts*
+(:func:`cohort_devices`), and one cohort's decisions are taken while the others' compiled
+calls run, JAX dispatching a call and returning at once (:class:`Pending`). On a CPU the
+compiled calls go to CPU devices other than the first
+(:func:`strauss_fit.runtime.use_cpu_cores`), since a device runs its work in order and
+the small eager operations of the Python would otherwise wait behind a whole batch; with
+cores to spare, cohorts run on several devices at once. Which cohort a generator belongs
+to is fixed by its position, so that a run is repeatable.
 
 A failure stays with its target: an exception raised inside one generator ends that
 target only (its slot holds the exception), and a batched call that fails is retried item
@@ -34,14 +40,17 @@ by item, so that the item that broke it fails alone.
 from __future__ import annotations
 
 import contextlib
+import functools
 from collections.abc import Callable, Generator, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 import equinox as eqx
 import jax
-from equinox.internal import Static
 import numpy as np
+from equinox.internal import Static
+
+from .runtime import usable_cores
 
 #: A fit (or any computation) written as steps: it yields :class:`Call` and receives results.
 Steps = Generator["Call", Any, Any]
@@ -79,12 +88,16 @@ class Kernel:
         as one compiled call; results as NumPy pytrees, one per tuple."""
         return self.start_many(argument_lists, sequential)()
 
-    def start_many(self, argument_lists: list[tuple], sequential: bool | None = None) -> Callable[[], list[Any]]:
-        """:meth:`run_many` started: JAX dispatches the compiled call and returns at once;
-        the returned function waits for it and gives the results."""
+    def start_many(
+        self, argument_lists: list[tuple], sequential: bool | None = None, parts: list[tuple] | None = None
+    ) -> Pending:
+        """:meth:`run_many` started: JAX dispatches the compiled call and returns at once
+        (see :class:`Pending`). ``parts``: the argument tuples already partitioned
+        (:attr:`Call.parts`)."""
         if sequential is None:
             sequential = jax.default_backend() == "cpu"
-        parts = [eqx.partition(args, eqx.is_array) for args in argument_lists]
+        if parts is None:
+            parts = [eqx.partition(args, eqx.is_array) for args in argument_lists]
         static = parts[0][1]
         stacked = jax.tree.map(lambda *leaves: np.stack([np.asarray(x) for x in leaves]), *[p[0] for p in parts])
         running = self._many(stacked, static, bool(sequential))
@@ -93,7 +106,23 @@ class Kernel:
             out = jax.device_get(running)
             return [jax.tree.map(lambda leaf, i=i: leaf[i], out) for i in range(len(argument_lists))]
 
-        return results
+        return Pending(results, running)
+
+
+class Pending:
+    """Compiled work dispatched and maybe still running: :meth:`ready` says whether it has
+    finished (without waiting); calling it waits and returns the results (a list, one per
+    call)."""
+
+    def __init__(self, results: Callable[[], list[Any]], running: Any = None):
+        self._results = results
+        self._running = running
+
+    def ready(self) -> bool:
+        return all(leaf.is_ready() for leaf in jax.tree.leaves(self._running) if isinstance(leaf, jax.Array))
+
+    def __call__(self) -> list[Any]:
+        return self._results()
 
 
 class _DispatchingJit:
@@ -131,6 +160,12 @@ class Call:
     kernel: Kernel
     args: tuple
 
+    @functools.cached_property
+    def parts(self) -> tuple[Any, Any]:
+        """The arguments' array part and the rest (``eqx.partition``), split once: grouping
+        and stacking both need them."""
+        return eqx.partition(self.args, eqx.is_array)
+
 
 def run(steps: Steps) -> Any:
     """Drive one step generator to its end, running every :class:`Call` directly, and
@@ -146,13 +181,13 @@ def run(steps: Steps) -> Any:
 def batch_key(call: Call) -> Any:
     """What calls must share to run as one batch: the kernel, the static (non-array) part
     of the arguments and the shapes and dtypes of the array part."""
-    dynamic, static = eqx.partition(call.args, eqx.is_array)
+    dynamic, static = call.parts
     leaves, treedef = jax.tree.flatten(dynamic)
     try:
         static_key = hash(static), static
     except TypeError:  # an unhashable static part cannot be grouped: run it alone
         return (call.kernel, id(call))
-    return (call.kernel, static_key, treedef, tuple((np.shape(x), np.asarray(x).dtype.str) for x in leaves))
+    return (call.kernel, static_key, treedef, tuple((x.shape, x.dtype.str) for x in leaves))
 
 
 class _Failed:
@@ -167,16 +202,17 @@ def run_batched(
     on_done: Callable[[int, Any], None] | None = None,
     max_batch: int | None = None,
     cohorts: int | None = None,
+    python_bound: bool = True,
 ) -> list[Any]:
     """Drive many step generators together (see the module docstring). Returns, in order,
     each generator's value, or the exception that ended it. ``on_done(index, value)`` is
     called as each finishes (value: the result or the exception). ``max_batch`` caps the
     items of one compiled call (memory). ``cohorts``: into how many groups the generators
-    are split (default :func:`cohort_devices`); each advances while the others' compiled
-    calls run."""
+    are split (default :func:`cohort_devices`, which ``python_bound`` informs); each
+    advances while the others' compiled calls run."""
     generators = list(step_lists)
     results: list[Any] = [None] * len(generators)
-    devices = cohort_devices(len(generators), cohorts)
+    devices = cohort_devices(len(generators), cohorts, python_bound=python_bound)
     count = len(devices)
     # generator i belongs to cohort i % count: fixed by position, so that a run is repeatable
     pending: list[dict[int, Call]] = [{} for _ in range(count)]
@@ -205,25 +241,31 @@ def run_batched(
             groups.setdefault(batch_key(call), []).append(index)
         for members in groups.values():
             for chunk in _chunks(members, max_batch):
-                waiter = _start_group([calls[i] for i in chunk], sequential, devices[cohort])
-                running[cohort].append((chunk, waiter))
+                running[cohort].append((chunk, _start_group([calls[i] for i in chunk], sequential, devices[cohort])))
         calls.clear()
+
+    def collect(cohort: int) -> None:
+        batches, running[cohort] = running[cohort], []
+        for chunk, results in batches:
+            for index, output in zip(chunk, results()):
+                advance(index, output)
+        start(cohort)
 
     for index in range(len(generators)):
         advance(index, None)
     for cohort in range(count):
         start(cohort)
+    turn = 0
     while any(running):
-        for cohort in range(count):
-            batches, running[cohort] = running[cohort], []
-            for chunk, waiter in batches:
-                for index, output in zip(chunk, waiter()):
-                    advance(index, output)
-            start(cohort)
+        # the first cohort whose work is done, in turn; none yet: wait for the next in turn
+        busy = [c for c in (*range(turn, count), *range(turn)) if running[c]]
+        done = next((c for c in busy if all(results.ready() for _, results in running[c])), busy[0])
+        collect(done)
+        turn = (done + 1) % count
     return results
 
 
-def cohort_devices(items: int, cohorts: int | None = None) -> list[Any]:
+def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool = True) -> list[Any]:
     """The device of each cohort of :func:`run_batched` (None: JAX's default device).
 
     Two cohorts at least, so that one cohort's Python (the fits' decisions, the noise
@@ -231,16 +273,20 @@ def cohort_devices(items: int, cohorts: int | None = None) -> list[Any]:
     and returns at once. But a device runs its work in order, so a small eager JAX
     operation in that Python (``jnp.asarray``, ``.at[].set``) would wait for the batch
     running on the same device. On a CPU with several devices
-    (:func:`strauss_fit.runtime.use_cpu_cores`) the batches therefore run on the devices
-    after the first, which is left to the eager operations, one cohort per device. Each
-    device compiles its own programs, so a batch uses a further device only from
-    :data:`ITEMS_PER_DEVICE` items per device on (fewer would spend more on compiling
-    than they gain)."""
+    (:func:`strauss_fit.runtime.use_cpu_cores`: one per core and one more) the batches
+    therefore run on the devices after the first, which is left to the eager operations,
+    one cohort per device: as many devices as there are cores less the one the Python
+    needs (``python_bound``, a fit's case), or as cores (a conversion's, almost all
+    compiled work). Each device compiles its own programs, so a batch uses a further
+    device only from :data:`ITEMS_PER_DEVICE` items per device on (fewer would spend more
+    on compiling than they gain)."""
     devices = jax.local_devices() if jax.default_backend() == "cpu" else []
     if cohorts is None:
         cohorts = 2
         if len(devices) >= 2:
-            compute = devices[1 : 1 + max(1, min(len(devices) - 1, items // ITEMS_PER_DEVICE))]
+            cores = usable_cores() - 1 if python_bound else usable_cores()
+            wanted = max(1, min(len(devices) - 1, cores, items // ITEMS_PER_DEVICE))
+            compute = devices[1 : 1 + wanted]
             cohorts = max(cohorts, len(compute))
             return [compute[c % len(compute)] for c in range(max(1, min(cohorts, items)))]
     return [None] * max(1, min(cohorts, items))
@@ -261,11 +307,10 @@ def _power_of_two_parts(count: int) -> list[int]:
     return [1 << bit for bit in range(count.bit_length() - 1, -1, -1) if count >> bit & 1]
 
 
-def _start_group(calls: list[Call], sequential: bool | None, device: Any = None) -> Callable[[], list[Any]]:
-    """Start the calls of one structure on ``device`` (None: the default); the returned
-    function waits for them and gives their results: from batched calls, or, for a single
-    call or when a batch fails, from one call each (each failure then goes to its own
-    target).
+def _start_group(calls: list[Call], sequential: bool | None, device: Any = None) -> Pending:
+    """Start the calls of one structure on ``device`` (None: the default): their results
+    come from batched calls, or, for a single call or when a batch fails, from one call
+    each (each failure then goes to its own target).
 
     Batches come in power-of-two sizes only, so that the programs compiled per kernel
     stay few (at most seven up to 64 items) however the targets split up as their fits
@@ -288,30 +333,32 @@ def _start_group(calls: list[Call], sequential: bool | None, device: Any = None)
 
     if len(calls) == 1:
         outputs = one_by_one()
-        return lambda: outputs
+        return Pending(lambda: outputs, outputs)
     try:
         with placed:
             if not sequential:
                 size = 1 << (len(calls) - 1).bit_length()
-                padded = [c.args for c in calls] + [calls[0].args] * (size - len(calls))
-                waiters = [calls[0].kernel.start_many(padded, sequential)]
+                padded = calls + [calls[0]] * (size - len(calls))
+                parts = [calls[0].kernel.start_many([c.args for c in padded], sequential, [c.parts for c in padded])]
             else:
-                waiters, first = [], 0
+                parts, first = [], 0
                 for part in _power_of_two_parts(len(calls)):
                     chunk = calls[first : first + part]
                     if part == 1:
                         single = chunk[0].kernel(*chunk[0].args)
-                        waiters.append(lambda single=single: [single])
+                        parts.append(Pending(lambda single=single: [single], single))
                     else:
-                        waiters.append(chunk[0].kernel.start_many([c.args for c in chunk], sequential))
+                        parts.append(
+                            chunk[0].kernel.start_many([c.args for c in chunk], sequential, [c.parts for c in chunk])
+                        )
                     first += part
     except Exception:  # one item broke the batch: find it by running them alone
-        return one_by_one
+        return Pending(one_by_one)
 
-    def collect() -> list[Any]:
+    def results() -> list[Any]:
         try:
-            return [output for waiter in waiters for output in waiter()][: len(calls)]
-        except Exception:
+            return [output for part in parts for output in part()][: len(calls)]
+        except Exception:  # it broke while running
             return one_by_one()
 
-    return collect
+    return Pending(results, [part._running for part in parts])

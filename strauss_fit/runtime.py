@@ -24,13 +24,15 @@ gigabytes of memory free. Measured here: about 700 mappings per configuration, s
 when next needed, which costs time, never correctness). Where ``/proc`` does not exist it
 does nothing.
 
-One CPU device per core (:func:`use_cpu_cores`): XLA:CPU runs one compiled program at a
-time per device, on one core, for the small programs of a fit. A batch of targets
-(:mod:`strauss_fit.engine`) is split across devices, so that on a machine with several
-cores the batch's items run side by side. Importing :mod:`strauss_fit` asks JAX for one
-CPU device per usable core through ``JAX_NUM_CPU_DEVICES``, unless it is already set (set
-``JAX_NUM_CPU_DEVICES=1`` to keep JAX's single CPU device) or ``XLA_FLAGS`` chooses a
-device count. A single fit uses the first device only, as before.
+CPU devices (:func:`use_cpu_cores`): XLA:CPU runs the work of one device in order, on
+one core for the small programs of a fit, and a small eager operation waits for the
+program before it. A batch of targets (:mod:`strauss_fit.engine`) therefore runs its
+compiled calls on devices other than the first, which is left to the eager operations of
+the fits' Python, and on several of them where there are cores to spare. Importing
+:mod:`strauss_fit` asks JAX for one CPU device per usable core and one more through
+``JAX_NUM_CPU_DEVICES``, unless it is already set (``JAX_NUM_CPU_DEVICES=1`` keeps JAX's
+single CPU device: batches then run on it, slower) or ``XLA_FLAGS`` chooses a device
+count. A single fit uses the first device only, as before.
 """
 
 from __future__ import annotations
@@ -54,26 +56,25 @@ def usable_cores() -> int:
 
 
 def use_cpu_cores() -> None:
-    """Ask JAX for one CPU device per usable core (see the module docstring), unless the
+    """Ask JAX for one CPU device per usable core and one more (see the module
+    docstring), unless the
     user chose a count (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count) or JAX
     already started its backends (it cannot change then: batches use one core)."""
     if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get(
         "XLA_FLAGS", ""
     ):
         return
-    cores = usable_cores()
-    if cores < 2:
-        return
+    devices = usable_cores() + 1
     jax = sys.modules.get("jax")
     if jax is None:  # JAX reads its settings from the environment when first imported
-        os.environ["JAX_NUM_CPU_DEVICES"] = str(cores)
+        os.environ["JAX_NUM_CPU_DEVICES"] = str(devices)
         return
     try:
         from jax._src import xla_bridge
 
         if xla_bridge.backends_are_initialized() or jax.config.jax_num_cpu_devices != -1:
             return
-        jax.config.update("jax_num_cpu_devices", cores)
+        jax.config.update("jax_num_cpu_devices", devices)
     except (ImportError, AttributeError, RuntimeError):
         return
 

@@ -63,6 +63,75 @@ def test_a_failing_step_generator_fails_alone(x64):
     assert run(steps(5.0, False)) == 20.0
 
 
+def test_an_error_raised_while_a_batch_runs_fails_its_item_alone(x64):
+    """Batched calls are dispatched without waiting (:class:`strauss_fit.engine.Pending`):
+    an error raised inside the compiled program (equinox's runtime check) surfaces only
+    when the results are read. The batch is then run item by item, and only the item that
+    raised fails."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    checked = Kernel(lambda a: eqx.error_if(a, a < 0, "negative on purpose") * 2, "checked")
+
+    def steps(value):
+        out = yield checked.call(jnp.asarray(value))
+        out = yield checked.call(np.asarray(out))
+        return float(np.asarray(out))
+
+    values = [1.0, 2.0, -3.0, 4.0, 5.0, 6.0]
+    results = run_batched([steps(v) for v in values])
+    assert [r for i, r in enumerate(results) if i != 2] == [4.0 * v for v in values if v >= 0]
+    assert isinstance(results[2], Exception) and "negative on purpose" in str(results[2])
+
+
+def test_cohorts_run_on_cpu_devices_after_the_first(monkeypatch):
+    """On a CPU with several devices the batches go to the devices after the first (left
+    to the eager operations of the Python): as many as the cores less one for a fit's batch
+    (its Python needs a core), one per core for a conversion's, a further device only from
+    16 items per device on, two cohorts at least; with one device, two cohorts on the
+    default device."""
+    import jax
+
+    from strauss_fit import engine
+
+    devices = ["d0", "d1", "d2", "d3", "d4"]
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    monkeypatch.setattr(jax, "local_devices", lambda: devices[:3])
+    monkeypatch.setattr(engine, "usable_cores", lambda: 2)  # this machine
+    assert engine.cohort_devices(64) == ["d1", "d1"]
+    assert engine.cohort_devices(64, python_bound=False) == ["d1", "d2"]
+    monkeypatch.setattr(jax, "local_devices", lambda: devices)
+    monkeypatch.setattr(engine, "usable_cores", lambda: 4)
+    assert engine.cohort_devices(64) == ["d1", "d2", "d3"]
+    assert engine.cohort_devices(64, python_bound=False) == ["d1", "d2", "d3", "d4"]
+    assert engine.cohort_devices(40, python_bound=False) == ["d1", "d2"]
+    assert engine.cohort_devices(8, python_bound=False) == ["d1", "d1"]
+    assert engine.cohort_devices(1) == ["d1"]
+    monkeypatch.setattr(jax, "local_devices", lambda: ["d0"])
+    assert engine.cohort_devices(64) == [None, None]
+    assert engine.cohort_devices(64, cohorts=3) == [None, None, None]
+
+
+def test_importing_the_package_asks_jax_for_a_cpu_device_per_core_and_one_more():
+    """``import strauss_fit`` sets ``JAX_NUM_CPU_DEVICES`` before JAX starts, unless the
+    user chose a count."""
+    import os
+    import subprocess
+    import sys
+
+    from strauss_fit.runtime import usable_cores
+
+    code = "import strauss_fit, jax; print(jax.local_device_count())"
+    env = {k: v for k, v in os.environ.items() if k not in ("JAX_NUM_CPU_DEVICES", "XLA_FLAGS")}
+    env["JAX_PLATFORMS"] = "cpu"
+    default = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert int(default.stdout.strip()) == usable_cores() + 1
+    chosen = subprocess.run(
+        [sys.executable, "-c", code], env={**env, "JAX_NUM_CPU_DEVICES": "1"}, capture_output=True, text=True, check=True
+    )
+    assert int(chosen.stdout.strip()) == 1
+
+
 def test_fit_many_gives_what_fit_gives_each_target_and_isolates_failures(tmp_path):
     scene = support.key_and_fill_scene(32, source="batch")
     targets = _targets(scene, 5)

@@ -384,3 +384,31 @@ def test_per_channel_sigma_makes_every_channel_consistent():
     vp = ne.mismatch_verdict(img - target, pooled, mask, 6)
     chis = [p["chi2_dof"] for p in vp.per_channel]
     assert chis[1] < 0.3 and chis[2] > 1.5  # green looks too good, blue looks inconsistent
+
+
+def test_bin_variances_are_each_bins_own_statistics():
+    """The level bins' statistics, computed for all bins at once, equal each bin's own:
+    the median |r| (odd and even counts) on the first pass, the mean square after, the mean
+    level and quantisation; bins under 30 positions are left out."""
+    rng = np.random.default_rng(4)
+    counts = [31, 40, 7, 55]  # the third is too small to keep
+    idx = np.repeat(np.arange(4), counts)
+    rng.shuffle(idx)
+    mu = rng.uniform(0.0, 1.0, idx.size)
+    r = rng.normal(0.0, 0.1, idx.size)
+    qv = rng.uniform(0.0, 1e-4, idx.size)
+    for first in (True, False):
+        level, variance, count, quantisation = ne._bin_variances(mu, r, qv, idx, 4, first=first, factor=1.7)
+        kept = [b for b in range(4) if counts[b] >= 30]
+        assert count.tolist() == [counts[b] for b in kept]
+        for row, b in enumerate(kept):
+            sel = idx == b
+            spread = (np.median(np.abs(r[sel])) / ne.MAD_CONSTANT) ** 2 if first else np.mean(r[sel] ** 2) * 1.7
+            assert level[row] == pytest.approx(np.mean(mu[sel]), rel=1e-13)
+            assert quantisation[row] == pytest.approx(np.mean(qv[sel]), rel=1e-13)
+            assert variance[row] == pytest.approx(spread - np.mean(qv[sel]), rel=1e-12)
+    # a bin of discrete residuals, more than half exactly 0: its MAD is 0, the mean square stands in
+    r0 = np.where(np.arange(idx.size) % 3 == 0, 0.02, 0.0)
+    _, variance, _, quantisation = ne._bin_variances(mu, r0, np.zeros_like(qv), idx, 4, first=True, factor=1.0)
+    for row, b in enumerate(kept):
+        assert variance[row] == pytest.approx(np.mean(r0[idx == b] ** 2), rel=1e-12)
