@@ -277,18 +277,19 @@ def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool
     therefore run on the devices after the first, which is left to the eager operations,
     one cohort per device: as many devices as there are cores less the one the Python
     needs (``python_bound``, a fit's case), or as cores (a conversion's, almost all
-    compiled work). Each device compiles its own programs, so a batch uses a further
-    device only from :data:`ITEMS_PER_DEVICE` items per device on (fewer would spend more
-    on compiling than they gain)."""
+    compiled work). Each device compiles its own programs (and holds them: memory
+    mappings, :mod:`strauss_fit.runtime`), so a batch uses a device only from
+    :data:`ITEMS_PER_DEVICE` items per device on; a smaller batch runs on the default
+    device, as a single fit does, sharing its programs."""
     devices = jax.local_devices() if jax.default_backend() == "cpu" else []
     if cohorts is None:
         cohorts = 2
-        if len(devices) >= 2:
-            cores = usable_cores() - 1 if python_bound else usable_cores()
-            wanted = max(1, min(len(devices) - 1, cores, items // ITEMS_PER_DEVICE))
+        cores = usable_cores() - 1 if python_bound else usable_cores()
+        wanted = min(len(devices) - 1, max(cores, 1), items // ITEMS_PER_DEVICE)
+        if wanted >= 1:
             compute = devices[1 : 1 + wanted]
             cohorts = max(cohorts, len(compute))
-            return [compute[c % len(compute)] for c in range(max(1, min(cohorts, items)))]
+            return [compute[c % len(compute)] for c in range(cohorts)]
     return [None] * max(1, min(cohorts, items))
 
 

@@ -60,9 +60,7 @@ def use_cpu_cores() -> None:
     docstring), unless the
     user chose a count (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count) or JAX
     already started its backends (it cannot change then: batches use one core)."""
-    if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get(
-        "XLA_FLAGS", ""
-    ):
+    if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
         return
     devices = usable_cores() + 1
     jax = sys.modules.get("jax")

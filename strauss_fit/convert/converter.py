@@ -547,7 +547,9 @@ class Converter:
         """Convert the items of ``chunk`` (``(i, entry, ...)``) together: their steps run
         batched (:func:`strauss_fit.engine.run_batched`; a material that fails is an error
         result, the others go on), then the residuals of all are measured at once."""
-        outcomes = run_batched([direction.steps(item) for item in chunk], sequential=not self.batched, python_bound=False)
+        outcomes = run_batched(
+            [direction.steps(item) for item in chunk], sequential=not self.batched, python_bound=False
+        )
         results = [
             _error(item[1], _message(outcome)) if isinstance(outcome, BaseException) else outcome
             for item, outcome in zip(chunk, outcomes)

@@ -87,9 +87,9 @@ def test_an_error_raised_while_a_batch_runs_fails_its_item_alone(x64):
 def test_cohorts_run_on_cpu_devices_after_the_first(monkeypatch):
     """On a CPU with several devices the batches go to the devices after the first (left
     to the eager operations of the Python): as many as the cores less one for a fit's batch
-    (its Python needs a core), one per core for a conversion's, a further device only from
-    16 items per device on, two cohorts at least; with one device, two cohorts on the
-    default device."""
+    (its Python needs a core), one per core for a conversion's, a device only from 16 items
+    per device on (smaller batches: the default device, sharing a single fit's programs),
+    two cohorts at least; with one device, two cohorts on the default device."""
     import jax
 
     from strauss_fit import engine
@@ -105,8 +105,9 @@ def test_cohorts_run_on_cpu_devices_after_the_first(monkeypatch):
     assert engine.cohort_devices(64) == ["d1", "d2", "d3"]
     assert engine.cohort_devices(64, python_bound=False) == ["d1", "d2", "d3", "d4"]
     assert engine.cohort_devices(40, python_bound=False) == ["d1", "d2"]
-    assert engine.cohort_devices(8, python_bound=False) == ["d1", "d1"]
-    assert engine.cohort_devices(1) == ["d1"]
+    assert engine.cohort_devices(16, python_bound=False) == ["d1", "d1"]
+    assert engine.cohort_devices(8) == [None, None]  # small batches: the default device
+    assert engine.cohort_devices(1) == [None]
     monkeypatch.setattr(jax, "local_devices", lambda: ["d0"])
     assert engine.cohort_devices(64) == [None, None]
     assert engine.cohort_devices(64, cohorts=3) == [None, None, None]
@@ -127,7 +128,11 @@ def test_importing_the_package_asks_jax_for_a_cpu_device_per_core_and_one_more()
     default = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert int(default.stdout.strip()) == usable_cores() + 1
     chosen = subprocess.run(
-        [sys.executable, "-c", code], env={**env, "JAX_NUM_CPU_DEVICES": "1"}, capture_output=True, text=True, check=True
+        [sys.executable, "-c", code],
+        env={**env, "JAX_NUM_CPU_DEVICES": "1"},
+        capture_output=True,
+        text=True,
+        check=True,
     )
     assert int(chosen.stdout.strip()) == 1
 
