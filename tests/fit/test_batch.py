@@ -63,6 +63,30 @@ def test_a_failing_step_generator_fails_alone(x64):
     assert run(steps(5.0, False)) == 20.0
 
 
+def test_a_large_batch_on_its_own_cpu_device_gives_what_run_gives(x64):
+    """From 16 items per device on a batch runs on a CPU device after the first, while the
+    steps' own eager JAX operations run on the default device and mix with its results."""
+    import jax
+    import jax.numpy as jnp
+
+    from strauss_fit.engine import cohort_devices
+
+    kernel = Kernel(lambda a, b: jnp.sin(a) * b, "toy_device")
+
+    def steps(value):
+        out = yield kernel.call(jnp.full(3, value), np.arange(3.0))
+        mixed = jnp.asarray(out) + jnp.ones(3)  # eager, on the default device
+        out = yield kernel.call(mixed, np.ones(3))
+        return np.asarray(out)
+
+    count = 40
+    if jax.local_device_count() >= 2:
+        assert all(device is not None and device != jax.devices()[0] for device in cohort_devices(count))
+    batched = run_batched([steps(float(i)) for i in range(count)])
+    for i, result in enumerate(batched):
+        np.testing.assert_array_equal(result, run(steps(float(i))))
+
+
 def test_an_error_raised_while_a_batch_runs_fails_its_item_alone(x64):
     """Batched calls are dispatched without waiting (:class:`strauss_fit.engine.Pending`):
     an error raised inside the compiled program (equinox's runtime check) surfaces only
