@@ -735,6 +735,11 @@ def _bin_variances(
     return level[used], (variance - quantisation)[used], counts[used], quantisation[used]
 
 
+#: Relative change of (a, b) between two clipped passes of :func:`estimate_noise_model`
+#: below which the passes have reached their fixed point (the rest would repeat them).
+FIXED_POINT = 1e-12
+
+
 def estimate_noise_model(
     image: np.ndarray,
     usable_mask: np.ndarray | None = None,
@@ -762,7 +767,9 @@ def estimate_noise_model(
     cleaned exactly as in :func:`estimate_noise` (clip, dilate, window test), so bright,
     noisier pixels are not rejected as content; each bin's variance is the truncated
     second moment of its kept residuals; a line is fitted by weighted least squares
-    (weights from the model's predicted SE), a and b clamped ≥ 0.
+    (weights from the model's predicted SE), a and b clamped ≥ 0. The passes stop early
+    once one gives the a and b of the one before (:data:`FIXED_POINT`): each pass is a
+    function of the previous a and b, so the rest would repeat it.
 
     ``signal_dependent``: a / SE(a) > ``z``. ``chi2_dof`` of the line fit (> 1: the bins
     scatter more than noise allows — content, or a noise that is not a·x + b; the SEs are
@@ -812,6 +819,7 @@ def estimate_noise_model(
     out_bins: list = []
     stats = np.zeros((3, C))
     kept = valid
+    last = None  # (a, b) of the previous clipped pass
     for it in range(iterations + 1):
         if it == 0:
             kept = valid
@@ -852,6 +860,11 @@ def estimate_noise_model(
                     "normalised_scale": float(scale[c]),
                 }
             )
+        if it >= 1:
+            now = np.concatenate([a, b])
+            if last is not None and np.all(np.abs(now - last) <= FIXED_POINT * np.maximum(np.abs(now), 1e-300)):
+                break  # a fixed point: every further pass would repeat this one
+            last = now
     sig = (a / np.where(stats[0] > 0, stats[0], np.inf)) > z
     independent = np.ones(C, bool)
     if C > 1:

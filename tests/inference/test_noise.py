@@ -412,3 +412,28 @@ def test_bin_variances_are_each_bins_own_statistics():
     _, variance, _, quantisation = ne._bin_variances(mu, r0, np.zeros_like(qv), idx, 4, first=True, factor=1.0)
     for row, b in enumerate(kept):
         assert variance[row] == pytest.approx(np.mean(r0[idx == b] ** 2), rel=1e-12)
+
+
+def test_the_noise_model_stops_at_its_fixed_point_with_what_all_passes_give(monkeypatch):
+    """Each pass of the noise model is a function of the previous a and b: once a pass
+    repeats the one before, the remaining passes give the same model, so stopping there
+    (as it does: fewer passes) changes nothing — on an additive image, where it stops
+    after two passes, and on a signal-dependent one, where it runs them all."""
+    passes = []
+    robust_scale = ne._robust_scale
+    monkeypatch.setattr(ne, "_robust_scale", lambda *a, **k: passes.append(1) or robust_scale(*a, **k))
+    img, cover = sphere(64)
+    additive = img + np.random.default_rng(2).normal(0.0, 0.01, img.shape)
+    shot = sensor(*sphere(96)[:1], 2000.0, 0.003, np.random.default_rng(11))
+    for noisy, usable, stops_early in ((additive, cover >= 1, True), (shot, sphere(96)[1] >= 1, False)):
+        passes.clear()
+        early = ne.estimate_noise_model(noisy, usable)
+        early_passes = len(passes)
+        with monkeypatch.context() as patch:
+            patch.setattr(ne, "FIXED_POINT", -1.0)  # never stops early
+            passes.clear()
+            every = ne.estimate_noise_model(noisy, usable)
+        assert (early_passes < len(passes) == 4) if stops_early else (early_passes == len(passes) == 4)
+        np.testing.assert_allclose(np.concatenate([early.a, early.b]), np.concatenate([every.a, every.b]), rtol=1e-11)
+        np.testing.assert_allclose(early.a_stderr, every.a_stderr, rtol=1e-11)
+        assert early.n_pixels == every.n_pixels
