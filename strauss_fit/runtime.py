@@ -29,10 +29,10 @@ one core for the small programs of a fit, and a small eager operation waits for 
 program before it. A batch of targets (:mod:`strauss_fit.engine`) therefore runs its
 compiled calls on devices other than the first, which is left to the eager operations of
 the fits' Python, and on several of them where there are cores to spare. Importing
-:mod:`strauss_fit` asks JAX for one CPU device per usable core and one more through
-``JAX_NUM_CPU_DEVICES``, unless it is already set (``JAX_NUM_CPU_DEVICES=1`` keeps JAX's
-single CPU device: batches then run on it, slower) or ``XLA_FLAGS`` chooses a device
-count. A single fit uses the first device only, as before.
+:mod:`strauss_fit` asks JAX for one CPU device per usable core (at most eight) and one
+more through ``JAX_NUM_CPU_DEVICES``, unless it is already set (``JAX_NUM_CPU_DEVICES=1``
+keeps JAX's single CPU device: batches then run on it, slower) or ``XLA_FLAGS`` chooses a
+device count. A single fit uses the first device only, as before.
 """
 
 from __future__ import annotations
@@ -47,6 +47,11 @@ _MAPS = Path("/proc/self/maps")
 _LIMIT = Path("/proc/sys/vm/max_map_count")
 
 
+#: CPU devices for batches at most (:func:`use_cpu_cores`): a batch of 64 fits uses at most
+#: four (:data:`strauss_fit.engine.ITEMS_PER_DEVICE`), and each device holds its own programs.
+MAX_COMPUTE_DEVICES = 8
+
+
 def usable_cores() -> int:
     """The CPU cores this process may run on (its affinity mask where known)."""
     try:
@@ -56,13 +61,13 @@ def usable_cores() -> int:
 
 
 def use_cpu_cores() -> None:
-    """Ask JAX for one CPU device per usable core and one more (see the module
-    docstring), unless the
-    user chose a count (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count) or JAX
-    already started its backends (it cannot change then: batches use one core)."""
+    """Ask JAX for one CPU device per usable core (at most :data:`MAX_COMPUTE_DEVICES`)
+    and one more (see the module docstring), unless the user chose a count
+    (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count) or JAX already started its
+    backends (it cannot change then: batches run on the default device)."""
     if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
         return
-    devices = usable_cores() + 1
+    devices = min(usable_cores(), MAX_COMPUTE_DEVICES) + 1
     jax = sys.modules.get("jax")
     if jax is None:  # JAX reads its settings from the environment when first imported
         os.environ["JAX_NUM_CPU_DEVICES"] = str(devices)

@@ -144,13 +144,13 @@ def test_importing_the_package_asks_jax_for_a_cpu_device_per_core_and_one_more()
     import subprocess
     import sys
 
-    from strauss_fit.runtime import usable_cores
+    from strauss_fit.runtime import MAX_COMPUTE_DEVICES, usable_cores
 
     code = "import strauss_fit, jax; print(jax.local_device_count())"
     env = {k: v for k, v in os.environ.items() if k not in ("JAX_NUM_CPU_DEVICES", "XLA_FLAGS")}
     env["JAX_PLATFORMS"] = "cpu"
     default = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert int(default.stdout.strip()) == usable_cores() + 1
+    assert int(default.stdout.strip()) == min(usable_cores(), MAX_COMPUTE_DEVICES) + 1
     chosen = subprocess.run(
         [sys.executable, "-c", code],
         env={**env, "JAX_NUM_CPU_DEVICES": "1"},
