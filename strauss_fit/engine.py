@@ -216,7 +216,7 @@ def run_batched(
     count = len(devices)
     # generator i belongs to cohort i % count: fixed by position, so that a run is repeatable
     pending: list[dict[int, Call]] = [{} for _ in range(count)]
-    running: list[list[tuple[list[int], Callable[[], list[Any]]]]] = [[] for _ in range(count)]
+    running: list[list[tuple[list[int], Pending]]] = [[] for _ in range(count)]
 
     def advance(index: int, value: Any) -> None:
         generator = generators[index]
@@ -246,8 +246,8 @@ def run_batched(
 
     def collect(cohort: int) -> None:
         batches, running[cohort] = running[cohort], []
-        for chunk, results in batches:
-            for index, output in zip(chunk, results()):
+        for chunk, outputs in batches:
+            for index, output in zip(chunk, outputs()):
                 advance(index, output)
         start(cohort)
 
@@ -259,7 +259,7 @@ def run_batched(
     while any(running):
         # the first cohort whose work is done, in turn; none yet: wait for the next in turn
         busy = [c for c in (*range(turn, count), *range(turn)) if running[c]]
-        done = next((c for c in busy if all(results.ready() for _, results in running[c])), busy[0])
+        done = next((c for c in busy if all(outputs.ready() for _, outputs in running[c])), busy[0])
         collect(done)
         turn = (done + 1) % count
     return results
@@ -273,9 +273,9 @@ def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool
     and returns at once. But a device runs its work in order, so a small eager JAX
     operation in that Python (``jnp.asarray``, ``.at[].set``) would wait for the batch
     running on the same device. On a CPU with several devices
-    (:func:`strauss_fit.runtime.use_cpu_cores`: one per core and one more) the batches
-    therefore run on the devices after the first, which is left to the eager operations,
-    one cohort per device: as many devices as there are cores less the one the Python
+    (:func:`strauss_fit.runtime.use_cpu_cores`: one per core, up to eight, and one more)
+    the batches therefore run on the devices after the first, which is left to the eager
+    operations, one cohort per device: as many devices as there are cores less the one the Python
     needs (``python_bound``, a fit's case), or as cores (a conversion's, almost all
     compiled work). Each device compiles its own programs (and holds them: memory
     mappings, :mod:`strauss_fit.runtime`), so a batch uses a device only from
