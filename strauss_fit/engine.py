@@ -73,6 +73,10 @@ class Kernel:
     def __call__(self, *args: Any) -> Any:
         return self._one(*args)
 
+    def run_call(self, call: Call) -> Any:
+        """``self(*call.args)``, reusing the call's partition of its arguments."""
+        return self._one.call_parts(call.args, call.parts)
+
     def call(self, *args: Any) -> Call:
         """The request to run this kernel on ``args`` (what a step yields)."""
         return Call(self, args)
@@ -144,7 +148,11 @@ class _DispatchingJit:
         self._jitted = jax.jit(arrays_only, static_argnums=1)
 
     def __call__(self, *args: Any) -> Any:
-        dynamic, static = eqx.partition(args, eqx.is_array)
+        return self.call_parts(args, eqx.partition(args, eqx.is_array))
+
+    def call_parts(self, args: tuple, parts: tuple[Any, Any]) -> Any:
+        """The call on ``args`` already partitioned into ``parts`` (:attr:`Call.parts`)."""
+        dynamic, static = parts
         try:
             hash(static)
         except TypeError:
@@ -275,9 +283,9 @@ def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool
     running on the same device. On a CPU with several devices
     (:func:`strauss_fit.runtime.use_cpu_cores`: one per core, up to eight, and one more)
     the batches therefore run on the devices after the first, which is left to the eager
-    operations, one cohort per device: as many devices as there are cores less the one the Python
-    needs (``python_bound``, a fit's case), or as cores (a conversion's, almost all
-    compiled work). Each device compiles its own programs (and holds them: memory
+    operations, one cohort per device: as many devices as there are cores less the one
+    the Python needs (``python_bound``, a fit's case), or as cores (a conversion's, almost
+    all compiled work). Each device compiles its own programs (and holds them: memory
     mappings, :mod:`strauss_fit.runtime`), so a batch uses a device only from
     :data:`ITEMS_PER_DEVICE` items per device on; a smaller batch runs on the default
     device, as a single fit does, sharing its programs."""
@@ -327,7 +335,7 @@ def _start_group(calls: list[Call], sequential: bool | None, device: Any = None)
         with placed:
             for call in calls:
                 try:
-                    outputs.append(call.kernel(*call.args))
+                    outputs.append(call.kernel.run_call(call))
                 except Exception as error:
                     outputs.append(_Failed(error))
         return outputs
@@ -346,7 +354,7 @@ def _start_group(calls: list[Call], sequential: bool | None, device: Any = None)
                 for part in _power_of_two_parts(len(calls)):
                     chunk = calls[first : first + part]
                     if part == 1:
-                        single = chunk[0].kernel(*chunk[0].args)
+                        single = chunk[0].kernel.run_call(chunk[0])
                         parts.append(Pending(lambda single=single: [single], single))
                     else:
                         parts.append(

@@ -724,7 +724,8 @@ def _bin_variances(
     mean_square = np.bincount(idx, weights=r * r, minlength=bins) / n
     if first:
         # each bin's median |r|: sorted by bin, then by |r|, the middle one (two) of each bin
-        magnitude = np.abs(r)[np.lexsort((np.abs(r), idx))]
+        magnitude = np.abs(r)
+        magnitude = magnitude[np.lexsort((magnitude, idx))]
         start = np.concatenate(([0], np.cumsum(counts)[:-1]))
         low, high = start + (n - 1) // 2, start + counts // 2
         median = (magnitude[np.minimum(low, len(r) - 1)] + magnitude[np.minimum(high, len(r) - 1)]) / 2
