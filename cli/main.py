@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="strauss-fit",
         description="Render, fit and compare the Strauss (1990) lighting model on sphere images.",
         epilog="Run 'strauss-fit COMMAND --help' for the options of each command. "
-        "Set STRAUSS_FIT_CACHE_DIR=off to disable the compilation cache (~/.cache/strauss-fit/jax).",
+        "Set STRAUSS_FIT_CACHE_DIR=off to disable the compilation cache (~/.cache/strauss-fit/jax) "
+        "and the traced kernels kept beside it.",
     )
     parser.add_argument("--version", action="version", version="%(prog)s " + _version())
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

@@ -50,6 +50,7 @@ import jax
 import numpy as np
 from equinox.internal import Static
 
+from .export_cache import ExportedKernel, kernel_identity
 from .runtime import usable_cores
 
 #: A fit (or any computation) written as steps: it yields :class:`Call` and receives results.
@@ -64,8 +65,9 @@ class Kernel:
     def __init__(self, fn: Callable[..., Any], name: str | None = None):
         self.fn = fn
         self.name = name or getattr(fn, "__name__", "kernel")
-        self._one = _DispatchingJit(fn)
-        self._many = _DispatchingJit(self._batched)
+        identity = kernel_identity(fn)  # None: not kept on disk (strauss_fit.export_cache)
+        self._one = _DispatchingJit(fn, identity)
+        self._many = _DispatchingJit(self._batched, identity and identity + "[many]")
 
     def __repr__(self) -> str:
         return f"Kernel({self.name})"
@@ -137,8 +139,10 @@ class _DispatchingJit:
     A runtime error then surfaces when the result is read. Arguments whose static part
     cannot be hashed go through ``filter_jit``."""
 
-    def __init__(self, fn: Callable[..., Any]):
+    def __init__(self, fn: Callable[..., Any], identity: str | None = None):
         self._filtered = eqx.filter_jit(fn)
+        # traced and lowered programs kept on disk (strauss_fit.export_cache), where enabled
+        self._exported = ExportedKernel(fn, identity) if identity is not None else None
 
         def arrays_only(dynamic: Any, static: Any) -> Any:
             arrays, rest = eqx.partition(fn(*eqx.combine(dynamic, static)), eqx.is_array)
@@ -157,6 +161,10 @@ class _DispatchingJit:
             hash(static)
         except TypeError:
             return self._filtered(*args)
+        if self._exported is not None:
+            result = self._exported.call(dynamic, static)
+            if result is not None:
+                return result
         arrays, rest = self._jitted(dynamic, static)
         return eqx.combine(arrays, rest.value)
 

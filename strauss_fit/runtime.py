@@ -105,6 +105,11 @@ def enable_compilation_cache() -> Path | None:
 
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    # beside it, the kernels' traced and lowered programs (jax.export): <folder>-export,
+    # STRAUSS_FIT_EXPORT_CACHE=off turns that one off (strauss_fit.export_cache)
+    from .export_cache import configure
+
+    configure(folder)
     return folder
 
 
