@@ -117,7 +117,7 @@ def reachable_maximum_steps(problem: Any) -> Steps:
     transmission, the brightest background radiance is added."""
     layout = Layout(("color", "smoothness", "metalness", "transparency"))
     probe = dataclasses.replace(
-        problem, layout=layout, pinned=jnp.zeros(layout.size, dtype=bool), pinned_values=jnp.zeros(layout.size)
+        problem, layout=layout, pinned=np.zeros(layout.size, dtype=bool), pinned_values=np.zeros(layout.size)
     )
     rows = [[1.0, 1.0, 1.0, s, m, 0.0] for s in _ENVELOPE_SMOOTHNESS for m in (0.0, 1.0)]
     maximum = np.asarray((yield brightest.call(probe, np.asarray(rows))))

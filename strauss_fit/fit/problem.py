@@ -119,7 +119,12 @@ class Problem(eqx.Module):
         return jnp.where(self.pinned, self.pinned_values, self.layout.to_physical(theta))
 
     def pin(self, mask: np.ndarray, values: np.ndarray) -> Problem:
-        return dataclasses.replace(self, pinned=jnp.asarray(mask), pinned_values=jnp.asarray(values))
+        # NumPy, as build_problem's: jnp.asarray would dispatch a device copy for each,
+        # which on a busy device waits behind the compiled work (a conversion ran ~4 per
+        # material); a kernel takes them as arrays all the same
+        return dataclasses.replace(
+            self, pinned=np.asarray(mask, dtype=bool), pinned_values=np.asarray(values, dtype=np.float64)
+        )
 
     def render_physical(self, x: Array) -> Array:
         """Model radiance (N, 3) at the usable pixels for physical parameters ``x``."""
