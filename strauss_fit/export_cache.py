@@ -156,7 +156,13 @@ class ExportedKernel:
         if entry is False:
             return None
         run, out_treedef, rest = entry
-        arrays = jax.tree.unflatten(out_treedef, run(*leaves))
+        try:
+            outputs = run(*leaves)
+        except Exception:  # a kept program that will not lower or compile here: trace instead
+            # (errors inside the running program surface later, when results are read)
+            self._memo[memo_key] = False
+            return None
+        arrays = jax.tree.unflatten(out_treedef, outputs)
         return eqx.combine(arrays, rest) if rest is not None else arrays
 
     def _digest(self, treedef: Any, avals: tuple, static: Any) -> str | None:
@@ -177,18 +183,15 @@ class ExportedKernel:
             return False
         path = where / f"{self.identity.rsplit('.', 1)[-1]}-{digest[:40]}.pkl"
         try:
-            stored = pickle.loads(path.read_bytes())
-        except FileNotFoundError:
-            stored = None
-        except Exception:  # a damaged or foreign file: export again and overwrite it
-            stored = None
-        if stored is None:
-            stored = self._export(leaves, treedef, static)
-            _write_atomically(path, pickle.dumps(stored, protocol=pickle.HIGHEST_PROTOCOL))
-        if stored.get("unsupported"):
+            return _loaded(pickle.loads(path.read_bytes()))
+        except Exception:  # missing, damaged or foreign: export (again) and overwrite it
+            pass
+        stored = self._export(leaves, treedef, static)
+        _write_atomically(path, pickle.dumps(stored, protocol=pickle.HIGHEST_PROTOCOL))
+        try:
+            return _loaded(stored)
+        except Exception:  # exported, but not loadable here: trace instead
             return False
-        exported = jax.export.deserialize(bytearray(stored["exported"]))
-        return jax.jit(exported.call), jax.tree.structure(stored["out_template"]), stored["rest"]
 
     def _export(self, leaves: list, treedef: Any, static: Any) -> dict[str, Any]:
         found: list[Any] = []
@@ -223,6 +226,15 @@ class ExportedKernel:
         except Exception as error:  # host callbacks, unstable custom calls, unpicklable output
             return {"unsupported": True, "why": f"{type(error).__name__}: {error}"[:2000]}
         return stored
+
+
+def _loaded(stored: Any) -> Any:
+    """A stored entry ready to call: (jitted call, output structure, output rest), or False
+    for a kernel marked as not exportable. Raises on anything else."""
+    if stored.get("unsupported"):
+        return False
+    exported = jax.export.deserialize(bytearray(stored["exported"]))
+    return jax.jit(exported.call), jax.tree.structure(stored["out_template"]), stored["rest"]
 
 
 def _write_atomically(path: Path, data: bytes) -> None:

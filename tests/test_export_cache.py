@@ -154,14 +154,35 @@ def test_static_arguments_without_a_stable_description_are_not_kept(cache, x64):
     assert _programs(cache) == []
 
 
-def test_a_damaged_file_is_exported_again(cache, x64):
+@pytest.mark.parametrize(
+    "damage",
+    [b"not a pickle", pickle.dumps({"exported": b"not a program"}), pickle.dumps(["a", "foreign", "pickle"])],
+    ids=["not-a-pickle", "not-a-program", "foreign"],
+)
+def test_a_damaged_file_is_exported_again(cache, damage, x64):
     args = (np.ones(3), np.ones(3), "z")
     Kernel(_probe)(*args)
     (path,) = _programs(cache)
-    path.write_bytes(b"not a pickle")
+    path.write_bytes(damage)
     result = Kernel(_probe)(*args)
     np.testing.assert_array_equal(result["value"], np.sin(np.ones(3)) + 1.0)
     assert "exported" in pickle.loads(path.read_bytes())
+
+
+def test_a_kept_program_that_fails_to_run_here_falls_back_to_tracing(cache, monkeypatch, x64):
+    args = (np.ones(3), np.ones(3), "v")
+    Kernel(_probe)(*args)
+
+    def broken(stored):
+        def run(*leaves):
+            raise RuntimeError("cannot compile this program here")
+
+        return run, export_cache.jax.tree.structure(stored["out_template"]), stored["rest"]
+
+    monkeypatch.setattr(export_cache, "_loaded", broken)
+    kernel = Kernel(_probe)
+    for _ in range(2):  # the second call goes straight to tracing
+        np.testing.assert_array_equal(kernel(*args)["value"], np.sin(np.ones(3)) + 1.0)
 
 
 def test_a_full_disk_only_costs_time(cache, monkeypatch, x64):
