@@ -119,7 +119,9 @@ def _trace_context() -> str:
     try:
         from jax._src import config
 
-        parts = [repr(item) for item in config.trace_context()]
+        # without the default device: a program does not depend on it (jax.jit places each
+        # call), and a batch on another CPU device would otherwise keep its own copy
+        parts = [repr(None if isinstance(item, jax.Device) else item) for item in config.trace_context()]
         context = repr([part for part in parts if " at 0x" not in part])
     except Exception:  # a private API: fall back to the one setting known to matter
         context = ""

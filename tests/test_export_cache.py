@@ -231,3 +231,18 @@ def test_a_large_batch_runs_kept_programs_on_its_cpu_devices(cache, x64):
     export_cache._folder = None
     for i, result in enumerate(batched):
         np.testing.assert_array_equal(result, run(steps(float(i))))
+
+
+def test_one_kept_program_serves_every_cpu_device(cache, x64):
+    import jax
+
+    if jax.local_device_count() < 2:
+        pytest.skip("one CPU device")
+    kernel = Kernel(_probe)
+    args = [(np.full(3, float(i)), np.arange(3.0), None) for i in range(4)]
+    expected = kernel.run_many(args)
+    with jax.default_device(jax.devices()[1]):
+        elsewhere = Kernel(_probe).run_many(args)
+    assert len(_programs(cache)) == 1
+    for result, wanted in zip(elsewhere, expected):
+        np.testing.assert_array_equal(result["value"], wanted["value"])
