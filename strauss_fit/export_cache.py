@@ -20,10 +20,11 @@ functions of :mod:`strauss_fit` only), the static (non-array) part of its argume
 tree structure and the ``repr`` of its leaves, which must be plain: numbers, strings,
 None), the tree structure, shapes, dtypes and weak types of the array leaves, JAX's
 tracing context (the ``jax_enable_x64`` scope and the other settings that key
-``jax.jit``'s own cache), the versions of jax, jaxlib, equinox, lineax, optimistix and
-numpy, equinox's ``EQX_*`` environment settings, and a hash of the source files of
-:mod:`strauss_fit`. A static part whose ``repr`` is not stable between processes (it
-shows an address, ``0x…``) is not kept on disk. The file holds the serialised program,
+``jax.jit``'s own cache, less the default device: one program serves every device), the
+versions of jax, jaxlib, equinox, lineax, optimistix and numpy, equinox's ``EQX_*``
+environment settings, and a hash of the source files of :mod:`strauss_fit`. A static
+part whose ``repr`` is not stable between processes (it shows an address, ``0x…``) is
+not kept on disk. The file holds the serialised program,
 the output's structure and its non-array part (pickled), or a marker saying that the
 program cannot be exported (host callbacks: ``eqx.error_if``, ``jax.debug.print``), so
 that later processes do not try again. Files are written to a temporary name and renamed
