@@ -47,6 +47,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from .runtime import turned_off
+
 #: Bump when the file layout changes.
 FORMAT = 2
 
@@ -58,7 +60,7 @@ def configure(compilation_cache: Path | None) -> Path | None:
     """Turn the export cache on beside ``compilation_cache`` (None: off); returns its folder."""
     global _folder
     setting = os.environ.get("STRAUSS_FIT_EXPORT_CACHE")
-    if compilation_cache is None or (setting is not None and setting.strip().lower() in ("", "off", "none", "0")):
+    if compilation_cache is None or turned_off(setting):
         _folder = None
         return None
     try:  # jax.export's serialisation needs it (not a dependency of jax itself)
@@ -116,17 +118,23 @@ def _environment_digest() -> str:
     return _environment
 
 
-def _trace_context() -> str:
+def _trace_context() -> tuple:
+    """JAX's tracing context (what keys ``jax.jit``'s own cache) and the float64 scope,
+    without the default device: a program does not depend on it (``jax.jit`` places each
+    call), and a batch on another CPU device would otherwise keep its own copy. Cheap and
+    hashable: it keys every call's lookup in memory (:meth:`ExportedKernel.call`)."""
     try:
         from jax._src import config
 
-        # without the default device: a program does not depend on it (jax.jit places each
-        # call), and a batch on another CPU device would otherwise keep its own copy
-        parts = [repr(None if isinstance(item, jax.Device) else item) for item in config.trace_context()]
-        context = repr([part for part in parts if " at 0x" not in part])
+        items = tuple(None if isinstance(item, jax.Device) else item for item in config.trace_context())
     except Exception:  # a private API: fall back to the one setting known to matter
-        context = ""
-    return context + repr(jax.dtypes.canonicalize_dtype(np.float64))
+        items = ()
+    return items + (jax.dtypes.canonicalize_dtype(np.float64),)
+
+
+def _context_text(context: tuple) -> str:
+    """:func:`_trace_context` as text for the digest (parts that show an address left out)."""
+    return repr([part for part in map(repr, context) if " at 0x" not in part])
 
 
 #: Static leaves whose ``repr`` tells any two different values apart.
@@ -151,10 +159,11 @@ class ExportedKernel:
             return None
         leaves, treedef = jax.tree.flatten(dynamic)
         avals = tuple((np.shape(x), np.dtype(x.dtype).str, bool(getattr(x, "weak_type", False))) for x in leaves)
-        memo_key = (where, static, treedef, avals, _trace_context())
+        context = _trace_context()
+        memo_key = (where, static, treedef, avals, context)
         entry = self._memo.get(memo_key)
         if entry is None:
-            entry = self._load_or_export(where, leaves, treedef, avals, static)
+            entry = self._load_or_export(where, leaves, treedef, avals, static, context)
             self._memo[memo_key] = entry
         if entry is False:
             return None
@@ -168,7 +177,7 @@ class ExportedKernel:
         arrays = jax.tree.unflatten(out_treedef, outputs)
         return eqx.combine(arrays, rest) if rest is not None else arrays
 
-    def _digest(self, treedef: Any, avals: tuple, static: Any) -> str | None:
+    def _digest(self, treedef: Any, avals: tuple, static: Any, context: tuple) -> str | None:
         static_leaves, static_treedef = jax.tree.flatten(static)
         if not all(type(leaf) in _PLAIN for leaf in static_leaves):  # a repr may not tell two apart
             return None
@@ -177,11 +186,13 @@ class ExportedKernel:
         )
         if " at 0x" in described:  # an address: not the same in the next process
             return None
-        text = described + _trace_context() + _environment_digest()
+        text = described + _context_text(context) + _environment_digest()
         return hashlib.sha256(text.encode()).hexdigest()
 
-    def _load_or_export(self, where: Path, leaves: list, treedef: Any, avals: tuple, static: Any) -> Any:
-        digest = self._digest(treedef, avals, static)
+    def _load_or_export(
+        self, where: Path, leaves: list, treedef: Any, avals: tuple, static: Any, context: tuple
+    ) -> Any:
+        digest = self._digest(treedef, avals, static, context)
         if digest is None:
             return False
         path = where / f"{self.identity.rsplit('.', 1)[-1]}-{digest[:40]}.pkl"

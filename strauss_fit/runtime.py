@@ -82,10 +82,15 @@ def use_cpu_cores() -> None:
         return
 
 
+def turned_off(setting: str | None) -> bool:
+    """Whether an environment setting says ``off`` (or ``none``, ``0``, empty); unset is not."""
+    return setting is not None and setting.strip().lower() in ("", "off", "none", "0")
+
+
 def cache_folder() -> Path | None:
     """The persistent compilation cache's folder, or None when it is turned off."""
     setting = os.environ.get("STRAUSS_FIT_CACHE_DIR")
-    if setting is not None and setting.strip().lower() in ("", "off", "none", "0"):
+    if turned_off(setting):
         return None
     return Path(setting) if setting else Path.home() / ".cache" / "strauss-fit" / "jax"
 
