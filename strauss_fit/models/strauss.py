@@ -254,11 +254,83 @@ class ShadeWeights(NamedTuple):
 def shade_weights(material: Material, terms: AngularTerms) -> ShadeWeights:
     """:class:`ShadeWeights` from precomputed terms. Why scalars: forming RGB once, by
     broadcasting at the end, is several times faster on XLA:CPU than per-light RGB arrays."""
-    s, m = material.smoothness, material.metalness
-    diffuse = (1 - m * s) * diffuse_reflectivity(material) * terms.cos_alpha
-    r_s = specular_peak(material, terms.j) * highlight_falloff(terms.cos_beta, s)
+    return weights_of(material.smoothness, material.metalness, material.transparency, terms)
+
+
+def weights_of(s: Array, m: Array, t: Array, terms: AngularTerms) -> ShadeWeights:
+    """:class:`ShadeWeights` of smoothness ``s``, metalness ``m`` and transparency ``t``."""
+    r_d = (1 - s**3) * (1 - t)
+    diffuse = (1 - m * s) * r_d * terms.cos_alpha
+    r_n = (1 - t) * s**3
+    r_s = jnp.minimum(1.0, r_n + terms.j * (r_n + K_J)) * highlight_falloff(terms.cos_beta, s)
     r_s = jnp.where(terms.lit, r_s, 0.0)
     return ShadeWeights(diffuse, r_s, r_s * m * (1 - terms.fresnel_alpha))
+
+
+class WeightSlopes(NamedTuple):
+    """The derivatives of :class:`ShadeWeights` in s, m and t (each a
+    :class:`ShadeWeights` of the same shape)."""
+
+    smoothness: ShadeWeights
+    metalness: ShadeWeights
+    transparency: ShadeWeights
+
+
+def weight_slopes(s: Array, m: Array, t: Array, terms: AngularTerms) -> tuple[ShadeWeights, WeightSlopes]:
+    r"""The weights (:func:`weights_of`) and their derivatives in s, m and t, in closed form:
+
+    .. math::
+
+        \partial_s d = -[m (1 - s^3) + 3 s^2 (1 - m s)] (1 - t) \cos\alpha, \quad
+        \partial_m d = -s (1 - s^3)(1 - t)\cos\alpha, \quad
+        \partial_t d = -(1 - m s)(1 - s^3)\cos\alpha,
+
+        \partial_s r_s = g\,(1 + j)\,3 s^2 (1 - t)\,P + r_j P \log(\cos\beta)\,\frac{3}{(1 - s)^2},
+        \quad \partial_t r_s = -g\,(1 + j)\,s^3 P, \quad \partial_m r_s = 0,
+
+        \partial_\theta w = \partial_\theta r_s\, m (1 - F) \ (\theta = s, t), \quad
+        \partial_m w = r_s (1 - F),
+
+    with :math:`P = \cos^h\beta` and g the slope of the clamp :math:`\min\{1, \cdot\}` (1
+    below, 0 above, ½ at the tie, as JAX differentiates ``minimum``). The guards are those
+    of :func:`highlight_falloff`: no slope where cos β ≤ 0 or s = 1 (the delta lobe).
+    Why: a fit's Jacobian built from these costs about two renders, where forward-mode
+    differentiation of the render costs about one per parameter (see
+    :func:`strauss_fit.render.strauss.direct_radiance`)."""
+    s3 = s**3
+    one_minus_t = 1 - t
+    r_d = (1 - s3) * one_minus_t
+    cos_alpha = terms.cos_alpha
+    diffuse = (1 - m * s) * r_d * cos_alpha
+    d_s = -(m * (1 - s3) + 3 * s**2 * (1 - m * s)) * one_minus_t * cos_alpha
+    d_m = -s * r_d * cos_alpha
+    d_t = -(1 - m * s) * (1 - s3) * cos_alpha
+    # the peak r_j = min(1, r_n (1 + j) + j k_j)
+    r_n = one_minus_t * s3
+    value = r_n + terms.j * (r_n + K_J)
+    r_j = jnp.minimum(1.0, value)
+    gate = jnp.where(value < 1, 1.0, jnp.where(value == 1, 0.5, 0.0)) * (1 + terms.j)
+    # the falloff P = cos^h(beta), guarded as in highlight_falloff
+    below_one = s < 1
+    exponent = 3.0 / (1.0 - jnp.where(below_one, s, 0.0))
+    positive = terms.cos_beta > 0
+    log_base = jnp.log(jnp.where(positive, terms.cos_beta, 1.0))
+    powered = jnp.where(positive, jnp.exp(exponent * log_base), 0.0)
+    delta = jnp.where(terms.cos_beta >= 1, 1.0, 0.0).astype(powered.dtype)
+    falloff = jnp.where(below_one, powered, delta)
+    falloff_s = jnp.where(below_one, powered * log_base * (exponent * exponent / 3.0), 0.0)  # dh/ds = h²/3
+    lit = terms.lit
+    r_s = jnp.where(lit, r_j * falloff, 0.0)
+    rs_s = jnp.where(lit, gate * 3 * s**2 * one_minus_t * falloff + r_j * falloff_s, 0.0)
+    rs_t = jnp.where(lit, -gate * s3 * falloff, 0.0)
+    tint = m * (1 - terms.fresnel_alpha)
+    weights = ShadeWeights(diffuse, r_s, r_s * tint)
+    slopes = WeightSlopes(
+        smoothness=ShadeWeights(d_s, rs_s, rs_s * tint),
+        metalness=ShadeWeights(d_m, jnp.zeros_like(r_s), r_s * (1 - terms.fresnel_alpha)),
+        transparency=ShadeWeights(d_t, rs_t, rs_t * tint),
+    )
+    return weights, slopes
 
 
 def combine_rgb(weights: ShadeWeights, color: Array, light_color: Array) -> Array:
