@@ -83,11 +83,12 @@ class Kernel:
         """The request to run this kernel on ``args`` (what a step yields)."""
         return Call(self, args)
 
-    def _batched(self, dynamic: Any, static: Any, sequential: bool) -> Any:
-        def one(item):
-            return self.fn(*eqx.combine(item, static))
+    def _batched(self, stacked: list, shared: list, static: StaticPart, sequential: bool) -> Any:
+        def one(item: list) -> Any:
+            arrays = [own if own is not None else common for own, common in zip(item, shared)]
+            return self.fn(*static.rebuild(arrays))
 
-        return jax.lax.map(one, dynamic) if sequential else jax.vmap(one)(dynamic)
+        return jax.lax.map(one, stacked) if sequential else jax.vmap(one)(stacked)
 
     def run_many(self, argument_lists: list[tuple], sequential: bool | None = None) -> list[Any]:
         """The kernel on every argument tuple (all of one structure, see :func:`batch_key`),
@@ -103,16 +104,39 @@ class Kernel:
         if sequential is None:
             sequential = jax.default_backend() == "cpu"
         if parts is None:
-            parts = [eqx.partition(args, eqx.is_array) for args in argument_lists]
+            parts = [split_arguments(args) for args in argument_lists]
         static = parts[0][1]
-        stacked = jax.tree.map(lambda *leaves: np.stack([np.asarray(x) for x in leaves]), *[p[0] for p in parts])
-        running = self._many(stacked, static, bool(sequential))
+        if static is None:  # a static part that cannot be hashed: one call each
+            outputs = [self._one.call_parts(args, part) for args, part in zip(argument_lists, parts)]
+            return Pending(lambda: jax.device_get(outputs), outputs)
+        stacked, shared = _stack_items([p[0] for p in parts])
+        running = self._many(stacked, shared, static, bool(sequential))
 
         def results() -> list[Any]:
             out = jax.device_get(running)
             return [jax.tree.map(lambda leaf, i=i: leaf[i], out) for i in range(len(argument_lists))]
 
         return Pending(results, running)
+
+
+def _stack_items(items: list[list]) -> tuple[list, list]:
+    """The array lists ``items`` (one per call, of one structure) as one batch: each array
+    stacked along a new first axis, except an array that is the same object in every
+    item, which is passed once, unstacked (in ``shared``; None in ``stacked``, and the
+    other way round). Why: the items of a conversion share their problem's prepared
+    geometry (a megabyte per item at the default scene), which stacking would copy for
+    every item and the batched program would slice again per item."""
+    first, others = items[0], items[1:]
+    stacked: list = []
+    shared: list = []
+    for i, array in enumerate(first):
+        if all(other[i] is array for other in others):
+            stacked.append(None)
+            shared.append(array)
+        else:
+            stacked.append(np.stack([np.asarray(item[i]) for item in items]))
+            shared.append(None)
+    return stacked, shared
 
 
 class Pending:
@@ -136,37 +160,123 @@ class _DispatchingJit:
     equinox's ``filter_jit``, but returning as soon as JAX has dispatched the call:
     ``filter_jit`` waits for every call to finish (to word its runtime errors), which
     would keep the Python of other targets from running meanwhile (:func:`run_batched`).
-    A runtime error then surfaces when the result is read. Arguments whose static part
-    cannot be hashed go through ``filter_jit``."""
+    A runtime error then surfaces when the result is read. The arguments are split once
+    into their arrays and a :class:`StaticPart` (:func:`split_arguments`); arguments with
+    a leaf that cannot be hashed go through ``filter_jit``."""
 
     def __init__(self, fn: Callable[..., Any], identity: str | None = None):
         self._filtered = eqx.filter_jit(fn)
-        # traced and lowered programs kept on disk (strauss_fit.export_cache), where enabled
-        self._exported = ExportedKernel(fn, identity) if identity is not None else None
 
-        def arrays_only(dynamic: Any, static: Any) -> Any:
-            arrays, rest = eqx.partition(fn(*eqx.combine(dynamic, static)), eqx.is_array)
-            return arrays, Static(rest)
+        def on_arrays(arrays: list, static: StaticPart) -> Any:
+            return fn(*static.rebuild(arrays))
+
+        # traced and lowered programs kept on disk (strauss_fit.export_cache), where enabled
+        self._exported = ExportedKernel(on_arrays, identity) if identity is not None else None
+
+        def arrays_only(arrays: list, static: StaticPart) -> Any:
+            out_arrays, rest = eqx.partition(on_arrays(arrays, static), eqx.is_array)
+            return out_arrays, Static(rest)
 
         arrays_only.__name__ = getattr(fn, "__name__", "kernel")
         self._jitted = jax.jit(arrays_only, static_argnums=1)
 
     def __call__(self, *args: Any) -> Any:
-        return self.call_parts(args, eqx.partition(args, eqx.is_array))
+        return self.call_parts(args, split_arguments(args))
 
-    def call_parts(self, args: tuple, parts: tuple[Any, Any]) -> Any:
-        """The call on ``args`` already partitioned into ``parts`` (:attr:`Call.parts`)."""
-        dynamic, static = parts
-        try:
-            hash(static)
-        except TypeError:
+    def call_parts(self, args: tuple, parts: tuple[list, StaticPart | None]) -> Any:
+        """The call on ``args`` already split into ``parts`` (:attr:`Call.parts`)."""
+        arrays, static = parts
+        if static is None:
             return self._filtered(*args)
         if self._exported is not None:
-            result = self._exported.call(dynamic, static)
+            result = self._exported.call(arrays, static)
             if result is not None:
                 return result
-        arrays, rest = self._jitted(dynamic, static)
-        return eqx.combine(arrays, rest.value)
+        out_arrays, rest = self._jitted(arrays, static)
+        return eqx.combine(out_arrays, rest.value)
+
+
+class _ArraySlot:
+    """Where an array stands among a :class:`StaticPart`'s leaves."""
+
+    def __repr__(self) -> str:
+        return "<array>"
+
+    def __reduce__(self) -> str:
+        return "ARRAY_SLOT"
+
+
+#: The marker of an array's place in :attr:`StaticPart.leaves`.
+ARRAY_SLOT = _ArraySlot()
+
+
+class StaticPart:
+    """The non-array part of a kernel call's arguments: their pytree structure and their
+    leaves, each array replaced by :data:`ARRAY_SLOT`. Hashed once, compared structurally.
+
+    Why not ``eqx.partition``'s static pytree: hashing and comparing that walks every
+    equinox module of the arguments in Python (a conversion's problem: ~50 µs a hash, and
+    a call's static part is hashed and compared four times: its batch, the export cache,
+    ``jax.jit``), and partitioning itself costs ~180 µs; one flatten costs ~20 µs and the
+    structure's hash and comparison happen in C++."""
+
+    __slots__ = ("treedef", "leaves", "_hash")
+
+    def __init__(self, treedef: Any, leaves: tuple):
+        self.treedef = treedef
+        self.leaves = leaves
+        self._hash = hash((treedef, leaves))  # TypeError: a leaf that cannot be hashed
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        if self is other:
+            return True
+        return (
+            isinstance(other, StaticPart)
+            and self._hash == other._hash
+            and self.treedef == other.treedef
+            and self.leaves == other.leaves
+        )
+
+    def rebuild(self, arrays: list) -> Any:
+        """The arguments, with ``arrays`` in the array slots (in order)."""
+        supply = iter(arrays)
+        return jax.tree.unflatten(self.treedef, [next(supply) if x is ARRAY_SLOT else x for x in self.leaves])
+
+    def describe(self, plain: tuple[type, ...]) -> str | None:
+        """A text that tells this static part from any other, or None when a leaf is not of
+        a ``plain`` type (its ``repr`` might not tell two values apart) nor a
+        :class:`StaticPart` itself (a batched call's)."""
+        texts = []
+        for leaf in self.leaves:
+            if leaf is ARRAY_SLOT or type(leaf) in plain:
+                texts.append(repr(leaf))
+            elif isinstance(leaf, StaticPart):
+                inner = leaf.describe(plain)
+                if inner is None:
+                    return None
+                texts.append(inner)
+            else:
+                return None
+        return repr((str(self.treedef), texts))
+
+
+def split_arguments(args: tuple) -> tuple[list, StaticPart | None]:
+    """``args`` as their array leaves (in order) and their :class:`StaticPart` (None when a
+    leaf cannot be hashed)."""
+    leaves, treedef = jax.tree.flatten(args)
+    arrays = [x for x in leaves if isinstance(x, _ARRAY_TYPES)]
+    try:
+        static = StaticPart(treedef, tuple(ARRAY_SLOT if isinstance(x, _ARRAY_TYPES) else x for x in leaves))
+    except TypeError:
+        static = None
+    return arrays, static
+
+
+#: What ``eqx.is_array`` counts as an array.
+_ARRAY_TYPES = (jax.Array, np.ndarray, np.generic)
 
 
 @dataclass(frozen=True)
@@ -177,10 +287,10 @@ class Call:
     args: tuple
 
     @functools.cached_property
-    def parts(self) -> tuple[Any, Any]:
-        """The arguments' array part and the rest (``eqx.partition``), split once: grouping
-        and stacking both need them."""
-        return eqx.partition(self.args, eqx.is_array)
+    def parts(self) -> tuple[list, StaticPart | None]:
+        """The arguments' arrays and :class:`StaticPart` (:func:`split_arguments`), split
+        once: grouping, stacking and the call all need them."""
+        return split_arguments(self.args)
 
 
 def run(steps: Steps) -> Any:
@@ -197,13 +307,10 @@ def run(steps: Steps) -> Any:
 def batch_key(call: Call) -> Any:
     """What calls must share to run as one batch: the kernel, the static (non-array) part
     of the arguments and the shapes and dtypes of the array part."""
-    dynamic, static = call.parts
-    leaves, treedef = jax.tree.flatten(dynamic)
-    try:
-        static_key = hash(static), static
-    except TypeError:  # an unhashable static part cannot be grouped: run it alone
+    arrays, static = call.parts
+    if static is None:  # a static part that cannot be hashed cannot be grouped: run it alone
         return (call.kernel, id(call))
-    return (call.kernel, static_key, treedef, tuple((x.shape, x.dtype.str) for x in leaves))
+    return (call.kernel, static, tuple((np.shape(x), x.dtype.str) for x in arrays))
 
 
 class _Failed:

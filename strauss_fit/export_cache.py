@@ -18,12 +18,13 @@ command line, Dask workers), never for the library used directly.
 One file per program, named by a SHA-256 digest of: the kernel's identity (module-level
 functions of :mod:`strauss_fit` only), the static (non-array) part of its arguments (its
 tree structure and the ``repr`` of its leaves, which must be plain: numbers, strings,
-None), the tree structure, shapes, dtypes and weak types of the array leaves, JAX's
-tracing context (the ``jax_enable_x64`` scope and the other settings that key
-``jax.jit``'s own cache, less the default device: one program serves every device), the
-versions of jax, jaxlib, equinox, lineax, optimistix and numpy, equinox's ``EQX_*``
-environment settings, and a hash of the source files of :mod:`strauss_fit`. A static
-part whose ``repr`` is not stable between processes (it shows an address, ``0x…``) is
+None; :meth:`strauss_fit.engine.StaticPart.describe`), the tree structure, shapes,
+dtypes and weak types of the array leaves, JAX's tracing context (the ``jax_enable_x64``
+scope and the other settings that key ``jax.jit``'s own cache, less the default device:
+one program serves every device), the versions of jax, jaxlib, equinox, lineax,
+optimistix and numpy, equinox's ``EQX_*`` environment settings, and a hash of the source
+files of :mod:`strauss_fit`. A static part whose ``repr`` is not stable between
+processes (it shows an address, ``0x…``) is
 not kept on disk. The file holds the serialised program,
 the output's structure and its non-array part (pickled), or a marker saying that the
 program cannot be exported (host callbacks: ``eqx.error_if``, ``jax.debug.print``), so
@@ -142,9 +143,11 @@ _PLAIN = (bool, int, float, complex, str, bytes, type(None))
 
 
 class ExportedKernel:
-    """``fn(*eqx.combine(dynamic, static))`` through exported programs kept on disk; one
-    per :class:`strauss_fit.engine._DispatchingJit`. :meth:`call` returns None where the
-    call cannot go this way (the caller then runs its ``jax.jit``)."""
+    """``fn(arrays, static)`` through exported programs kept on disk; one per
+    :class:`strauss_fit.engine._DispatchingJit`, whose ``fn`` rebuilds a kernel's
+    arguments from their arrays and their :class:`strauss_fit.engine.StaticPart`.
+    :meth:`call` returns None where the call cannot go this way (the caller then runs its
+    ``jax.jit``)."""
 
     def __init__(self, fn: Callable[..., Any], identity: str):
         self.fn = fn
@@ -178,12 +181,10 @@ class ExportedKernel:
         return eqx.combine(arrays, rest) if rest is not None else arrays
 
     def _digest(self, treedef: Any, avals: tuple, static: Any, context: tuple) -> str | None:
-        static_leaves, static_treedef = jax.tree.flatten(static)
-        if not all(type(leaf) in _PLAIN for leaf in static_leaves):  # a repr may not tell two apart
+        static_text = static.describe(_PLAIN)
+        if static_text is None:  # a leaf whose repr may not tell two values apart
             return None
-        described = repr(
-            (self.identity, str(static_treedef), [repr(leaf) for leaf in static_leaves], str(treedef), avals)
-        )
+        described = repr((self.identity, static_text, str(treedef), avals))
         if " at 0x" in described:  # an address: not the same in the next process
             return None
         text = described + _context_text(context) + _environment_digest()
@@ -211,7 +212,7 @@ class ExportedKernel:
         found: list[Any] = []
 
         def flat(*flat_leaves):
-            out = self.fn(*eqx.combine(jax.tree.unflatten(treedef, flat_leaves), static))
+            out = self.fn(jax.tree.unflatten(treedef, flat_leaves), static)
             arrays, rest = eqx.partition(out, eqx.is_array)
             out_leaves, out_treedef = jax.tree.flatten(arrays)
             found[:] = [out_treedef, rest]

@@ -45,6 +45,52 @@ def test_kernels_give_the_same_values_alone_and_in_a_batch(x64):
         np.testing.assert_array_equal(one, np.asarray(kernel(a, b, scale)))
 
 
+def test_an_array_shared_by_every_item_is_passed_once_with_the_same_values(x64):
+    """A conversion's materials share their problem's prepared geometry: the same array
+    object in every item is passed once, unstacked, and each item still gets its own
+    result; an equal array that is a different object is stacked as usual."""
+    import jax.numpy as jnp
+
+    from strauss_fit.engine import _stack_items, split_arguments
+
+    geometry = np.linspace(0.0, 1.0, 12).reshape(4, 3)
+    kernel = Kernel(lambda own, common, power: jnp.sum(own[:, None] * common**power, axis=0), "toy_shared")
+    args = [(np.full(4, float(i)), geometry, 2) for i in range(6)]
+    stacked, shared = _stack_items([split_arguments(a)[0] for a in args])
+    assert stacked[1] is None and shared[1] is geometry and stacked[0].shape == (6, 4) and shared[0] is None
+    batched = kernel.run_many(args)
+    for one, (own, common, power) in zip(batched, args):
+        np.testing.assert_array_equal(one, np.asarray(kernel(own, common, power)))
+    copies = [(own, common.copy(), power) for own, common, power in args]
+    assert _stack_items([split_arguments(a)[0] for a in copies])[0][1].shape == (6, 4, 3)
+    for one, other in zip(batched, kernel.run_many(copies)):
+        np.testing.assert_array_equal(one, other)
+
+
+def test_calls_group_by_structure_static_values_and_shapes(x64):
+    """Two calls batch together exactly when their static values, tree structure and array
+    shapes agree (:class:`strauss_fit.engine.StaticPart`), whatever the array values."""
+    import jax.numpy as jnp
+
+    from strauss_fit.engine import ARRAY_SLOT, batch_key, split_arguments
+
+    kernel = Kernel(lambda a, settings: a * settings["scale"], "toy_key")
+
+    def key(a, settings):
+        return batch_key(kernel.call(a, settings))
+
+    base = key(np.zeros(3), {"scale": 2.0, "name": "x"})
+    assert key(np.ones(3), {"scale": 2.0, "name": "x"}) == base  # other values: one batch
+    assert key(np.ones(4), {"scale": 2.0, "name": "x"}) != base  # other shape
+    assert key(np.ones(3), {"scale": 3.0, "name": "x"}) != base  # other static value
+    assert key(np.ones(3), {"scale": 2.0, "other": "x"}) != base  # other structure
+    arrays, static = split_arguments((np.ones(3), {"scale": 2.0}))
+    assert len(arrays) == 1 and static.leaves.count(ARRAY_SLOT) == 1
+    np.testing.assert_array_equal(jnp.asarray(static.rebuild([np.arange(3.0)])[0]), np.arange(3.0))
+    assert static.describe((float, int, str, bool, type(None))) is not None
+    assert split_arguments((np.ones(3), {1, 2}))[1] is None  # a set cannot be hashed: no static part
+
+
 def test_a_failing_step_generator_fails_alone(x64):
     import jax.numpy as jnp
 
