@@ -36,7 +36,7 @@ from jax import Array
 from ..engine import Kernel
 from ..fit.parameters import Layout
 from ..inference import laplace
-from ..models.phong import MAX_EXPONENT, PhongMaterial, phong_shade
+from ..models.phong import MAX_EXPONENT, PhongMaterial, coefficient, highlight_power, phong_angles
 from ..scene.camera import intersect_unit_sphere, primary_rays
 from ..scene.lights import sample_lights
 from ..scene.loading import Scene
@@ -57,13 +57,19 @@ def unit_from_exponent(n: float) -> float:
 
 
 class PhongGeometry(eqx.Module):
-    """The material-independent part of a Phong rendering at N pixels: normals, view
-    vectors, and per light (K of them) the direction, attenuated intensity and colour."""
+    """The material-independent part of a Phong rendering at N pixels: per light (K of
+    them), cos α and cos β — R·V for Phong, N·H for Blinn–Phong — where the light reaches a
+    surface the viewer sees (0 elsewhere, where nothing is reflected), and the attenuated
+    intensity; the lights' colours and the ambient light. Why angles, not vectors: the
+    fit's solver renders hundreds of times per material, and the angles do not depend on
+    it (nor does the diffuse part's light, ``diffuse_light``: Σ_k E_k cos α_k C_L,k)."""
 
     normal: Array
-    to_eye: Array
-    to_light: Array | None
+    cos_alpha: Array | None
+    cos_beta: Array | None
+    cos_half: Array | None
     irradiance: Array | None
+    diffuse_light: Array | None
     light_color: Array | None
     ambient: Array | None
 
@@ -78,32 +84,47 @@ def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
     def take(x):
         return x.reshape((-1,) + x.shape[2:])[index]
 
+    normal, to_eye = take(hits.point), take(-rays.direction)
     samples = sample_lights(scene.lights, hits.point)
-    to_light = irradiance = color = None
+    cos_alpha = cos_beta = cos_half = irradiance = diffuse_light = color = None
     if samples is not None:
         batch = hits.point.shape[:-1]
         # directional-only scenes give (K, 3) and (K,): broadcast to every pixel first
         to_light = take(jnp.broadcast_to(samples.to_light, batch + samples.to_light.shape[-2:]))
         irradiance = take(jnp.broadcast_to(samples.irradiance, batch + samples.irradiance.shape[-1:]))
         color = samples.color  # (K, 3)
+        lit, cos_alpha, cos_beta = phong_angles(normal[:, None, :], to_light, to_eye[:, None, :], False)
+        _, _, cos_half = phong_angles(normal[:, None, :], to_light, to_eye[:, None, :], True)
+        # 0 where not lit, so that the highlight is 0 there as in phong_shade
+        cos_beta, cos_half = jnp.where(lit, cos_beta, 0.0), jnp.where(lit, cos_half, 0.0)
+        diffuse_light = jnp.sum((irradiance * cos_alpha)[..., None] * color, axis=-2)
     return PhongGeometry(
-        normal=take(hits.point),
-        to_eye=take(-rays.direction),
-        to_light=to_light,
+        normal=normal,
+        cos_alpha=cos_alpha,
+        cos_beta=cos_beta,
+        cos_half=cos_half,
         irradiance=irradiance,
+        diffuse_light=diffuse_light,
         light_color=color,
         ambient=scene.lights.ambient,
     )
 
 
 def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
-    """Phong radiance (N, 3) at the pixels of ``geometry`` (as :func:`strauss_fit.render.phong.render_phong`)."""
+    r"""Phong radiance (N, 3) at the pixels of ``geometry``, as
+    :func:`strauss_fit.render.phong.render_phong` renders it:
+    :math:`\sum_k E_k C_{L,k} (k_d C_d \cos\alpha_k + k_s C_{sp} \cos^n\beta_k)` plus the
+    ambient term (summed in another order: equal to rounding)."""
     radiance = jnp.zeros(geometry.normal.shape, dtype=geometry.normal.dtype)
-    if geometry.to_light is not None:
-        per_light = phong_shade(
-            material, geometry.normal[:, None, :], geometry.to_light, geometry.to_eye[:, None, :], geometry.light_color
+    if geometry.cos_alpha is not None:
+        cos_beta = geometry.cos_half if material.blinn else geometry.cos_beta
+        highlight = geometry.irradiance * highlight_power(cos_beta, material.exponent)  # (N, K)
+        specular_light = highlight[:, 0, None] * geometry.light_color[0]
+        for k in range(1, geometry.light_color.shape[0]):
+            specular_light = specular_light + highlight[:, k, None] * geometry.light_color[k]
+        radiance = geometry.diffuse_light * (coefficient(material.kd) * material.diffuse_color) + specular_light * (
+            coefficient(material.ks) * material.specular_color
         )
-        radiance = radiance + jnp.sum(per_light * geometry.irradiance[..., None], axis=-2)
     if geometry.ambient is not None:
         ka = material.ka if material.ka.ndim else material.ka[None]
         radiance = radiance + geometry.ambient * ka * material.diffuse_color

@@ -268,6 +268,24 @@ def highlight_power(cos_beta: ArrayLike, exponent: ArrayLike) -> Array:
 
 
 @uses_float64
+def phong_angles(normal: ArrayLike, to_light: ArrayLike, to_eye: ArrayLike, blinn: bool) -> tuple[Array, Array, Array]:
+    """Where a light reaches the surface and the viewer sees it (N·L > 0 and N·V > 0), cos α
+    there (0 elsewhere), and cos β: R·V (Phong) or N·H (Blinn–Phong), clamped to [0, 1]."""
+    normal, to_light, to_eye = (jnp.asarray(v) for v in (normal, to_light, to_eye))
+    n_dot_l = dot(normal, to_light)
+    n_dot_v = dot(normal, to_eye)
+    lit = (n_dot_l > 0) & (n_dot_v > 0)
+    if blinn:
+        half = safe_normalize(to_light + to_eye)
+        cos_beta = dot(normal, half)
+    else:
+        reflected = 2 * n_dot_l[..., None] * normal - to_light
+        cos_beta = dot(reflected, to_eye)
+    cos_beta = jnp.clip(cos_beta, 0.0, 1.0)
+    zero = jnp.zeros((), dtype=cos_beta.dtype)
+    return lit, jnp.where(lit, jnp.clip(n_dot_l, 0.0, 1.0), zero), cos_beta
+
+
 def phong_shade(
     material: PhongMaterial,
     normal: ArrayLike,
@@ -283,19 +301,8 @@ def phong_shade(
     (Phong) or N·H (Blinn–Phong, ``material.blinn``), clamped at 0 before the power.
     The ambient term is not included (see :func:`strauss_fit.render.phong.render_phong`).
     """
-    normal, to_light, to_eye = (jnp.asarray(v) for v in (normal, to_light, to_eye))
-    n_dot_l = dot(normal, to_light)
-    n_dot_v = dot(normal, to_eye)
-    lit = (n_dot_l > 0) & (n_dot_v > 0)
-    if material.blinn:
-        half = safe_normalize(to_light + to_eye)
-        cos_beta = dot(normal, half)
-    else:
-        reflected = 2 * n_dot_l[..., None] * normal - to_light
-        cos_beta = dot(reflected, to_eye)
-    cos_beta = jnp.clip(cos_beta, 0.0, 1.0)
+    lit, cos_alpha, cos_beta = phong_angles(normal, to_light, to_eye, material.blinn)
     zero = jnp.zeros((), dtype=cos_beta.dtype)
-    cos_alpha = jnp.where(lit, jnp.clip(n_dot_l, 0.0, 1.0), zero)
     falloff = jnp.where(lit, highlight_power(cos_beta, material.exponent), zero)
     diffuse = coefficient(material.kd) * material.diffuse_color * cos_alpha[..., None]
     specular = coefficient(material.ks) * material.specular_color * falloff[..., None]

@@ -86,7 +86,12 @@ def test_phong_guess_from_strauss_by_hand():
 # --- the Phong fitter's renderer --------------------------------------------------------------
 
 
-def test_fitter_geometry_renders_like_render_phong():
+@pytest.mark.parametrize("blinn", [False, True])
+def test_fitter_geometry_renders_like_render_phong(blinn):
+    """The fitter renders from angles precomputed per pixel and light
+    (:class:`~strauss_fit.convert.phong_fit.PhongGeometry`), summed in another order than
+    :func:`render_phong`: the same image to rounding, for Phong and Blinn–Phong, and the
+    same Jacobian as rendering from the vectors."""
     scene = parse_scene(
         tomllib.loads("""
 [camera]
@@ -108,20 +113,53 @@ intensity = 0.2
 """)
     )
     material = PhongMaterial(
-        ka=0.3, kd=0.6, ks=0.4, exponent=12.0, diffuse_color=(0.9, 0.5, 0.2), specular_color=(1.0, 0.9, 0.7)
+        ka=0.3,
+        kd=0.6,
+        ks=0.4,
+        exponent=12.0,
+        diffuse_color=(0.9, 0.5, 0.2),
+        specular_color=(1.0, 0.9, 0.7),
+        blinn=blinn,
     )
     image, mask = render_phong(scene, material)
     index = np.flatnonzero(np.asarray(mask).ravel())
     problem = phong_problem(scene, index)
     import dataclasses
 
+    import jax
     import jax.numpy as jnp
+
+    from strauss_fit.convert.phong_fit import material_from_vector
+    from strauss_fit.models.phong import phong_shade
 
     # the fitter's ambient term is ka * Cd with Cd = D / max D (here Cd itself, max 0.9 -> scaled)
     x = vector_from_material(material)
-    problem = dataclasses.replace(problem, ambient_ka=jnp.asarray(0.3 * 0.9 / 1.0))
+    problem = dataclasses.replace(problem, ambient_ka=jnp.asarray(0.3 * 0.9 / 1.0), blinn=blinn)
     model = np.asarray(render_at(problem, jnp.asarray(x)))
+    assert np.max(model) > 0.1
     np.testing.assert_allclose(model, np.asarray(image).reshape(-1, 3)[index], atol=1e-12)
+
+    # the Jacobian in D, S and u equals that of the render from vectors (render_phong's code)
+    from strauss_fit.scene.camera import intersect_unit_sphere, primary_rays
+    from strauss_fit.scene.lights import sample_lights
+
+    scene64 = scene.astype(jnp.float64)
+    rays = primary_rays(scene64.camera, jnp.float64)
+    hits = intersect_unit_sphere(rays)
+    samples = sample_lights(scene64.lights, hits.point)
+
+    def from_vectors(vector):
+        phong = material_from_vector(vector, problem.ambient_ka, blinn)
+        per_light = phong_shade(
+            phong, hits.point[..., None, :], samples.to_light, -rays.direction[..., None, :], samples.color
+        )
+        radiance = jnp.sum(per_light * samples.irradiance[..., None], axis=-2)
+        radiance = radiance + scene64.lights.ambient * problem.ambient_ka * phong.diffuse_color
+        return radiance.reshape(-1, 3)[index].ravel()
+
+    expected = jax.jit(jax.jacfwd(from_vectors))(jnp.asarray(x))
+    got = jax.jit(jax.jacfwd(lambda v: problem.render_physical(v).ravel()))(jnp.asarray(x))
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-11)
 
 
 # --- conversions ----------------------------------------------------------------------------
