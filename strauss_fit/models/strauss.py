@@ -223,15 +223,23 @@ def highlight_falloff(cos_beta: ArrayLike, smoothness: ArrayLike) -> Array:
     delta: 1 where cos β = 1, else 0. Below s = 1 it is ``exp(h log cos β)``, whose gradient
     in s stays finite (at most about ``1/(e (1 - s))``).
     """
-    cos_beta = jnp.asarray(cos_beta)
-    smoothness = jnp.asarray(smoothness)
+    return _falloff(jnp.asarray(cos_beta), jnp.asarray(smoothness))[0]
+
+
+def _falloff(cos_beta: Array, smoothness: Array, slope: bool = False) -> tuple[Array, Array | None]:
+    r""":func:`highlight_falloff` and, with ``slope``, its derivative in s,
+    :math:`\cos^h\beta \log(\cos\beta)\, dh/ds` with :math:`dh/ds = 3/(1 - s)^2 = h^2/3`
+    (0 where the value is guarded: cos β ≤ 0, s = 1)."""
     below_one = smoothness < 1
     exponent = 3.0 / (1.0 - jnp.where(below_one, smoothness, 0.0))
     positive = cos_beta > 0
     log_base = jnp.log(jnp.where(positive, cos_beta, 1.0))
     powered = jnp.where(positive, jnp.exp(exponent * log_base), 0.0)
     delta = jnp.where(cos_beta >= 1, 1.0, 0.0).astype(powered.dtype)
-    return jnp.where(below_one, powered, delta)
+    value = jnp.where(below_one, powered, delta)
+    if not slope:
+        return value, None
+    return value, jnp.where(below_one, powered * log_base * (exponent * exponent / 3.0), 0.0)
 
 
 def specular_color(material: Material, fresnel_alpha: ArrayLike, light_color: ArrayLike) -> Array:
@@ -259,12 +267,7 @@ def shade_weights(material: Material, terms: AngularTerms) -> ShadeWeights:
 
 def weights_of(s: Array, m: Array, t: Array, terms: AngularTerms) -> ShadeWeights:
     """:class:`ShadeWeights` of smoothness ``s``, metalness ``m`` and transparency ``t``."""
-    r_d = (1 - s**3) * (1 - t)
-    diffuse = (1 - m * s) * r_d * terms.cos_alpha
-    r_n = (1 - t) * s**3
-    r_s = jnp.minimum(1.0, r_n + terms.j * (r_n + K_J)) * highlight_falloff(terms.cos_beta, s)
-    r_s = jnp.where(terms.lit, r_s, 0.0)
-    return ShadeWeights(diffuse, r_s, r_s * m * (1 - terms.fresnel_alpha))
+    return _weights(s, m, t, terms, slopes=False)[0]
 
 
 class WeightSlopes(NamedTuple):
@@ -297,40 +300,40 @@ def weight_slopes(s: Array, m: Array, t: Array, terms: AngularTerms) -> tuple[Sh
     Why: a fit's Jacobian built from these costs about two renders, where forward-mode
     differentiation of the render costs about one per parameter (see
     :func:`strauss_fit.render.strauss.direct_radiance`)."""
+    return _weights(s, m, t, terms, slopes=True)
+
+
+def _weights(
+    s: Array, m: Array, t: Array, terms: AngularTerms, slopes: bool
+) -> tuple[ShadeWeights, WeightSlopes | None]:
+    """The one home of the weights' formulas: :func:`weights_of`, and with ``slopes`` the
+    derivatives of :func:`weight_slopes` from the same subexpressions."""
     s3 = s**3
     one_minus_t = 1 - t
-    r_d = (1 - s3) * one_minus_t
+    r_d = (1 - s3) * one_minus_t  # diffuse_reflectivity
+    diffuse = (1 - m * s) * r_d * terms.cos_alpha
+    r_n = one_minus_t * s3  # specular_base
+    value = r_n + terms.j * (r_n + K_J)
+    r_j = jnp.minimum(1.0, value)  # specular_peak
+    falloff, falloff_s = _falloff(terms.cos_beta, s, slopes)
+    r_s = jnp.where(terms.lit, r_j * falloff, 0.0)
+    tint = m * (1 - terms.fresnel_alpha)
+    weights = ShadeWeights(diffuse, r_s, r_s * tint)
+    if not slopes:
+        return weights, None
     cos_alpha = terms.cos_alpha
-    diffuse = (1 - m * s) * r_d * cos_alpha
     d_s = -(m * (1 - s3) + 3 * s**2 * (1 - m * s)) * one_minus_t * cos_alpha
     d_m = -s * r_d * cos_alpha
     d_t = -(1 - m * s) * (1 - s3) * cos_alpha
-    # the peak r_j = min(1, r_n (1 + j) + j k_j)
-    r_n = one_minus_t * s3
-    value = r_n + terms.j * (r_n + K_J)
-    r_j = jnp.minimum(1.0, value)
+    # the slope of r_j = min(1, r_n (1 + j) + j k_j) in r_n, as JAX differentiates minimum
     gate = jnp.where(value < 1, 1.0, jnp.where(value == 1, 0.5, 0.0)) * (1 + terms.j)
-    # the falloff P = cos^h(beta), guarded as in highlight_falloff
-    below_one = s < 1
-    exponent = 3.0 / (1.0 - jnp.where(below_one, s, 0.0))
-    positive = terms.cos_beta > 0
-    log_base = jnp.log(jnp.where(positive, terms.cos_beta, 1.0))
-    powered = jnp.where(positive, jnp.exp(exponent * log_base), 0.0)
-    delta = jnp.where(terms.cos_beta >= 1, 1.0, 0.0).astype(powered.dtype)
-    falloff = jnp.where(below_one, powered, delta)
-    falloff_s = jnp.where(below_one, powered * log_base * (exponent * exponent / 3.0), 0.0)  # dh/ds = h²/3
-    lit = terms.lit
-    r_s = jnp.where(lit, r_j * falloff, 0.0)
-    rs_s = jnp.where(lit, gate * 3 * s**2 * one_minus_t * falloff + r_j * falloff_s, 0.0)
-    rs_t = jnp.where(lit, -gate * s3 * falloff, 0.0)
-    tint = m * (1 - terms.fresnel_alpha)
-    weights = ShadeWeights(diffuse, r_s, r_s * tint)
-    slopes = WeightSlopes(
+    rs_s = jnp.where(terms.lit, gate * 3 * s**2 * one_minus_t * falloff + r_j * falloff_s, 0.0)
+    rs_t = jnp.where(terms.lit, -gate * s3 * falloff, 0.0)
+    return weights, WeightSlopes(
         smoothness=ShadeWeights(d_s, rs_s, rs_s * tint),
         metalness=ShadeWeights(d_m, jnp.zeros_like(r_s), r_s * (1 - terms.fresnel_alpha)),
         transparency=ShadeWeights(d_t, rs_t, rs_t * tint),
     )
-    return weights, slopes
 
 
 def combine_rgb(weights: ShadeWeights, color: Array, light_color: Array) -> Array:
