@@ -57,15 +57,14 @@ def unit_from_exponent(n: float) -> float:
 
 
 class PhongGeometry(eqx.Module):
-    """The material-independent part of a Phong rendering at N pixels: per light (K of
-    them), cos α and cos β — R·V for Phong, N·H for Blinn–Phong — where the light reaches a
-    surface the viewer sees (0 elsewhere, where nothing is reflected), and the attenuated
-    intensity; the lights' colours and the ambient light. Why angles, not vectors: the
-    fit's solver renders hundreds of times per material, and the angles do not depend on
-    it (nor does the diffuse part's light, ``diffuse_light``: Σ_k E_k cos α_k C_L,k)."""
+    """The material-independent part of a Phong rendering at N pixels: the diffuse part's
+    light ``diffuse_light`` = Σ_k E_k cos α_k C_L,k (N, 3); per light (K of them) cos β —
+    R·V for Phong, N·H for Blinn–Phong — where the light reaches a surface the viewer sees
+    (0 elsewhere, where nothing is reflected) and the attenuated intensity; the lights'
+    colours and the ambient light. Why angles, not vectors: the fit's solver renders
+    hundreds of times per material, and none of these depend on it."""
 
     normal: Array
-    cos_alpha: Array | None
     cos_beta: Array | None
     cos_half: Array | None
     irradiance: Array | None
@@ -86,7 +85,7 @@ def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
 
     normal, to_eye = take(hits.point), take(-rays.direction)
     samples = sample_lights(scene.lights, hits.point)
-    cos_alpha = cos_beta = cos_half = irradiance = diffuse_light = color = None
+    cos_beta = cos_half = irradiance = diffuse_light = color = None
     if samples is not None:
         batch = hits.point.shape[:-1]
         # directional-only scenes give (K, 3) and (K,): broadcast to every pixel first
@@ -100,7 +99,6 @@ def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
         diffuse_light = jnp.sum((irradiance * cos_alpha)[..., None] * color, axis=-2)
     return PhongGeometry(
         normal=normal,
-        cos_alpha=cos_alpha,
         cos_beta=cos_beta,
         cos_half=cos_half,
         irradiance=irradiance,
@@ -116,7 +114,7 @@ def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
     :math:`\sum_k E_k C_{L,k} (k_d C_d \cos\alpha_k + k_s C_{sp} \cos^n\beta_k)` plus the
     ambient term (summed in another order: equal to rounding)."""
     radiance = jnp.zeros(geometry.normal.shape, dtype=geometry.normal.dtype)
-    if geometry.cos_alpha is not None:
+    if geometry.diffuse_light is not None:
         cos_beta = geometry.cos_half if material.blinn else geometry.cos_beta
         highlight = geometry.irradiance * highlight_power(cos_beta, material.exponent)  # (N, K)
         specular_light = highlight[:, 0, None] * geometry.light_color[0]
