@@ -24,13 +24,12 @@ scope and the other settings that key ``jax.jit``'s own cache, less the default 
 one program serves every device), the versions of jax, jaxlib, equinox, lineax,
 optimistix and numpy, equinox's ``EQX_*`` environment settings, and a hash of the source
 files of :mod:`strauss_fit`. A static part whose ``repr`` is not stable between
-processes (it shows an address, ``0x…``) is
-not kept on disk. The file holds the serialised program,
-the output's structure and its non-array part (pickled), or a marker saying that the
-program cannot be exported (host callbacks: ``eqx.error_if``, ``jax.debug.print``), so
-that later processes do not try again. Files are written to a temporary name and renamed
-(``os.replace``), so that a reader never sees half a file and two processes writing the
-same entry leave one whole one. Nothing is ever evicted.
+processes (it shows an address, ``0x…``) is not kept on disk. The file holds the
+serialised program, the output's structure and its non-array part (pickled), or a marker
+saying that the program cannot be exported (host callbacks: ``eqx.error_if``,
+``jax.debug.print``), so that later processes do not try again. Files are written to a
+temporary name and renamed (``os.replace``), so that a reader never sees half a file and
+two processes writing the same entry leave one whole one. Nothing is ever evicted.
 """
 
 from __future__ import annotations
