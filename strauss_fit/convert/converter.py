@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..color import delta_e_2000
-from ..engine import Steps, run_batched
+from ..engine import Kernel, Steps, run_batched
 from ..errors import StraussFitError
 from ..fit.diagnosis import WEAK_FRACTION
 from ..fit.identifiability import (
@@ -118,6 +118,16 @@ GUESS_ANGLE_DEG = 30.0
 #: darkest material (C = 0, m = 1, s = 0, what Phong → Strauss gives for kd = ks = 0) is
 #: not exactly black (its off-specular term reaches 7e-5); fitting it ran to the step limit.
 BLACK_LEVEL = 1e-4
+
+
+def _phong_pixels(scene: Scene, material: PhongMaterial, index: Any) -> Any:
+    image, _ = render_phong(scene, material)
+    return image.reshape(-1, 3)[index]
+
+
+#: The Phong rendering (N, 3) of a material in a scene at the flat pixel ``index``; a
+#: :class:`~strauss_fit.engine.Kernel`, so that a chunk's targets render as one call.
+phong_pixels = Kernel(_phong_pixels, "phong_pixels")
 
 
 def default_scene_path() -> Path:
@@ -277,11 +287,11 @@ class Settings:
 Progress = Callable[[int, int, str], None]
 
 
-def _residual_stats(model: np.ndarray, target: np.ndarray, delta: np.ndarray | None = None) -> dict[str, float]:
+def _residual_stats(model: np.ndarray, target: np.ndarray) -> dict[str, float]:
     """RMS and largest absolute difference in linear RGB, mean and 95th percentile of the
-    per-pixel CIEDE2000 (``delta``, when already computed)."""
+    per-pixel CIEDE2000 (:func:`strauss_fit.color.delta_e_2000`: exposed for ``target``)."""
     diff = model - target
-    delta = delta_e_2000(model, target) if delta is None else delta
+    delta = delta_e_2000(model, target)
     return {
         "rms": float(np.sqrt(np.mean(diff**2))),
         "max_abs": float(np.max(np.abs(diff))),
@@ -418,14 +428,16 @@ class Converter:
     @uses_float64
     def phong_target(self, phong: PhongMaterial) -> np.ndarray:
         """The Phong rendering (N, 3) at the used pixels."""
-        image, _ = render_phong(self.scene, phong)
-        return np.asarray(image).reshape(-1, 3)[self.index]
+        return np.asarray(phong_pixels(self.scene, phong, self.index))
 
     @uses_float64
     def strauss_target(self, material: Material) -> np.ndarray:
         """The Strauss rendering (N, 3) of the opaque material at the used pixels."""
-        x = self.strauss.layout.join(material.to_dict())
-        return np.asarray(render_at(self.strauss, jnp.asarray(x)))
+        return np.asarray(render_at(self.strauss, self._strauss_vector(material)))
+
+    def _strauss_vector(self, material: Material) -> np.ndarray:
+        """The conversion problem's parameter vector (C, s, m) of ``material``."""
+        return self.strauss.layout.join(material.to_dict())
 
     def _lobe_note(self, exponent: float) -> str | None:
         """A note when the highlight is narrower than the image's pixels resolve."""
@@ -486,10 +498,7 @@ class Converter:
             material = entry.build()
             guess, notes = strauss_guess(material)
             notes = [f"closed-form guess: {note}" for note in notes]
-            target = self.phong_target(material)
-            if not np.all(np.isfinite(target)):
-                raise StraussFitError("the Phong rendering is not finite")
-            return (i, entry, guess, notes, target)
+            return (i, entry, guess, notes, material)
 
         return self._stream(entries, _Direction(prepare, self._strauss_steps), progress, start)
 
@@ -546,23 +555,14 @@ class Converter:
     def _run_chunk(self, chunk: list[tuple], direction: _Direction) -> list[dict[str, Any]]:
         """Convert the items of ``chunk`` (``(i, entry, ...)``) together: their steps run
         batched (:func:`strauss_fit.engine.run_batched`; a material that fails is an error
-        result, the others go on), then the residuals of all are measured at once."""
+        result, the others go on)."""
         outcomes = run_batched(
             [direction.steps(item) for item in chunk], sequential=not self.batched, python_bound=False
         )
-        results = [
+        return [
             _error(item[1], _message(outcome)) if isinstance(outcome, BaseException) else outcome
             for item, outcome in zip(chunk, outcomes)
         ]
-        measured = [r for r in results if "_model" in r]
-        if measured:
-            models = [r.pop("_model") for r in measured]
-            targets = [r.pop("_target") for r in measured]
-            delta = delta_e_2000(np.concatenate(models), np.concatenate(targets))
-            offsets = np.cumsum([0] + [m.shape[0] for m in models])
-            for k, result in enumerate(measured):
-                result["residual"] = _residual_stats(models[k], targets[k], delta[offsets[k] : offsets[k + 1]])
-        return results
 
     def _strauss_values(self, entry: Entry, fitted: dict[str, Any]) -> dict[str, Any]:
         return {
@@ -595,26 +595,31 @@ class Converter:
             notes.append(lobe)
         return notes
 
-    def _solve(self, problem: Any, thetas: np.ndarray, target: np.ndarray, scale: float) -> Steps:
+    def _solve(
+        self, problem: Any, thetas: np.ndarray, target: np.ndarray, scale: float, ends: tuple | None = None
+    ) -> Steps:
         """Every start on the coarse pixels (:attr:`Settings.start_steps` steps), then the
         best one polished on every pixel (:func:`strauss_fit.fit.solvers.polish_steps`:
-        entries at a bound pinned there). Returns (x, rss, steps, status, pinned problem,
-        JᵀJ, starts run)."""
-        screen = self._screen(problem, target, scale)
-        values, costs_, steps_, _ = (
-            np.asarray(v)
-            for v in (
-                yield solve_starts.call(
-                    screen,
-                    np.asarray(thetas),
-                    "lm",
-                    self.settings.rtol,
-                    self.settings.atol,
-                    self.settings.start_steps,
-                    self.batched,
+        entries at a bound pinned there). ``ends``: the starts' ends (θ, costs, steps),
+        when they were solved before. Returns (x, rss, steps, status, pinned problem,
+        JᵀJ, best start, the starts' ends)."""
+        if ends is None:
+            screen = self._screen(problem, target, scale)
+            ends = tuple(
+                np.asarray(v)
+                for v in (
+                    yield solve_starts.call(
+                        screen,
+                        np.asarray(thetas),
+                        "lm",
+                        self.settings.rtol,
+                        self.settings.atol,
+                        self.settings.start_steps,
+                        self.batched,
+                    )
                 )
-            )
-        )
+            )[:3]
+        values, costs_, steps_ = ends
         finite = np.isfinite(costs_)
         if not finite.any():
             raise StraussFitError("every start of the fit diverged to non-finite values")
@@ -626,14 +631,19 @@ class Converter:
         if not np.all(np.isfinite(x)):
             raise StraussFitError("the fit ended at non-finite parameters")
         rss = float(cost) * float(np.asarray(problem.residual_scale)) ** 2
-        return x, rss, int(steps_[best]) + polish_count, status, pinned, information, best
+        return x, rss, int(steps_[best]) + polish_count, status, pinned, information, best, ends
 
     def _strauss_steps(self, item: tuple) -> Steps:
         """The Phong → Strauss conversion of one material, as steps (see the module
         docstring): the fit of C, s, m; for a tinted highlight the best metal too; then
         what the image constrains, decided as :func:`strauss_fit.fit` decides it, with a
         metalness the image does not determine held at the source's canonical value."""
-        _, entry, guess, guess_notes, target = item
+        _, entry, guess, guess_notes, phong = item
+        # rendered here, not when the item is prepared: the renders of a chunk then run as
+        # one compiled call, beside other materials' Python, instead of one by one before it
+        target = np.asarray((yield phong_pixels.call(self.scene, phong, self.index)))
+        if not np.all(np.isfinite(target)):
+            raise StraussFitError("the Phong rendering is not finite")
         if float(np.max(target)) <= 0.0:
             return self._black_strauss(entry, guess, guess_notes, target)
         layout = self.strauss.layout
@@ -641,11 +651,11 @@ class Converter:
         sigma = reference_noise_level(target)
         problem = self._problem(self.strauss, target, scale)
         thetas = starts(layout, guess, self.settings.starts)
-        x, rss, steps_, status, pinned, information, best = yield from self._solve(problem, thetas, target, scale)
+        first = yield from self._solve(problem, thetas, target, scale)
+        x, rss, steps_, status, pinned, information, best, ends = first
         model = np.asarray((yield render_at.call(pinned, x)))
         notes: list[str] = []
         off_branch_note = None
-        phong = entry.material
         metal_index = layout.offsets[layout.names.index("metalness")]
         tinted = metallic_tint(phong)
         if tinted != (x[metal_index] >= 0.5):
@@ -662,10 +672,15 @@ class Converter:
                 other_start = {**guess, "color": (specular / specular.max()).tolist(), "metalness": 1.0}
             else:
                 other_start = {**guess, "metalness": 0.0}
-            other = yield from self._solve(
-                problem, layout.to_unconstrained(layout.join(other_start), margin=START_MARGIN)[None], target, scale
-            )
-            other_model = np.asarray((yield render_at.call(other[4], other[0])))
+            other_theta = layout.to_unconstrained(layout.join(other_start), margin=START_MARGIN)[None]
+            if not np.array_equal(other_theta[0], thetas[0]):
+                other = yield from self._solve(problem, other_theta, target, scale)
+                other_model = np.asarray((yield render_at.call(other[4], other[0])))
+            elif best == 0:  # the canonical start is the guess, and the first fit came from it
+                other, other_model = first, model
+            else:  # the canonical start is the guess: its end on the coarse pixels is known
+                other = yield from self._solve(problem, other_theta, target, scale, tuple(v[:1] for v in ends))
+                other_model = np.asarray((yield render_at.call(other[4], other[0])))
             looks = float(np.mean(delta_e_2000(model, target)))
             other_looks = float(np.mean(delta_e_2000(other_model, target)))
             rms, other_rms = math.sqrt(rss / target.size), math.sqrt(other[1] / target.size)
@@ -679,7 +694,7 @@ class Converter:
                     f"optimum found first (m = {x[metal_index]:.3g}, CIEDE2000 {looks:.3g}, RMS {rms:.3g}): it looks "
                     + ("closer" if other_looks < looks - SAME_LOOK_DE else "the same")
                 )
-                x, rss, steps_, status, pinned, information, best = other
+                x, rss, steps_, status, pinned, information, best, _ = other
                 model = other_model
             else:
                 why = (
@@ -801,8 +816,8 @@ class Converter:
                 "at_bound": at_bound_labels,
             },
             "notes": notes,
-            "_model": model,
-            "_target": target,
+            # measured here, against this material's own target (its exposure scale)
+            "residual": _residual_stats(model, target),
         }
 
     def _refit(
@@ -861,8 +876,8 @@ class Converter:
             "notes": list(entry.notes)
             + guess_notes
             + ["the material renders black in the conversion scene: nothing to fit, the closed-form guess is returned"],
-            "_model": model,
-            "_target": target,
+            # measured here, against this material's own target (its exposure scale)
+            "residual": _residual_stats(model, target),
         }
 
     # -- Strauss -> Phong ----------------------------------------------------------------
@@ -888,10 +903,7 @@ class Converter:
             guess, ka = phong_guess(opaque)
             if blinn:
                 guess[6] = unit_from_exponent(4.0 * float(exponent_from_unit(guess[6])))
-            target = self.strauss_target(opaque)
-            if not np.all(np.isfinite(target)):
-                raise StraussFitError("the Strauss rendering is not finite")
-            return (i, entry, guess, ka, target)
+            return (i, entry, guess, ka, self._strauss_vector(opaque))
 
         return self._stream(
             entries, _Direction(prepare, lambda item: self._phong_steps(item, template)), progress, start
@@ -914,7 +926,11 @@ class Converter:
         """The Strauss → Phong conversion of one material, as steps: every start solved
         to convergence (:data:`strauss_fit.convert.phong_fit.solve_starts`), the best
         kept, what the image constrains decided at it as a fit decides it."""
-        _, entry, guess, ka, target = item
+        _, entry, guess, ka, source = item
+        # rendered here, batched with the chunk's other renders (see _strauss_steps)
+        target = np.asarray((yield render_at.call(self.strauss, source)))
+        if not np.all(np.isfinite(target)):
+            raise StraussFitError("the Strauss rendering is not finite")
         if float(np.max(target)) <= BLACK_LEVEL:
             x = guess.copy()
             x[0:6] = 0.0  # Phong black: D = S = 0 (the exponent is the guess's, it shows nowhere)
@@ -1043,8 +1059,8 @@ class Converter:
             "correlation": correlation,
             "solver": solver,
             "notes": all_notes,
-            "_model": model,
-            "_target": target,
+            # measured here, against this material's own target (its exposure scale)
+            "residual": _residual_stats(model, target),
         }
 
 

@@ -8,6 +8,7 @@ import tomllib
 import numpy as np
 import pytest
 
+from strauss_fit.color import delta_e_2000
 from strauss_fit.convert.converter import Converter, Entry, Settings, conversion_scene, phong_guess, strauss_guess
 from strauss_fit.convert.phong_fit import LOG_MAX_EXPONENT, phong_problem, vector_from_material
 from strauss_fit.fit.problem import render_at
@@ -221,6 +222,28 @@ def test_a_bad_material_is_reported_and_the_batch_goes_on(converter):
     alone = converter.phong_to_strauss([Entry("good", "test", good)])[0]
     np.testing.assert_allclose(alone["strauss"]["color"], results[0]["strauss"]["color"], atol=1e-9)
     assert alone["strauss"]["smoothness"] == pytest.approx(results[0]["strauss"]["smoothness"], abs=1e-9)
+
+
+def test_each_residual_is_measured_against_its_own_target(converter):
+    # CIEDE2000 exposes both images for the target (its 99th percentile, when above 1): a
+    # material's reported colour difference must not depend on what was converted with it,
+    # here a white sphere whose broad highlight is brighter than 1 over much of the image
+    dim = PhongMaterial(ka=0.0, kd=0.3, ks=0.2, exponent=40.0, diffuse_color=(0.2, 0.5, 0.3))
+    bright = PhongMaterial(ka=0.0, kd=1.0, ks=1.0, exponent=2.0)
+    assert np.percentile(converter.phong_target(bright), 99) > 1.2
+    alone = converter.phong_to_strauss([Entry("dim", "test", dim)])[0]
+    beside = converter.phong_to_strauss([Entry("bright", "test", bright), Entry("dim", "test", dim)])
+    for key in ("rms", "delta_e2000_mean", "delta_e2000_p95"):
+        assert beside[1]["residual"][key] == pytest.approx(alone["residual"][key], rel=1e-6), key
+    strauss = Material(**{**alone["strauss"], "transparency": 0.0})
+    expected = delta_e_2000(converter.strauss_target(strauss), converter.phong_target(dim))
+    assert alone["residual"]["delta_e2000_mean"] == pytest.approx(float(np.mean(expected)), rel=1e-9)
+    # the same the other way
+    bright_strauss = Material(**{**beside[0]["strauss"], "transparency": 0.0})
+    back = converter.strauss_to_phong([Entry("bright", "test", bright_strauss), Entry("dim", "test", strauss)])
+    back_alone = converter.strauss_to_phong([Entry("dim", "test", strauss)])[0]
+    mean = back_alone["residual"]["delta_e2000_mean"]
+    assert back[1]["residual"]["delta_e2000_mean"] == pytest.approx(mean, rel=1e-6)
 
 
 def test_opacity_and_ior_are_carried_over(converter):
