@@ -35,6 +35,7 @@ from jax import Array
 
 from ..engine import Kernel
 from ..fit.parameters import Layout
+from ..fit.solvers import levenberg_marquardt
 from ..inference import laplace
 from ..models.phong import MAX_EXPONENT, PhongMaterial, coefficient, highlight_power, phong_angles
 from ..scene.camera import intersect_unit_sphere, primary_rays
@@ -199,11 +200,12 @@ def phong_problem(scene: Scene, index: np.ndarray, *, blinn: bool = False) -> Ph
 
 
 def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, max_steps: int, batched: bool):
-    """Levenberg–Marquardt (optimistix's) from every row of ``thetas`` of one problem, each
+    """Levenberg–Marquardt (:func:`strauss_fit.fit.solvers.levenberg_marquardt`, the fits'
+    own) from every row of ``thetas`` of one problem, each
     start to its own convergence: one after the other (``lax.map``) on a CPU, vectorised
     (``vmap``) when ``batched``. Returns θ (S, P), the normalised cost Σr² (S,), the step
     counts and whether each solve succeeded."""
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    solver = levenberg_marquardt(rtol, atol)
 
     def one(theta0):
         solution = optx.least_squares(problem.residual, solver, theta0, max_steps=max_steps, throw=False)
