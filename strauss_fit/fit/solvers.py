@@ -72,7 +72,8 @@ def levenberg_marquardt(rtol: float, atol: float) -> optx.LevenbergMarquardt:
     import optimistix as optx
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    return eqx.tree_at(lambda s: s.search, solver, optx.ClassicalTrustRegion(high_cutoff=GROW_RATIO, low_cutoff=REJECT_RATIO))
+    search = optx.ClassicalTrustRegion(high_cutoff=GROW_RATIO, low_cutoff=REJECT_RATIO)
+    return eqx.tree_at(lambda s: s.search, solver, search)
 
 
 def make_solver(name: str, rtol: float, atol: float) -> optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser:
