@@ -102,7 +102,7 @@ from .phong_fit import (
 STRAUSS_FREE = ("color", "smoothness", "metalness")
 #: Materials converted together (:meth:`Converter._stream`): their kernel calls run as one
 #: compiled call each (:func:`strauss_fit.engine.run_batched`).
-CHUNK = 32
+CHUNK = 64
 #: The starts run on every COARSE_STRIDE-th pixel of the conversion image, the polish on all.
 COARSE_STRIDE = 4
 #: Two conversions whose mean CIEDE2000 to the target differ by less than this (a hundredth
