@@ -61,6 +61,21 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
+@pytest.fixture(autouse=True)
+def interruptible_children():
+    """The processes start with Ctrl-C honoured, as from a terminal, even when the tests
+    themselves run with SIGINT ignored (a background job of a non-interactive shell, such
+    as ``nohup bash .ci/run &``): an ignored SIGINT is inherited, and the command rightly
+    leaves it ignored (:func:`strauss_fit_cli.interrupts.install`), which would make every
+    moment here look like a lost Ctrl-C."""
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a caught signal is reset to the default by exec
+    yield
+    if previous is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, previous)
+
+
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("interrupt-inputs")
