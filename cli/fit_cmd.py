@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from .common import (
     add_evaluator_options,
     add_quality_option,
+    bounded_int,
     by_quality,
     check_evaluator_options,
     escape,
@@ -15,6 +17,12 @@ from .common import (
     positive_int,
     progress_printer,
 )
+
+#: Local Dask workers per CPU at most (--workers): each is a process with its own JAX
+#: runtime and compiled programs, so more than a couple per core only costs memory and
+#: start-up; beyond that a cluster belongs on --scheduler.
+WORKERS_PER_CPU = 2
+MAX_WORKERS = WORKERS_PER_CPU * (os.cpu_count() or 1)
 
 PARAMETER_HELP = (
     "color, smoothness, metalness, transparency, ior "
@@ -122,9 +130,10 @@ def add_parser(subparsers) -> None:
     parser.add_argument(
         "--equivalence-de",
         type=finite_float(0.0, open_low=True),
-        default=1.0,
+        default=None,
         metavar="DE",
-        help="the mean CIEDE2000 within which images look the same (default 1, one just-noticeable difference)",
+        help="the mean CIEDE2000 within which images look the same (default 1, one just-noticeable difference); "
+        "implies --equivalence",
     )
     parser.add_argument(
         "--render-fit",
@@ -152,7 +161,11 @@ def add_parser(subparsers) -> None:
         help="targets fitted together (one compiled call covers up to N; default 64)",
     )
     batch.add_argument(
-        "--workers", type=positive_int, metavar="N", help="run on a local Dask cluster of N worker processes"
+        "--workers",
+        type=bounded_int(1, MAX_WORKERS),
+        metavar="N",
+        help=f"run on a local Dask cluster of N worker processes (at most {WORKERS_PER_CPU} per CPU: {MAX_WORKERS} "
+        "here; a larger cluster runs on --scheduler)",
     )
     batch.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster at ADDRESS (tcp://host:8786)")
     add_evaluator_options(parser)
@@ -205,12 +218,26 @@ def fit_options(args: argparse.Namespace, fixed, **more):
         loss=getattr(args, "loss", None),
         fit_exposure=getattr(args, "fit_exposure", None),
         edge_pixels=getattr(args, "edge_pixels", None),
-        equivalence=getattr(args, "equivalence", None),
+        equivalence=equivalence_asked(args),
         equivalence_de=getattr(args, "equivalence_de", None),
         **more,
     )
     options.validate()
     return options
+
+
+def equivalence_asked(args: argparse.Namespace) -> bool | None:
+    """``--equivalence`` as given; a threshold (``--equivalence-de``) alone asks for the
+    ranges too (the threshold means nothing without them), and with ``--no-equivalence``
+    it is a contradiction."""
+    from strauss_fit.errors import StraussFitError
+
+    equivalence = getattr(args, "equivalence", None)
+    if getattr(args, "equivalence_de", None) is None:
+        return equivalence
+    if equivalence is False:
+        raise StraussFitError("--equivalence-de sets the threshold of --equivalence, which --no-equivalence turns off")
+    return True
 
 
 def parse_noise(text: str | None) -> float | tuple[float, float, float] | None:
@@ -270,10 +297,17 @@ def check_outputs(args: argparse.Namespace) -> Path | None:
             raise StraussFitError(f"--{option} is for several targets fitted into a folder (-o OUTDIR)")
     if args.scene is None:
         raise StraussFitError("give --scene (the scene the target was taken in)")
+    from strauss_fit.fit.folder import sidecar_of
+
     compare_path = Path(args.render_fit).with_suffix(".compare.png") if args.render_fit else None
     check_distinct(
         {"-o": args.output, "--render-fit": args.render_fit, "--render-fit's comparison": compare_path},
-        {"TARGET": args.target[0], "--scene": args.scene, "--mask": args.mask},
+        {
+            "TARGET": args.target[0],
+            "TARGET's sidecar (its noise and truth)": sidecar_of(args.target[0]),
+            "--scene": args.scene,
+            "--mask": args.mask,
+        },
     )
     check_writable(args.output, args.force)
     if args.render_fit:
@@ -364,6 +398,7 @@ def run_batch(args: argparse.Namespace) -> int:
 
         executor = DaskExecutor(args.workers, scheduler=args.scheduler)
     log = progress_printer(args.quiet, "")
+    listed = [argument[1:] for argument in args.target if argument.startswith("@")]
     bar = ProgressBar(args.quiet)
 
     def record(job):
@@ -388,6 +423,8 @@ def run_batch(args: argparse.Namespace) -> int:
         recorded=record,
         progress=bar.update,
         on_result=announce,
+        inputs=[*listed, *([args.manifest] if args.manifest else [])],
+        log=log,
     )
     bar.clear()
     elapsed = time.perf_counter() - started

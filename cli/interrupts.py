@@ -16,13 +16,26 @@ installs :data:`HANDLER` before anything heavy is imported:
   :data:`sys.unraisablehook`), and raised at the next safe point: :func:`check` (called by
   the commands' progress lines) or, at the latest, when the outputs are committed
   (:func:`strauss_fit.io.files.raise_if_interrupted` reads ``HANDLER.pending``).
+
+A Python signal handler runs only when the main thread executes Python code. Inside a
+blocking call of compiled code that never returns to Python (an image library opening a
+FIFO, a read from a hung network file system) the handler never runs, and Ctrl-C seemed
+lost. :func:`watch` starts a *watchdog* thread for that: the C-level signal handler writes
+every signal's number to a pipe (:func:`signal.set_wakeup_fd`) even while the main thread
+is stuck, and when a SIGINT has not reached the Python handler within
+:data:`WATCHDOG_GRACE_S`, the watchdog removes every staged temporary output
+(:func:`strauss_fit.io.files.remove_staged_temporaries`), prints "strauss-fit:
+interrupted" and ends the process with status 130. Nothing is half-renamed: the commit's
+renames run in Python with SIGINT deferred, which counts as handled.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
+import time
 
 
 class InterruptHandler:
@@ -35,8 +48,12 @@ class InterruptHandler:
         self.pending = False
         self.armed = False
         self.finished = False
+        #: SIGINTs that reached Python (this handler, or the commit's deferral, which
+        #: counts here too): what the watchdog compares with the signals that arrived.
+        self.calls = 0
 
     def __call__(self, signum, frame) -> None:
+        self.calls += 1
         if self.finished:
             return
         self.pending = True
@@ -123,3 +140,73 @@ def interrupted_exit(code: int) -> None:
         except (OSError, ValueError):
             pass
     os._exit(code)
+
+
+#: Seconds a SIGINT may wait for the Python handler before the watchdog ends the process:
+#: longer than any pure-Python stretch between two bytecodes, short enough for a person.
+WATCHDOG_GRACE_S = 3.0
+_WATCHDOG: list[threading.Thread] = []
+
+
+def watch(grace_s: float = WATCHDOG_GRACE_S) -> bool:
+    """Start the watchdog for SIGINTs that cannot reach Python (see the module docstring);
+    once per process, in the ``strauss-fit`` process only (it ends the process). Returns
+    whether it runs. A no-op where SIGINT is not :data:`HANDLER`'s (ignored, say)."""
+    if _WATCHDOG:
+        return True
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    if signal.getsignal(signal.SIGINT) is not HANDLER:
+        return False
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    try:
+        signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
+    except (ValueError, OSError):  # pragma: no cover - no wakeup fd on this platform
+        os.close(read_end)
+        os.close(write_end)
+        return False
+    thread = threading.Thread(
+        target=_watchdog, args=(read_end, grace_s, HANDLER.calls), name="strauss-fit-sigint-watchdog", daemon=True
+    )
+    thread.start()
+    _WATCHDOG.append(thread)
+    return True
+
+
+def _watchdog(read_end: int, grace_s: float, handled_before: int) -> None:
+    """Count the SIGINTs the pipe reports (from ``handled_before``, the handler's count
+    when the pipe was set up) and end the process when the handler falls behind."""
+    arrived = handled_before
+    while True:
+        try:
+            data = os.read(read_end, 64)
+        except OSError:  # pragma: no cover
+            return
+        if not data:
+            return
+        count = data.count(signal.SIGINT)
+        if not count:
+            continue
+        arrived += count
+        # the Python handler (or the commit's deferral) runs at the main thread's next
+        # bytecode: give it the grace period to catch up with every SIGINT so far
+        deadline = time.monotonic() + grace_s
+        while HANDLER.calls < arrived and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if HANDLER.calls >= arrived or HANDLER.finished:
+            arrived = max(arrived, HANDLER.calls)
+            continue
+        _force_exit()
+
+
+def _force_exit() -> None:
+    """The main thread is stuck in compiled code: leave no output behind and exit 130."""
+    files = sys.modules.get("strauss_fit.io.files")
+    if files is not None:
+        files.remove_staged_temporaries()
+    try:
+        os.write(2, b"strauss-fit: interrupted\n")
+    except OSError:  # pragma: no cover
+        pass
+    os._exit(130)

@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     from .common import EscapingStream
 
     previous = interrupts.install()
+    if argv is None:  # the strauss-fit process itself: Ctrl-C also inside blocking compiled code
+        interrupts.watch()
     stdout, stderr = sys.stdout, sys.stderr
     sys.stdout, sys.stderr = EscapingStream(stdout), EscapingStream(stderr)
     try:

@@ -49,11 +49,59 @@ def add_parser(subparsers) -> None:
     parser.set_defaults(run=run)
 
 
+#: The inputs a fit result records (``strauss-fit fit`` writes them beside its figures).
+RECORDED_INPUTS = ("target", "scene", "mask", "encoding")
+
+
+def recorded_inputs(fit: str, given: dict[str, str | None], spelled: dict[str, str]) -> dict[str, str | None]:
+    """The inputs (:data:`RECORDED_INPUTS`) of a command given the fit result ``fit`` (the
+    path of its JSON): each one ``given`` (not None) as it is, else the one the result
+    records, a recorded path tried as written and then relative to the result's folder
+    (:func:`strauss_fit.reporting.fit_report.recorded_path`, as ``report`` reads a fit or a
+    chain), else None. A recorded path found in neither place is a one-line error naming it
+    and the option to give instead (``spelled``: how the command writes each input,
+    ``TARGET`` or ``--target``). The one rule of ``report --fit`` and ``sample --fit``."""
+    from pathlib import Path
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import read_json
+    from strauss_fit.reporting.fit_report import recorded_path
+
+    data = read_json(fit, "fit result")
+    if not isinstance(data, dict) or "free" not in data:
+        raise StraussFitError(f"{fit} is not a strauss-fit fit result (no 'free' list)")
+    inputs = dict(given)
+    for name in RECORDED_INPUTS:
+        value = data.get(name)
+        if inputs.get(name) is not None or value is None:
+            continue
+        if not isinstance(value, str) or not value:
+            raise StraussFitError(f"the fit result {fit} records no usable {name} ({value!r}): give {spelled[name]}")
+        if name == "encoding":
+            inputs[name] = value
+            continue
+        path = recorded_path(value, Path(fit).parent)
+        if not Path(path).exists():
+            raise StraussFitError(
+                f"the fit result {fit} records the {name} {value}, which no longer exists (tried from here and "
+                f"from the result's folder): give {spelled[name]} explicitly"
+            )
+        inputs[name] = path
+    return inputs
+
+
 def run(args: argparse.Namespace) -> int:
     from strauss_fit import report_from_files
     from strauss_fit.io.files import check_distinct
     from strauss_fit.reporting.fit_report import report_paths
 
+    if args.fit and not args.chain:  # with a chain, its recorded inputs come first (report_from_files)
+        inputs = recorded_inputs(
+            args.fit,
+            {"target": args.target, "scene": args.scene, "mask": args.mask, "encoding": args.encoding},
+            {"target": "--target", "scene": "--scene", "mask": "--mask", "encoding": "--encoding"},
+        )
+        args.target, args.scene, args.mask, args.encoding = (inputs[name] for name in RECORDED_INPUTS)
     page, markdown, _ = report_paths(args.output)
     check_distinct(
         {"-o": page, "-o's Markdown": markdown},

@@ -53,21 +53,37 @@ def add_parser(subparsers) -> None:
         "times long and its estimate has settled (or --max-steps). Writes CHAIN.h5 (emcee's HDF5 format) and a "
         "summary CHAIN.json beside it. Ctrl-C keeps every step sampled; continue with --resume.",
     )
-    parser.add_argument("target", metavar="TARGET", help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB)")
-    parser.add_argument("--scene", required=True, metavar="SCENE.toml", help="the scene the target was taken in")
+    parser.add_argument(
+        "target",
+        metavar="TARGET",
+        nargs="?",
+        help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB); with --fit, default: the one the fit "
+        "result records",
+    )
+    parser.add_argument(
+        "--scene",
+        metavar="SCENE.toml",
+        help="the scene the target was taken in; with --fit, default: the one the fit result records",
+    )
     parser.add_argument("-o", "--output", required=True, metavar="CHAIN.h5", help="chain file (HDF5)")
     parser.add_argument(
         "--fit",
         metavar="RESULT.json",
         help="start from this fit result (strauss-fit fit) instead of fitting first; it must be a least-squares "
-        "fit (fit --loss linear): the likelihood sampled is least squares",
+        "fit (fit --loss linear): the likelihood sampled is least squares. TARGET, --scene, --mask and "
+        "--encoding default to the ones it records",
     )
-    parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
+    parser.add_argument(
+        "--mask",
+        metavar="MASK",
+        help="mask image: pixels where it is non-zero are used (with --fit, default: the one the fit result records)",
+    )
     parser.add_argument(
         "--encoding",
         choices=("auto", "linear", "srgb"),
-        default="auto",
-        help="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)",
+        default=None,
+        help="how TARGET's values are encoded (default: as the fit result records, with --fit; else auto: sRGB "
+        "for .png/.jpg, linear otherwise)",
     )
     parser.add_argument(
         "--sigma",
@@ -217,18 +233,17 @@ def _check_options(args: argparse.Namespace):
 
     from strauss_fit import SampleSettings
     from strauss_fit.errors import StraussFitError
+    from strauss_fit.inference.noise import check_noise_level
     from strauss_fit.inference.posterior import check_sigma, parse_priors
     from strauss_fit.io.files import check_distinct
 
     from .fit_cmd import check_fixed_ranges, fit_options, parse_fixed
+    from .report_cmd import RECORDED_INPUTS, recorded_inputs
 
     check_evaluator_options(args)
-    check_distinct(
-        {"-o": args.output, "-o's summary": Path(args.output).with_suffix(".json")},
-        {"TARGET": args.target, "--scene": args.scene, "--mask": args.mask, "--fit": args.fit},
-    )
     if args.sigma is not None:
         check_sigma(args.sigma)
+        check_noise_level(args.sigma, "--sigma")  # σ² and 1/σ² must stay within float64's range
     settings = SampleSettings.preset(
         args.quality,
         max_steps=args.max_steps,
@@ -257,6 +272,27 @@ def _check_options(args: argparse.Namespace):
                 f"--{changed[0]} cannot change when resuming: the chain keeps the value it was "
                 "started with (start a new chain with --force)"
             )
+    if args.fit and not args.resume:  # the inputs the fit records, as report reads them
+        inputs = recorded_inputs(
+            args.fit,
+            {"target": args.target, "scene": args.scene, "mask": args.mask, "encoding": args.encoding},
+            {"target": "TARGET", "scene": "--scene", "mask": "--mask", "encoding": "--encoding"},
+        )
+        args.target, args.scene, args.mask, args.encoding = (inputs[name] for name in RECORDED_INPUTS)
+    missing = [name for name, value in (("TARGET", args.target), ("--scene", args.scene)) if value is None]
+    if missing and args.fit and not args.resume:
+        what = "target" if missing[0] == "TARGET" else "scene"
+        raise StraussFitError(f"the fit result {args.fit} does not record its {what}: give {missing[0]}")
+    if missing:
+        where = (
+            "those the chain was sampled for" if args.resume else "or --fit RESULT.json, a fit result that records them"
+        )
+        raise StraussFitError(f"give {' and '.join(missing)} ({where})")
+    args.encoding = args.encoding or "auto"
+    check_distinct(
+        {"-o": args.output, "-o's summary": Path(args.output).with_suffix(".json")},
+        {"TARGET": args.target, "--scene": args.scene, "--mask": args.mask, "--fit": args.fit},
+    )
     priors = parse_priors(args.prior)
     for name, (low, high) in priors.items():  # checked here, before any work
         if not (math.isfinite(low) and math.isfinite(high)) or not low < high:

@@ -41,6 +41,7 @@ import sys
 import types
 from typing import TYPE_CHECKING, Any
 
+from ._version import __version__ as __version__
 from .errors import ImageError, MaterialError, OutputExistsError, SceneError, StraussFitError
 from .runtime import use_cpu_cores
 
@@ -68,8 +69,6 @@ if TYPE_CHECKING:
     from .scene.lights import DirectionalLights, Lights, PointLights
     from .scene.loading import Scene, load_scene, parse_scene
     from .study.study import run_study, study_config
-
-__version__ = "0.1.0"
 
 #: Every public name and the module it comes from (relative to this package), imported on
 #: first use: ``import strauss_fit`` (and ``strauss-fit --help``) loads no JAX.

@@ -45,9 +45,7 @@ Entry points: :func:`phong_to_strauss` and :func:`strauss_to_phong` convert mate
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import importlib.util
-import json
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -78,7 +76,7 @@ from ..fit.starts import START_MARGIN, starts
 from ..inference.laplace import covariance, deviations, jacobian_kernel, problem_laplace_steps
 from ..inference.laplace import information as information_of
 from ..io.files import check_distinct, check_writable
-from ..io.journal import Journal
+from ..io.journal import Journal, run_key
 from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
 from ..io.targets import Target
 from ..models.material import Material
@@ -1206,7 +1204,8 @@ def progress_path(output: str | Path) -> Path:
 
 
 def _run_key(direction: str, entries: list[Entry], converter: Converter, settings: Settings, blinn: bool) -> str:
-    """A digest of everything that decides a conversion's results (inputs, scene, settings)."""
+    """A digest of everything that decides a conversion's results (inputs, scene, settings,
+    and strauss-fit's version: :func:`~strauss_fit.io.journal.run_key`)."""
     description = {
         "direction": direction,
         "blinn": bool(blinn),
@@ -1214,8 +1213,7 @@ def _run_key(direction: str, entries: list[Entry], converter: Converter, setting
         "scene": converter.describe(),
         "entries": [entry.describe() for entry in entries],
     }
-    text = json.dumps(description, sort_keys=True, allow_nan=False, default=str)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return run_key(description)
 
 
 def _with_warnings(result: dict[str, Any], entry: Entry) -> dict[str, Any]:

@@ -81,7 +81,7 @@ from .problem import (
     resolve_edge_pixels_steps,
     shade_full,
 )
-from .result import FitResult
+from .result import FitResult, finite_or_none
 from .solvers import SOLVERS, Solved, solve_steps
 
 
@@ -459,7 +459,8 @@ def _result(
         held[name] = {"value": value, "reason": "fixed by the user (--fix)"}
     problem, x_best = solved.problem, solved.x
     layout, pinned, status = problem.layout, np.asarray(solved.problem.pinned), solved.status
-    starts, spread = solved.starts, solved.spread
+    # a start that diverged has no cost or end values: null (its status says how it ended)
+    starts, spread = [finite_or_none(record) for record in solved.starts], solved.spread
     notes = [
         f"equally good fits (within Δχ² = 1 of the best) disagree on {label} by {value:.2g}: "
         "the image may not pin it down"
@@ -546,7 +547,7 @@ def _result(
         "per_channel": diagnosis.per_channel,
         "regions": diagnosis.regions,
     }
-    return FitResult(
+    result = FitResult(
         material=fitted_material,
         free=list(layout.names),
         held=held,
@@ -593,3 +594,7 @@ def _result(
         standardized_residual=diagnosis.standardized,
         target_image=target.pixels,
     )
+    # a figure that came out NaN or infinite is a computation that broke down: a one-line
+    # error naming it (to_json checks every number), never a NaN passed on or written
+    result.to_json()
+    return result

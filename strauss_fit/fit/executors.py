@@ -80,6 +80,34 @@ def fit_chunk_portable(jobs: Sequence[FitJob]) -> list[dict[str, Any]]:
     return [_portable(result) for result in fit_chunk(jobs)]
 
 
+#: Seconds to wait for a TCP connection to a scheduler before calling it unreachable.
+CONNECT_TIMEOUT_S = 5.0
+
+
+def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
+    """Fail fast, in one line, when nothing listens at a ``tcp://host:port`` scheduler
+    address (a refused connection answers at once; Dask's client would retry for its whole
+    timeout first). Other protocols are left to Dask."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme != "tcp":
+        return
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        raise StraussFitError(f"the Dask scheduler address {address} has no valid port") from None
+    if not host or port is None:
+        raise StraussFitError(f"the Dask scheduler address {address} needs a host and a port (tcp://host:8786)")
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as error:
+        reason = "timed out" if isinstance(error, TimeoutError) else (error.strerror or str(error))
+        raise StraussFitError(f"cannot reach the Dask scheduler at {address}: {reason}") from None
+
+
 class DaskExecutor:
     """Fit the chunks on a Dask cluster (see the module docstring): ``workers`` local
     worker processes, or the cluster at ``scheduler`` (an address such as
@@ -107,13 +135,26 @@ class DaskExecutor:
         if self.client is not None:
             return self.client, None
         if self.scheduler is not None:
+            check_reachable(self.scheduler)
             try:
                 return Client(self.scheduler, timeout="10s"), None
             except (OSError, TimeoutError) as error:
                 raise StraussFitError(f"cannot reach the Dask scheduler at {self.scheduler}: {error}") from None
         # processes, one thread each: every worker has its own JAX runtime and compiles once
-        cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None)
-        return Client(cluster), cluster
+        cluster = None
+        try:
+            cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            return Client(cluster), cluster
+        except Exception as error:  # no threads or processes left, no memory, no port: one line
+            if cluster is not None:
+                try:
+                    cluster.close()
+                except Exception:
+                    pass
+            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+            raise StraussFitError(
+                f"cannot start a local Dask cluster of {self.workers} worker(s): {reason} (try fewer --workers)"
+            ) from None
 
     def run(self, jobs: Sequence[FitJob], chunks: list[list[int]], arrived: Callable[[int, Any], None]) -> None:
         from dask.distributed import as_completed

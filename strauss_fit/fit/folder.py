@@ -9,6 +9,23 @@ already there (a complete JSON result of the same target) and fits the rest, the
 ones included. A target that fails is a row with ``status`` "failed" and its one-line
 error; the others go on.
 
+The rules that keep a folder's results honest, all checked before any work:
+
+- **An output never names an input.** A result (``<stem>.json``), a comparison image or
+  ``summary.csv`` that would be a target, a scene, a mask, a manifest, a target list, or a
+  target's sidecar (``<stem>.json`` beside ``<stem>.exr``, which holds its noise and truth)
+  is refused whatever ``--force`` or ``--resume`` say: fit into another folder.
+- **A result is kept only for the run that made it.** Every result records its
+  ``provenance``: digests of the target's bytes, the scene, the mask and the settings, and
+  the key made of them with strauss-fit's version (:func:`~strauss_fit.io.journal.run_key`).
+  ``resume`` keeps a result whose key is this run's; a result of another configuration (or
+  one without a key) is refused with what differs, never silently kept; a result missing its
+  core keys (:data:`CORE_KEYS`: hand-edited, say) is incomplete and fitted again.
+- **Each target once.** The same target given twice, and two targets whose results would
+  share a name, are refused.
+- The folder itself is created only once the work has started (the cluster reached, the
+  first result in), so a run that cannot start leaves nothing behind.
+
 Targets can be files, folders (their images: every file OpenImageIO reads, sorted), lists
 (``@list.txt``: one path per line, ``#`` comments) or a manifest (CSV or JSON) that pairs
 each target with its own scene, mask and encoding.
@@ -23,16 +40,20 @@ alone.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ..errors import OutputExistsError, StraussFitError
-from ..io.files import Outputs, read_json
+from ..io.files import Outputs, check_input_file, read_json
 from ..io.images import read_image
+from ..io.journal import file_digest, pytree_digest, run_key
+from ..io.targets import Target
 from ..scene.loading import load_scene
 from .batch import DEFAULT_CHUNK, BatchProgress, FitFailure, FitJob, fit_many
 from .options import FitOptions
@@ -54,7 +75,7 @@ def expand_targets(arguments: Sequence[str]) -> list[Path]:
     out: list[Path] = []
     for argument in arguments:
         if argument.startswith("@"):
-            listing = Path(argument[1:])
+            listing = check_input_file(argument[1:], "target list")
             try:
                 lines = listing.read_text(encoding="utf-8").splitlines()
             except (OSError, UnicodeDecodeError) as exc:
@@ -87,7 +108,7 @@ def expand_targets(arguments: Sequence[str]) -> list[Path]:
 def read_manifest(path: str | Path, default_scene: str | Path | None) -> list[dict[str, str]]:
     """The rows of a CSV or JSON manifest (columns :data:`MANIFEST_COLUMNS`; paths relative
     to the manifest's folder); a row without a scene takes ``default_scene``."""
-    path = Path(path)
+    path = check_input_file(path, "manifest")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
@@ -127,18 +148,121 @@ def read_manifest(path: str | Path, default_scene: str | Path | None) -> list[di
 
 
 def result_names(targets: Sequence[str | Path]) -> list[str]:
-    """The result file stem of every target: its file stem; targets whose stems collide
-    are refused (two results would overwrite each other)."""
+    """The result file stem of every target: its file stem. The same target given twice
+    (by any path to the same file) and targets whose stems collide are refused: one result
+    would overwrite the other."""
     stems = [Path(t).stem for t in targets]
     seen: dict[str, str] = {}
+    files: dict[str, str] = {}
     for stem, target in zip(stems, targets):
-        if stem in seen and seen[stem] != str(target):
+        identity = _identity(target)
+        if identity in files:
+            same = "" if files[identity] == str(target) else f" (as {files[identity]} and {target})"
+            raise StraussFitError(f"the target {target} is given twice{same}: give each target once")
+        files[identity] = str(target)
+        if stem in seen:
             raise StraussFitError(
                 f"two targets would write the same result {stem}.json: {seen[stem]} and {target}; rename one, "
                 "or fit them into different folders"
             )
         seen[stem] = str(target)
     return stems
+
+
+def _identity(path: str | Path) -> tuple:
+    """What makes two paths the same file: device and inode where it exists (hard and
+    symbolic links included), else the resolved path."""
+    try:
+        status = os.stat(path)
+        return (status.st_dev, status.st_ino)
+    except OSError:
+        return (os.path.normcase(os.path.realpath(path)),)
+
+
+def sidecar_of(target: str | Path) -> Path | None:
+    """The target's sidecar, if one exists: ``<stem>.json`` beside the image (a synthetic
+    dataset's noise and truth, see docs/datasets.md), unless that file is itself a fit
+    result (a result fitted into the target's own folder earlier). An output must never
+    replace it."""
+    candidate = Path(target).with_suffix(".json")
+    if Path(target).suffix.lower() == ".json" or not candidate.is_file():
+        return None
+    try:
+        FitResult.from_json(json.loads(candidate.read_text(encoding="utf-8")))
+        return None
+    except Exception:
+        return candidate
+
+
+def check_outputs_are_not_inputs(
+    outputs: Sequence[Path], jobs: Sequence[FitJob], inputs: Sequence[str | Path] = ()
+) -> None:
+    """Refuse, before any work, an output that is one of the run's inputs: a target, its
+    sidecar (:func:`sidecar_of`), a scene, a mask, or one of ``inputs`` (the manifest,
+    target lists). ``--force`` does not change this: fit into another folder."""
+    named: dict[tuple, str] = {}
+    for path in inputs:
+        named.setdefault(_identity(path), f"the input {path}")
+    for job in jobs:
+        for what, path in (("target", job.target), ("scene", job.scene), ("mask", job.mask)):
+            if isinstance(path, (str, Path)):
+                named.setdefault(_identity(path), f"the {what} {path}")
+        if isinstance(job.target, (str, Path)):
+            sidecar = sidecar_of(job.target)
+            if sidecar is not None:
+                named.setdefault(_identity(sidecar), f"the sidecar of the target {job.target} (its noise and truth)")
+    for output in outputs:
+        clash = named.get(_identity(output))
+        if clash is not None:
+            raise StraussFitError(
+                f"the output {output} would overwrite {clash}: an output never replaces an input; fit into another "
+                "folder (-o)"
+            )
+
+
+#: What a complete result holds besides the material and ``free``: a result without one of
+#: these (hand-edited, say) is incomplete, and ``resume`` fits its target again.
+CORE_KEYS = {"residual": ("rms", "sum_of_squares"), "solver": ("status",), "uncertainty": (), "settings": ()}
+
+
+def provenance(job: FitJob) -> dict[str, Any] | None:
+    """What decides a target's result, as digests (``target_sha256`` of the image's bytes,
+    ``scene_sha256``, ``mask_sha256``, ``settings_sha256`` of the options and encoding),
+    strauss-fit's version, and ``key``, the run key of them all. None when an input cannot
+    be read (the fit then fails on it and says why)."""
+
+    def digest(value: Any) -> str | None:
+        if value is None:
+            return None
+        if isinstance(value, (str, Path)):
+            return file_digest(check_input_file(value))
+        if isinstance(value, Target):
+            return pytree_digest((value.pixels, value.usable))
+        return pytree_digest(value)
+
+    from .._version import __version__
+
+    try:
+        parts = {
+            "target_sha256": digest(job.target),
+            "scene_sha256": digest(job.scene),
+            "mask_sha256": digest(job.mask),
+        }
+    except (OSError, StraussFitError):
+        return None
+    settings = json.dumps({"options": job.options.as_dict(), "encoding": job.encoding}, sort_keys=True, default=str)
+    parts["settings_sha256"] = hashlib.sha256(settings.encode("utf-8")).hexdigest()
+    return {**parts, "strauss_fit": __version__, "key": run_key(parts)}
+
+
+#: Names of the provenance digests, as a user reads them in a refusal.
+_PROVENANCE_NAMES = {
+    "target_sha256": "the target's bytes",
+    "scene_sha256": "the scene",
+    "mask_sha256": "the mask",
+    "settings_sha256": "the settings",
+    "strauss_fit": "the strauss-fit version",
+}
 
 
 @dataclass
@@ -152,14 +276,32 @@ class FolderRun:
     summary: Path
 
 
-def _finished(path: Path, target: str) -> dict[str, Any] | None:
-    """The result JSON at ``path`` if it is a complete result of ``target``, else None."""
+def _kept(path: Path, expected: dict[str, Any] | None) -> tuple[dict[str, Any] | None, str | None]:
+    """What ``resume`` does with the result at ``path``: ``(data, None)`` keeps it (complete,
+    and of this run: same provenance key); ``(None, None)`` fits the target again (no result
+    there, or an incomplete one); ``(None, reason)`` refuses the run (a complete result of
+    another configuration, or one without provenance)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
         FitResult.from_json(data)
     except Exception:
-        return None
-    return data if str(data.get("target")) == str(target) else None
+        return None, None  # not a result (a half-edited file): nothing to keep
+    for key, fields in CORE_KEYS.items():
+        if not isinstance(data.get(key), dict) or any(data[key].get(field) is None for field in fields):
+            return None, None  # incomplete
+    recorded = data.get("provenance")
+    if not isinstance(recorded, dict) or "key" not in recorded:
+        return None, "it records no provenance (an older strauss-fit wrote it, or it was edited)"
+    if expected is None or recorded.get("key") != expected["key"]:
+        differ = [
+            name for key, name in _PROVENANCE_NAMES.items() if expected and recorded.get(key) != expected.get(key)
+        ]
+        which = ", ".join(differ) or "its key"
+        return (
+            None,
+            f"it was fitted with other inputs or options ({which} {'differ' if len(differ) > 1 else 'differs'})",
+        )
+    return data, None
 
 
 def fit_to_folder(
@@ -174,38 +316,30 @@ def fit_to_folder(
     recorded: Callable[[FitJob], dict[str, Any]] | None = None,
     progress: Callable[[BatchProgress], None] | None = None,
     on_result: Callable[[int, FitResult | FitFailure], None] | None = None,
+    inputs: Sequence[str | Path] = (),
+    log: Callable[[str], None] | None = None,
 ) -> FolderRun:
-    """Fit ``jobs`` into ``folder`` (see the module docstring). ``recorded(job)`` gives the
-    extra keys each result JSON records (the command line's target, scene, mask, encoding,
-    quality). Existing results are refused unless ``resume`` (keep them, fit the rest) or
+    """Fit ``jobs`` into ``folder`` (see the module docstring for the rules). ``recorded(job)``
+    gives the extra keys each result JSON records (the command line's target, scene, mask,
+    encoding, quality); ``inputs`` names further input files no output may replace (a
+    manifest, target lists); ``log`` receives a line about results fitted again. Existing
+    results are refused unless ``resume`` (keep those of this run, fit the rest) or
     ``force`` (fit everything again), all before any work."""
     folder = Path(folder)
+    if resume and force:
+        raise StraussFitError("give --resume or --force, not both")
     if folder.exists() and not folder.is_dir():
         raise StraussFitError(f"the output {folder} is a file; several targets need an output folder")
     if not folder.exists():
         if not folder.parent.is_dir():
             raise StraussFitError(f"the output folder's parent does not exist: {folder.parent}")
-        try:
-            folder.mkdir()
-        except OSError as exc:
-            raise StraussFitError(f"cannot create the output folder {folder}: {exc.strerror or exc}") from None
-    if resume and force:
-        raise StraussFitError("give --resume or --force, not both")
+        if not os.access(folder.parent, os.W_OK):
+            raise StraussFitError(f"cannot create the output folder {folder}: {folder.parent} is not writable")
     names = result_names([job.name for job in jobs])
     paths = [folder / f"{name}.json" for name in names]
-    if resume:  # a killed run's half-written temporaries of these results
-        for name in names:
-            for stale in folder.glob(f".{name}.*.tmp*"):
-                stale.unlink(missing_ok=True)
     summary = folder / SUMMARY_NAME
-    rows: list[dict[str, Any] | None] = [None] * len(jobs)
-    todo = []
-    for index, (job, path) in enumerate(zip(jobs, paths)):
-        done = _finished(path, job.name) if resume and path.exists() else None
-        if done is not None:
-            rows[index] = summary_row(job.name, done, path=path.name)
-        else:
-            todo.append(index)
+    outputs = [*paths, summary, *([folder / f"{name}.compare.png" for name in names] if compare else [])]
+    check_outputs_are_not_inputs(outputs, jobs, inputs)
     if not (resume or force):
         # results are the targets' JSON files; summary.csv is not one, but would be replaced
         existing = [p for p in paths if p.exists()]
@@ -219,6 +353,30 @@ def fit_to_folder(
                 f"{folder} already holds a {SUMMARY_NAME} from an earlier run; pass --resume to keep its results "
                 "and fit the rest, or --force to replace it"
             )
+    keys = [provenance(job) for job in jobs]
+    rows: list[dict[str, Any] | None] = [None] * len(jobs)
+    todo, incomplete = [], 0
+    for index, (job, path) in enumerate(zip(jobs, paths)):
+        done, refused = _kept(path, keys[index]) if resume and path.exists() else (None, None)
+        if refused is not None:
+            raise OutputExistsError(
+                f"{path} is not a result of this run: {refused}; resuming would mix two configurations: pass "
+                "--force to fit every target again with this one, or fit into another folder"
+            )
+        if done is not None:
+            rows[index] = summary_row(job.name, done, path=path.name)
+        else:
+            incomplete += resume and path.exists()
+            todo.append(index)
+    if incomplete and log is not None:
+        log(
+            f"{incomplete} incomplete result(s) in {folder} (missing {', '.join(CORE_KEYS)} or their figures): "
+            "fitted again"
+        )
+    if resume and folder.is_dir():  # a killed run's half-written temporaries of these results
+        for name in names:
+            for stale in folder.glob(f".{name}.*.tmp*"):
+                stale.unlink(missing_ok=True)
     counts = {"failed": 0}
 
     def arrived(position: int, result: FitResult | FitFailure) -> None:
@@ -234,6 +392,9 @@ def fit_to_folder(
                     payload[key].update(value)  # e.g. settings: the quality preset's name
                 else:
                     payload[key] = value
+            if keys[index] is not None:
+                payload["provenance"] = keys[index]
+            _create(folder)
             with Outputs(force=True) as out:  # this target's files together
                 out.add_json(path, payload)
                 if compare and result.fitted_image is not None and result.target_image is not None:
@@ -258,8 +419,22 @@ def fit_to_folder(
             on_result=arrived,
         )
     final_rows = [row for row in rows if row is not None]
+    _create(folder)
     write_summary(summary, final_rows)
     return FolderRun(final_rows, len(todo) - counts["failed"], len(jobs) - len(todo), counts["failed"], summary)
+
+
+def _create(folder: Path) -> None:
+    """Create the output folder (once the work has started: see the module docstring)."""
+    if folder.is_dir():
+        return
+    try:
+        folder.mkdir()
+    except FileExistsError:
+        if not folder.is_dir():
+            raise StraussFitError(f"the output {folder} is a file; several targets need an output folder") from None
+    except OSError as exc:
+        raise StraussFitError(f"cannot create the output folder {folder}: {exc.strerror or exc}") from None
 
 
 def write_summary(path: Path, rows: list[dict[str, Any]]) -> None:

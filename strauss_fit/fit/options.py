@@ -107,8 +107,9 @@ class FitOptions:
     #: Also fit one global exposure: a scale on all rendered radiance (every light and the
     #: background together), the usual unknown of a photograph or a foreign render.
     fit_exposure: bool = False
-    #: The target's noise standard deviation (linear units; one value or R, G, B) when
-    #: known; None: from the target's sidecar, else estimated from the image
+    #: The target's noise standard deviation (linear units; one value or R, G, B, each
+    #: within :data:`~strauss_fit.inference.noise.NOISE_RANGE`) when known; None: from the
+    #: target's sidecar, else estimated from the image
     #: (:func:`strauss_fit.inference.noise.describe_noise`).
     noise: float | tuple[float, float, float] | None = None
     #: What the solver minimises (:data:`~strauss_fit.fit.problem.LOSSES`): ``"linear"``
@@ -165,21 +166,18 @@ class FitOptions:
 
     def validate(self) -> None:
         """Raise :class:`~strauss_fit.errors.StraussFitError` naming the first bad setting."""
+        from ..inference.noise import check_noise_level
         from .problem import LOSSES
 
         if self.loss not in ("auto", *LOSSES):
             raise StraussFitError(f"unknown loss {self.loss!r}; expected one of auto, {', '.join(LOSSES)}")
         if self.edge_pixels not in EDGE_PIXELS:
             raise StraussFitError(f"edge_pixels must be one of {', '.join(EDGE_PIXELS)}, got {self.edge_pixels!r}")
-        if self.noise is not None:
-            values = self.noise if isinstance(self.noise, tuple) else (self.noise,)
-            if len(values) not in (1, 3) or not all(math.isfinite(v) and v > 0 for v in map(float, values)):
-                raise StraussFitError(
-                    f"the noise level must be one positive number or three (R, G, B), got {self.noise}"
-                )
+        if self.noise is not None:  # within NOISE_RANGE: beyond, σ² or 1/σ² leaves float64's range
+            check_noise_level(self.noise, "the noise level (--noise)")
         if not (math.isfinite(float(self.equivalence_de)) and self.equivalence_de > 0):
             raise StraussFitError(f"the equivalence threshold must be a positive CIEDE2000, got {self.equivalence_de}")
-        if self.reference_noise is not None and not (
-            math.isfinite(float(self.reference_noise)) and self.reference_noise > 0
-        ):
-            raise StraussFitError(f"the reference noise must be a positive number, got {self.reference_noise}")
+        if self.reference_noise is not None:
+            if not (math.isfinite(float(self.reference_noise)) and self.reference_noise > 0):
+                raise StraussFitError(f"the reference noise must be a positive number, got {self.reference_noise}")
+            check_noise_level(self.reference_noise, "the reference noise (--reference-noise)")

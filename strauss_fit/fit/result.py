@@ -9,6 +9,7 @@ the posterior, the Laplace summary, the report).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +47,54 @@ _FIELDS = {
 
 class FitResultError(StraussFitError):
     """A JSON document is not a strauss-fit fit result."""
+
+
+def nonfinite_entry(data: Any, where: str = "") -> tuple[str, float] | None:
+    """Where the first NaN or infinite number in the JSON-like ``data`` (dicts, lists,
+    numbers; NumPy values too) is, as a path (``uncertainty.color[0]``) and the value; None
+    when every number is finite."""
+    if isinstance(data, np.ndarray):
+        return nonfinite_entry(data.tolist(), where)
+    if isinstance(data, dict):
+        items = ((f"{where}.{key}" if where else str(key), value) for key, value in data.items())
+    elif isinstance(data, (list, tuple)):
+        items = ((f"{where}[{index}]", value) for index, value in enumerate(data))
+    elif isinstance(data, (float, np.floating)) and not math.isfinite(float(data)):
+        return where, float(data)
+    else:
+        return None
+    for path, value in items:
+        found = nonfinite_entry(value, path)
+        if found is not None:
+            return found
+    return None
+
+
+def check_finite(data: Any, what: str = "the fit result") -> None:
+    """Raise a one-line :class:`FitResultError` naming the first NaN or infinite number in
+    ``data`` (see :func:`nonfinite_entry`): JSON holds neither (docs/formats.md), and a
+    figure that is not a number is not passed on as one."""
+    found = nonfinite_entry(data)
+    if found is not None:
+        where, value = found
+        raise FitResultError(
+            f"{what}'s {where} is {value}, not a finite number: a fit result never holds NaN or infinity"
+        )
+
+
+def finite_or_none(data: Any) -> Any:
+    """``data`` (JSON-like) with every NaN or infinite number replaced by None (JSON's
+    null): for figures where a non-finite value has a meaning, such as the cost of a start
+    that diverged."""
+    if isinstance(data, np.ndarray):
+        return finite_or_none(data.tolist())
+    if isinstance(data, dict):
+        return {key: finite_or_none(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [finite_or_none(value) for value in data]
+    if isinstance(data, (float, np.floating)) and not math.isfinite(float(data)):
+        return None
+    return data
 
 
 @dataclass
@@ -118,6 +167,9 @@ class FitResult:
         return self.residual.get("verdict")
 
     def to_json(self) -> dict[str, Any]:
+        """The result as ``strauss-fit fit`` writes it (docs/formats.md). Every number is
+        finite: a NaN or infinite one raises a one-line :class:`FitResultError` naming it
+        (:func:`check_finite`) rather than reaching a JSON writer."""
         out: dict[str, Any] = self.material.to_dict()
         out.update(
             {
@@ -145,6 +197,7 @@ class FitResult:
         if self.equivalence is not None:
             out["equivalence"] = self.equivalence
         out.update(self.extra)
+        check_finite(out)
         return out
 
     @classmethod

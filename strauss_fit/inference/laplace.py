@@ -25,6 +25,7 @@ Problems are duck-typed: anything with ``residual_physical(x)`` (a Strauss
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import equinox as eqx
@@ -228,6 +229,13 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     (JᵀJ)⁻¹H on the free entries (1 when the model fits; far from 1: the misfit's curvature
     matters)."""
     j, h, slope = (np.asarray(v) for v in (yield objective_terms_kernel.call(problem, np.asarray(x, dtype=np.float64))))
+    # V is the same with J and D divided by any c and H by c²: with c the largest slope
+    # (1/the residual scale, for the linear loss) the products below stay of the image's
+    # own magnitude whatever scale the residuals were divided by (a reference noise of
+    # 1e-100 made the meat overflow to NaN)
+    scale = float(np.max(np.abs(slope))) if slope.size else 0.0
+    if math.isfinite(scale) and scale > 0:
+        j, h, slope = j / scale, h / scale / scale, slope / scale
     free = ~np.asarray(problem.pinned)
     noise_sd = np.asarray(noise_sd, dtype=np.float64)
     # a padded pixel set (strauss_fit.fit.problem.pixel_bucket): its padding has slope 0

@@ -1100,6 +1100,34 @@ def _triple(value: float | tuple | list | np.ndarray) -> np.ndarray:
     return np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
 
 
+#: The noise levels σ (linear units) a fit, a chain or a noise model accepts: from 1e-100
+#: to 1e100. Outside, σ² or 1/σ² — and the χ², the noise sandwich and the likelihood built
+#: from them with the image's values, pixel counts and slopes — leave float64's range
+#: (about 1e±308): a given σ of 1e300 overflowed σ² and made every deviation NaN, one of
+#: 1e-300 underflowed σ² to 0 and broke the robust refit. Inside, every product has a
+#: hundred orders of magnitude to spare, far beyond any image's scale.
+NOISE_RANGE = (1e-100, 1e100)
+
+
+def check_noise_level(value: float | tuple | list | np.ndarray, what: str = "the noise level") -> np.ndarray:
+    """``value``, one noise σ or three (R, G, B), as (3,) float64, or a one-line
+    :class:`~strauss_fit.errors.StraussFitError` naming ``what`` when it is not one or three
+    finite numbers within :data:`NOISE_RANGE`."""
+    low, high = NOISE_RANGE
+    try:
+        values = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        values = np.zeros(0)
+    if values.size not in (1, 3) or not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise StraussFitError(f"{what} must be one positive number or three (R, G, B), got {value}")
+    if np.any(values < low) or np.any(values > high):
+        raise StraussFitError(
+            f"{what} must be from {low:g} to {high:g} (linear units; beyond, its square or inverse square "
+            f"leaves float64's range), got {', '.join(f'{v:g}' for v in values)}"
+        )
+    return np.broadcast_to(values, (3,)).copy()
+
+
 def storage_precision(path: str | None) -> float:
     """The relative rounding of a floating-point image file's values (0 for 8-bit and
     unknown files: their floor is the quantisation)."""
@@ -1124,6 +1152,11 @@ def storage_precision(path: str | None) -> float:
     return STORAGE_PRECISION.get(names.get(basetype, ""), 0.0)
 
 
+def _zero_or_in_range(sigma: float) -> bool:
+    """A noise σ of 0 (none) or within :data:`NOISE_RANGE`."""
+    return sigma == 0 or (math.isfinite(sigma) and NOISE_RANGE[0] <= sigma <= NOISE_RANGE[1])
+
+
 def read_sidecar(path: str | None) -> dict | None:
     """The synth sidecar beside an image (``ID.png`` → ``ID.json``, see docs/datasets.md)
     if there is one and it is a strauss-fit sample description, else None."""
@@ -1133,6 +1166,8 @@ def read_sidecar(path: str | None) -> dict | None:
     from pathlib import Path
 
     candidate = Path(path).with_suffix(".json")
+    if not candidate.is_file():  # a regular file only: reading a FIFO would block
+        return None
     try:
         data = json.loads(candidate.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -1147,8 +1182,11 @@ def _from_sidecar(sidecar: dict) -> tuple[np.ndarray, np.ndarray, str] | None:
     (``noise.per_channel``) or the synthetic sensor (Var = E/gain + read_noise²)."""
     measured = (sidecar.get("noise") or {}).get("per_channel")
     if measured is not None:
-        sigma = _triple(measured)
-        if np.all(np.isfinite(sigma)) and np.all(sigma >= 0):
+        try:
+            sigma = _triple(measured)
+        except (TypeError, ValueError):
+            sigma = np.full(3, np.nan)
+        if all(_zero_or_in_range(v) for v in sigma):
             return np.zeros(3), sigma**2, "measured noise recorded in the sidecar"
     sensor = sidecar.get("sensor")
     if isinstance(sensor, dict):
@@ -1156,7 +1194,9 @@ def _from_sidecar(sidecar: dict) -> tuple[np.ndarray, np.ndarray, str] | None:
             gain, read = float(sensor.get("gain", 0.0)), float(sensor.get("read_noise", 0.0))
         except (TypeError, ValueError):
             return None
-        if not (math.isfinite(gain) and gain >= 0 and math.isfinite(read) and read >= 0):
+        # the shot noise's σ at level 1 is 1/√gain: in range too
+        shot_ok = gain == 0 or (math.isfinite(gain) and gain > 0 and _zero_or_in_range(1.0 / math.sqrt(gain)))
+        if not (shot_ok and _zero_or_in_range(read)):
             return None
         a = np.full(3, 1.0 / gain if gain > 0 else 0.0)
         note = f"sensor of the sidecar (gain {gain:g}, read noise {read:g})"
@@ -1184,7 +1224,7 @@ def describe_noise(
     quantised = encoding == "srgb"
     storage = 0.0 if quantised else storage_precision(path)
     if given is not None:
-        sigma = _triple(given)
+        sigma = check_noise_level(given)
         return NoiseModel("given", np.zeros(3), sigma**2, quantised, storage, notes=["the noise level given"])
     if sidecar is None:
         sidecar = read_sidecar(path)

@@ -130,9 +130,13 @@ def parse_priors(items: list[str]) -> dict[str, tuple[float, float]]:
 
 
 def check_sigma(sigma: float) -> float:
-    """σ must be a finite positive number."""
+    """σ must be a finite positive number, within
+    :data:`~strauss_fit.inference.noise.NOISE_RANGE` (σ² and 1/σ² stay in float64's range)."""
+    from .noise import check_noise_level
+
     if not np.isfinite(sigma) or sigma <= 0:
         raise PosteriorError(f"the noise level sigma must be a finite number > 0, got {sigma:g}")
+    check_noise_level(sigma, "the noise level sigma")
     return float(sigma)
 
 

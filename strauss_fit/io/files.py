@@ -26,6 +26,7 @@ import errno
 import json
 import os
 import signal
+import stat
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -59,6 +60,35 @@ def check_writable(path: str | Path, force: bool) -> Path:
         raise ImageError(f"output folder does not exist: {parent}")
     if not os.access(parent, os.W_OK):
         raise ImageError(f"output folder is not writable: {parent}")
+    return path
+
+
+def check_input_file(path: str | Path, what: str = "input", error: type[StraussFitError] = StraussFitError) -> Path:
+    """``path`` if it is a regular file that can be opened for reading; otherwise a
+    one-line ``error`` naming the problem: not found, a broken or looping symbolic link,
+    a folder, or not a regular file at all (a FIFO, a socket, a device).
+
+    Called before every input is opened: opening a FIFO blocks until something writes to
+    it, inside an image library's C++ code where Ctrl-C cannot reach, and a device can
+    stream forever. A folder scan already skips such files; a path named on the command
+    line, in a list or in a manifest is checked here."""
+    path = Path(path)
+    try:
+        status = os.stat(path)  # follows symbolic links
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise error(f"{what} {path} is a symbolic link loop") from None
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            if os.path.islink(path):
+                raise error(f"{what} {path} is a broken symbolic link (to {os.readlink(path)})") from None
+            raise error(f"{what} not found: {path}") from None
+        raise error(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(status.st_mode):
+        raise error(f"{what} path is a directory: {path}")
+    if not stat.S_ISREG(status.st_mode):
+        mode = status.st_mode
+        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
+        raise error(f"{what} {path} is not a regular file ({kind})")
     return path
 
 
@@ -119,6 +149,8 @@ def deferred_sigint(final: bool = False) -> Iterator[None]:
 
     def record(signum, frame):
         received.append(signum)
+        if hasattr(previous, "calls"):  # handled, for the command line's watchdog
+            previous.calls += 1
         if hasattr(previous, "pending") and not final:
             previous.pending = True
 
@@ -187,6 +219,22 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+#: Every temporary that an :class:`Outputs` has staged and not yet renamed or removed, in
+#: this process: what :func:`remove_staged_temporaries` removes when the process must end
+#: at once (the command line's Ctrl-C watchdog, :mod:`strauss_fit_cli.interrupts`).
+_STAGED_TEMPORARIES: set[Path] = set()
+
+
+def remove_staged_temporaries() -> None:
+    """Remove every staged temporary of this process (safe from any thread)."""
+    for tmp in list(_STAGED_TEMPORARIES):
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        _STAGED_TEMPORARIES.discard(tmp)
+
+
 class Outputs:
     """Outputs written together: :meth:`add` writes each to a temporary sibling at once,
     :meth:`commit` renames them all into place; leaving the ``with`` block by an exception
@@ -223,10 +271,12 @@ class Outputs:
             raise WriteError(os_error_message(exc, path)) from None
         os.close(fd)
         tmp = Path(name)
+        _STAGED_TEMPORARIES.add(tmp)
         try:
             _write_file(tmp, data)
         except BaseException as exc:
             tmp.unlink(missing_ok=True)
+            _STAGED_TEMPORARIES.discard(tmp)
             if isinstance(exc, OSError):
                 raise WriteError(os_error_message(exc, path)) from None
             raise
@@ -261,6 +311,7 @@ class Outputs:
                     tmp, final = self._staged[0]
                     os.chmod(tmp, mode)  # mkstemp made it owner-only
                     os.replace(tmp, final)
+                    _STAGED_TEMPORARIES.discard(tmp)
                     self._staged.pop(0)
                     self.committed.append(final)
                     if final.parent not in folders:
@@ -279,6 +330,7 @@ class Outputs:
                 tmp.unlink(missing_ok=True)
             except OSError:
                 pass
+            _STAGED_TEMPORARIES.discard(tmp)
 
 
 def write_bytes(path: str | Path, data: bytes, *, force: bool = False) -> Path:
@@ -300,9 +352,7 @@ def write_json(path: str | Path, data: Any, *, force: bool = False) -> Path:
 
 def read_json(path: str | Path, what: str = "JSON file") -> Any:
     """Read a JSON file, with one-line errors."""
-    path = Path(path)
-    if not path.is_file():
-        raise StraussFitError(f"{what} not found: {path}")
+    path = check_input_file(path, what)
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:

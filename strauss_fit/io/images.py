@@ -21,6 +21,7 @@ no timestamp, so the same pixels always give the same bytes (reproducible datase
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -31,7 +32,7 @@ import numpy as np
 
 from ..color import srgb_decode, srgb_encode
 from ..errors import ImageError
-from .files import Outputs, check_writable
+from .files import Outputs, check_input_file, check_writable
 
 HDR_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")
 LDR_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga")
@@ -88,20 +89,29 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
 
     ``encoding="auto"`` decodes LDR formats from sRGB and takes HDR formats as linear, by
     the file's real format; ``"linear"`` or ``"srgb"`` override that. Grey images are
-    replicated to RGB; an alpha channel is ignored. A damaged or truncated file is an
+    replicated to RGB; an alpha channel is ignored (the colour channels are read as
+    stored, never premultiplied by it). A damaged or truncated file, and a path that is not
+    a regular file (:func:`~strauss_fit.io.files.check_input_file`), are an
     :class:`~strauss_fit.errors.ImageError`.
     """
-    path = Path(path)
-    if not path.exists():
-        raise ImageError(f"image not found: {path}")
-    if path.is_dir():
-        raise ImageError(f"image path is a directory: {path}")
+    path = check_input_file(path, "image", ImageError)  # never open a FIFO: it blocks
     if encoding not in ("auto", "linear", "srgb"):
         raise ImageError(f"unknown encoding {encoding!r}; expected auto, linear or srgb")
     oiio = _oiio()
-    image_input = oiio.ImageInput.open(str(path))
+    # The colour channels as stored: OpenImageIO would otherwise premultiply them by an
+    # unassociated alpha (PNG, GIF, ...), so that a PNG whose alpha is 0 reads as black
+    # although its RGB holds the picture. Alpha is ignored, whatever the format.
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    with _readable_copy(path) as readable:
+        return _decode(oiio, path, readable, config, encoding)
+
+
+def _decode(oiio, path: Path, readable: str, config, encoding: Encoding) -> LoadedImage:
+    """:func:`read_image`'s decoding of the file at ``readable`` (``path``'s bytes)."""
+    image_input = oiio.ImageInput.open(readable, config)
     if image_input is None:
-        detail = _first_line(oiio.geterror(), "unknown format")
+        detail = _first_line(oiio.geterror(), "unknown format").replace(readable, str(path))
         raise ImageError(f"cannot read image {path}: {detail}")
     try:
         spec = image_input.spec()
@@ -145,6 +155,50 @@ def check_image_output(path: str | Path, force: bool = False) -> Path:
         oiio.geterror()  # clear OpenImageIO's pending message; ours says it in one line
         raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
     return path
+
+
+#: Bytes per read when an input is copied into memory (:func:`_readable_copy`).
+_READ_CHUNK = 1 << 24
+
+
+@contextmanager
+def _readable_copy(path: Path) -> Iterator[str]:
+    """A path from which OpenImageIO reads ``path``'s bytes without touching ``path``: an
+    anonymous in-memory copy made by Python where the system has them, else ``path``.
+
+    OpenImageIO opens and reads files inside compiled code that holds Python's global
+    lock, where Ctrl-C cannot reach: a file that blocks (a FIFO swapped in after the check,
+    a hung network file system) would hang the command for good. Python's own reads wait
+    with the lock released and let a signal handler raise, so Ctrl-C ends the read (exit
+    130). The file is opened non-blocking and must still be a regular file once open."""
+    fd = None
+    if hasattr(os, "memfd_create") and Path("/proc/self/fd").is_dir():
+        try:
+            fd = os.memfd_create("strauss-fit-input")
+        except OSError:
+            fd = None
+    if fd is None:
+        yield str(path)
+        return
+    try:
+        try:
+            source = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        except OSError as exc:
+            raise ImageError(f"cannot read image {path}: {exc.strerror or exc}") from None
+        try:
+            if not stat.S_ISREG(os.fstat(source).st_mode):
+                raise ImageError(f"image {path} is not a regular file")
+            while chunk := os.read(source, _READ_CHUNK):
+                view = memoryview(chunk)
+                while view:
+                    view = view[os.write(fd, view) :]
+        except OSError as exc:
+            raise ImageError(f"cannot read image {path}: {exc.strerror or exc}") from None
+        finally:
+            os.close(source)
+        yield f"/proc/self/fd/{fd}"
+    finally:
+        os.close(fd)
 
 
 @contextmanager

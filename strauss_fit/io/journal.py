@@ -14,6 +14,7 @@ which the progress file is removed.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -25,6 +26,45 @@ from .files import WriteError, os_error_message
 
 FORMAT = "strauss-fit progress"
 VERSION = 1
+
+
+def run_key(description: Any) -> str:
+    """The SHA-256 digest that identifies a run's results: ``description`` (everything
+    that decides them, as JSON with sorted keys: input digests, scene, settings) together
+    with strauss-fit's version. Equal keys mean the same results; resuming work under
+    another key would mix results of two configurations. The one place run keys are made
+    (conversions' progress files, the results of a folder fit)."""
+    from .._version import __version__
+
+    text = json.dumps({"run": description, "strauss_fit": __version__}, sort_keys=True, allow_nan=False, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def file_digest(path: str | Path) -> str:
+    """The SHA-256 digest of a file's bytes (read in chunks; OSError if unreadable)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        while chunk := handle.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def pytree_digest(tree: Any) -> str:
+    """The SHA-256 digest of a pytree's structure and leaves (an in-memory scene or
+    target): arrays by dtype, shape and bytes, other leaves by their text."""
+    import jax
+    import numpy as np
+
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    digest = hashlib.sha256(str(treedef).encode("utf-8"))
+    for leaf in leaves:
+        if hasattr(leaf, "shape") and hasattr(leaf, "dtype"):
+            array = np.ascontiguousarray(np.asarray(leaf))
+            digest.update(f"{array.dtype}{array.shape}".encode())
+            digest.update(array.tobytes())
+        else:
+            digest.update(repr(leaf).encode("utf-8"))
+    return digest.hexdigest()
 
 
 class JournalError(StraussFitError):

@@ -261,7 +261,7 @@ def build_report(
     heading = title or f"strauss-fit uncertainty report: {sources.get('target', 'target')}"
     doc.heading(heading, 1)
     stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    from .. import __version__
+    from .._version import __version__
 
     facts = [
         f"target {sources.get('target', '?')}",
@@ -672,7 +672,7 @@ def render_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) ->
     return np.asarray(image) * exposure, used
 
 
-def _recorded(path: str | None, base: Path | None) -> str | None:
+def recorded_path(path: str | None, base: Path | None) -> str | None:
     """A path recorded in a result: as written if it exists from here, else relative to
     the folder of the file that recorded it."""
     if path is None:
@@ -719,14 +719,16 @@ def report_from_files(
         result, fit_base = meta["fit"], chain_base
     result = FitResult.from_json(result)
     recorded = result.extra
-    target_path = target or _recorded(meta.get("target"), chain_base) or _recorded(recorded.get("target"), fit_base)
-    scene_path = scene or _recorded(meta.get("scene"), chain_base) or _recorded(recorded.get("scene"), fit_base)
+    target_path = (
+        target or recorded_path(meta.get("target"), chain_base) or recorded_path(recorded.get("target"), fit_base)
+    )
+    scene_path = scene or recorded_path(meta.get("scene"), chain_base) or recorded_path(recorded.get("scene"), fit_base)
     if not target_path:
         raise StraussFitError("the fit result does not record its target: give --target")
     if not scene_path:
         raise StraussFitError("the fit result does not record its scene: give --scene")
     # the fit result records its mask and encoding only if 'fit' wrote them (older results do not)
-    mask = mask or _recorded(meta.get("mask"), chain_base) or _recorded(recorded.get("mask"), fit_base)
+    mask = mask or recorded_path(meta.get("mask"), chain_base) or recorded_path(recorded.get("mask"), fit_base)
     encoding = encoding or meta.get("encoding") or recorded.get("encoding") or "auto"
     loaded_scene = load_scene(scene_path)
     loaded_target = load_target(target_path, mask, encoding)

@@ -715,7 +715,7 @@ def run_study(config: StudyConfig, progress: Callable[[str], None] | None = None
     part3 = uniformity(config, np.random.default_rng(seeds[2]), say)
     timings["uniformity_s"] = time.perf_counter() - t0
     timings["total_s"] = time.perf_counter() - started
-    from .. import __version__
+    from .._version import __version__
 
     return _finite(
         {

@@ -130,6 +130,45 @@ def test_sample_reuses_a_fit_result(files, capsys, tmp_path):
     np.testing.assert_allclose(loaded.meta["x_hat"][3], json.loads(fit_json.read_text())["smoothness"])
 
 
+def test_sample_takes_the_target_and_scene_a_fit_result_records(files, capsys, tmp_path):
+    """``sample --fit`` reads TARGET, --scene, --mask and --encoding from the fit result, as
+    ``report`` does (issue 24): the same chain as with them given; a recorded file that is
+    gone is a one-line error naming it, and an explicit one wins."""
+    target = tmp_path / "target.exr"
+    target.write_bytes((files / "target.exr").read_bytes())
+    fit_json = tmp_path / "fit.json"
+    free = ["--free", "color,smoothness,metalness"]
+    code, _, err = run_cli(capsys, "fit", target, "--scene", files / "scene.toml", "-o", fit_json, *free)
+    assert code == 0, err
+    short = ["--fit", fit_json, "--max-steps", "20", "--walkers", "20", "--quiet"]
+    code, _, err = run_cli(capsys, "sample", "-o", tmp_path / "recorded.h5", *short)
+    assert code == 1, err  # ran (20 steps: not trustworthy)
+    code, _, err = run_cli(
+        capsys, "sample", target, "--scene", files / "scene.toml", "-o", tmp_path / "given.h5", *short
+    )
+    assert code == 1, err
+    recorded, given = load_chain(tmp_path / "recorded.h5"), load_chain(tmp_path / "given.h5")
+    np.testing.assert_array_equal(recorded.chain, given.chain)
+    for key in ("target", "scene", "mask", "encoding", "sigma", "x_hat"):
+        assert recorded.meta[key] == given.meta[key], key
+    # the recorded target is gone: sample and report say which, and what to give instead
+    moved = tmp_path / "moved.exr"
+    target.rename(moved)
+    code, _, err = run_cli(capsys, "sample", "-o", tmp_path / "gone.h5", *short)
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"records the target {target}, which no longer exists" in err and "give TARGET explicitly" in err
+    code, _, err = run_cli(capsys, "report", "--fit", fit_json, "-o", tmp_path / "gone.html")
+    assert code == 2 and err.count("\n") == 1 and "give --target explicitly" in err, err
+    assert not (tmp_path / "gone.h5").exists() and not (tmp_path / "gone.html").exists()
+    # an explicit TARGET wins (the scene still comes from the fit result)
+    code, _, err = run_cli(capsys, "sample", moved, "-o", tmp_path / "moved.h5", *short)
+    assert code == 1, err
+    np.testing.assert_array_equal(load_chain(tmp_path / "moved.h5").chain, recorded.chain)
+    # without --fit, TARGET and --scene are required, in one line
+    code, _, err = run_cli(capsys, "sample", "-o", tmp_path / "none.h5")
+    assert code == 2 and "give TARGET and --scene (or --fit RESULT.json" in err, err
+
+
 @pytest.mark.parametrize(
     "case,pattern",
     [

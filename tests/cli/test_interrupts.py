@@ -219,3 +219,59 @@ def commit(self, *, final=False):
 files.Outputs.commit = commit
 sys.exit(main(sys.argv[1:]))
 """
+
+
+#: A target that blocks: Python's own open of a FIFO waits for a writer (the check that
+#: refuses FIFOs, and the non-blocking open behind it, are taken away to reach the wait).
+BLOCKING_OPEN = """
+import os, sys
+import strauss_fit.io.images as images
+images.check_input_file = lambda path, what, error: __import__("pathlib").Path(path)
+os.O_NONBLOCK = 0
+from strauss_fit_cli.main import main
+sys.argv = ["strauss-fit", *sys.argv[1:]]
+sys.exit(main())
+"""
+
+#: Compiled code that does not return for a long time with Python's lock released (a
+#: jitted loop), while an output is staged: only the watchdog can end it.
+STUCK_IN_COMPILED_CODE = """
+import sys
+import strauss_fit.io.files as files
+import strauss_fit_cli.render_cmd as render_cmd
+from strauss_fit_cli.main import main
+def stuck(args):
+    import jax, jax.numpy as jnp
+    spin = jax.jit(lambda n: jax.lax.fori_loop(0, n, lambda i, x: jnp.sin(x) + 1e-9, 0.0))
+    spin(10).block_until_ready()
+    with files.Outputs() as out:
+        out.add_text(args.output, "staged")
+        print("... spinning", file=sys.stderr, flush=True)
+        spin(2**31 - 1).block_until_ready()
+        out.commit()
+    return 0
+render_cmd.run = stuck
+sys.argv = ["strauss-fit", "render", "scene.toml", "-o", sys.argv[1]]
+sys.exit(main())
+"""
+
+
+def test_ctrl_c_inside_a_blocking_open_or_compiled_code_exits_130(inputs, tmp_path):
+    # before: a FIFO target hung in open() for good, and two Ctrl-C did not stop it; a
+    # SIGINT during a long compiled computation waited for its end
+    fifo = tmp_path / "fifo.exr"
+    os.mkfifo(fifo)
+    out = tmp_path / "open"
+    argv = [sys.executable, "-c", BLOCKING_OPEN, *fit_argv(inputs, out)]
+    argv[argv.index(str(inputs / "target.exr"))] = str(fifo)
+    blocked = Run(argv, out, on_line="strauss-fit: never")
+    spin = [sys.executable, "-c", STUCK_IN_COMPILED_CODE, str(tmp_path / "spin" / "x.txt")]
+    spinning = Run(spin, tmp_path / "spin", on_line="... spinning")
+    time.sleep(10)  # long enough to be inside the blocking open
+    blocked._press()
+    for moment, run in (("a blocking open", blocked), ("compiled code", spinning)):
+        code, stdout, stderr = run.finish(timeout=120)
+        assert run.sent.is_set(), f"{moment}: the signal was never sent"
+        assert code == 130, f"{moment}: exit status {code}\n{stderr}"
+        assert stderr.rstrip().endswith("strauss-fit: interrupted") and "Traceback" not in stderr, stderr
+        assert sorted(p.name for p in run.out.iterdir()) == [], f"{moment}: left {list(run.out.iterdir())}"

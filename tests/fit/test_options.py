@@ -56,3 +56,28 @@ def test_sampling_and_conversion_read_the_same_table(name):
 def test_an_unknown_preset_is_a_one_line_error():
     with pytest.raises(sf.StraussFitError, match="unknown quality preset 'slow'"):
         FitOptions.preset("slow")
+
+
+@pytest.mark.parametrize(
+    "fields,message",
+    [
+        (dict(noise=1e300), r"the noise level \(--noise\) must be from 1e-100 to 1e\+100 .*got 1e\+300"),
+        (dict(noise=1e-300), r"the noise level \(--noise\) must be from 1e-100 to 1e\+100 .*got 1e-300"),
+        (dict(noise=(0.01, 1e200, 0.01)), r"the noise level \(--noise\) must be from .*got 0.01, 1e\+200, 0.01"),
+        (dict(noise=(0.01, 0.02)), r"the noise level \(--noise\) must be one positive number or three"),
+        (dict(noise=-0.01), r"the noise level \(--noise\) must be one positive number or three"),
+        (dict(reference_noise=1e300), r"the reference noise \(--reference-noise\) must be from 1e-100 to 1e\+100"),
+        (dict(reference_noise=1e-300), r"the reference noise \(--reference-noise\) must be from 1e-100 to 1e\+100"),
+    ],
+)
+def test_a_noise_level_whose_square_leaves_float64_is_refused_in_one_line(fields, message):
+    with pytest.raises(sf.StraussFitError, match=message) as raised:
+        FitOptions(**fields).validate()
+    assert "\n" not in str(raised.value)
+
+
+def test_noise_levels_at_the_ends_of_the_range_are_accepted():
+    for value in (1e-100, 1e100, (1e-100, 0.01, 1e100)):
+        FitOptions(noise=value).validate()
+    FitOptions(reference_noise=1e-100).validate()
+    FitOptions(reference_noise=1e100).validate()

@@ -47,3 +47,57 @@ def test_encoding_in_memory_gives_the_file_write_image_writes(tmp_path, suffix):
     assert path.read_bytes() == encode_image(image, path)
     assert read_image(path).pixels.shape == (16, 20, 3)
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary left
+
+
+@pytest.mark.parametrize("suffix, alpha", [(".png", 0), (".png", 128), (".tif", 0)])
+def test_alpha_is_ignored_the_colour_channels_are_read_as_stored(tmp_path, suffix, alpha):
+    # before: OpenImageIO premultiplied a PNG's unassociated alpha, so a PNG with alpha 0
+    # everywhere read as black ("black on every usable sphere pixel")
+    import OpenImageIO as oiio
+
+    path = tmp_path / f"rgba{suffix}"
+    pixels = np.zeros((6, 5, 4), np.uint8)
+    pixels[..., 0], pixels[..., 1], pixels[..., 2], pixels[..., 3] = 200, 100, 50, alpha
+    spec = oiio.ImageSpec(5, 6, 4, oiio.UINT8)
+    spec.attribute("oiio:UnassociatedAlpha", 1)  # store the values as given (as an editor does)
+    output = oiio.ImageOutput.create(str(path))
+    assert output.open(str(path), spec) and output.write_image(pixels)
+    output.close()
+    image = read_image(path, encoding="linear")
+    np.testing.assert_allclose(image.pixels[0, 0], np.array([200, 100, 50]) / 255, atol=1e-6)
+    assert image.pixels.shape == (6, 5, 3)
+
+
+def test_inputs_that_are_not_regular_files_are_named(tmp_path):
+    import os
+    import socket
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import check_input_file
+
+    regular = tmp_path / "a.exr"
+    regular.write_bytes(b"x")
+    assert check_input_file(regular) == regular
+    (tmp_path / "link.exr").symlink_to(regular)
+    assert check_input_file(tmp_path / "link.exr") == tmp_path / "link.exr"
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    (tmp_path / "broken").symlink_to(tmp_path / "gone")
+    with socket.socket(socket.AF_UNIX) as server:
+        server.bind(str(tmp_path / "sock"))
+        cases = {
+            "fifo": "image {p} is not a regular file (a FIFO)",
+            "sock": "image {p} is not a regular file (a socket)",
+            "loop": "image {p} is a symbolic link loop",
+            "broken": f"image {{p}} is a broken symbolic link (to {tmp_path / 'gone'})",
+            "missing": "image not found: {p}",
+            ".": "image path is a directory: {p}",
+        }
+        for name, message in cases.items():
+            path = tmp_path / name
+            with pytest.raises(ImageError) as info:
+                check_input_file(path, "image", ImageError)
+            assert str(info.value) == message.format(p=path)
+    assert issubclass(ImageError, StraussFitError)
+    with pytest.raises(ImageError, match="not a regular file"):
+        read_image("/dev/zero")  # a device would stream for ever
