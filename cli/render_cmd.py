@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 
 from .common import add_evaluator_options, check_evaluator_options, image_side, positive_int
 
@@ -26,7 +27,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument(
         "--depth",
         type=positive_int,
-        help="recursion depth of the global model (1 = local model only, at most 64); default: the scene's",
+        help="recursion depth of the global model (1 = local model only, at most 64); default: the scene's. "
+        "Traced only as deep as it changes the written image (see docs/commands/render.md)",
     )
     parser.add_argument("--mask", metavar="MASK_OUT", help="also write the sphere mask (white = sphere)")
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -52,13 +54,23 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from strauss_fit import load_scene, render
+    from strauss_fit.render.strauss import OUTPUT_TOLERANCE, depth_messages
 
     scene = load_scene(args.scene)
     if args.width or args.height:
         scene = scene.resized(args.width or scene.camera.width, args.height or scene.camera.height)
     if args.depth:
         scene = dataclasses.replace(scene, depth=args.depth)
-    image, mask = render(scene, mode=args.mode, table_size=args.table_size, dtype=jnp.dtype(args.precision))
+    # the file holds float32 (or 8 bits): deeper bounces than it can show are not traced
+    for message in depth_messages(scene, tolerance=OUTPUT_TOLERANCE):
+        print(f"render: {message}", file=sys.stderr, flush=True)
+    image, mask = render(
+        scene,
+        mode=args.mode,
+        table_size=args.table_size,
+        dtype=jnp.dtype(args.precision),
+        depth_tolerance=OUTPUT_TOLERANCE,
+    )
     with Outputs(force=args.force) as out:
         out.add_image(args.output, np.asarray(image))
         if args.mask:

@@ -245,6 +245,8 @@ def encode_image(image: np.ndarray, path: str | Path, *, encoding: Encoding = "a
         data = np.round(encoded * 255.0).astype(np.uint8)
         pixel_type = oiio.UINT8
     else:
+        if np.max(np.abs(image)) > np.finfo(np.float32).max:  # would be written as infinity
+            raise ImageError(f"refusing to write pixel values that overflow float32 (above 3.4e38) to {path}")
         data = np.ascontiguousarray(image.astype(np.float32))
         pixel_type = oiio.FLOAT
     output = oiio.ImageOutput.create(str(path))

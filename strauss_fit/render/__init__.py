@@ -1,7 +1,9 @@
 """Rendering the sphere of a scene into an image.
 
 - :mod:`~strauss_fit.render.strauss`: the Strauss model, local and global (reflection and
-  refraction traced), in two stages so that a fit prepares the geometry once;
+  refraction traced, only as deep as it can change the image:
+  :func:`~strauss_fit.render.strauss.effective_depth`), in two stages so that a fit
+  prepares the geometry once;
 - :mod:`~strauss_fit.render.phong`: the Phong model (local only).
 
 Next in the flow: :mod:`strauss_fit.io` (images and targets) and :mod:`strauss_fit.fit`.

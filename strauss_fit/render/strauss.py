@@ -38,6 +38,16 @@ model alone. A ray still inside the sphere after the last allowed interaction is
 background radiance along its direction, as if the sphere ended there; nothing is dropped
 silently.
 
+Bounded work (:func:`effective_depth`). Each interaction inside the sphere multiplies what
+a ray still carries by the reflected weight :math:`r_j C_s`, and inside a sphere every
+interaction of a ray that entered by refraction happens at the same angle, below the
+critical angle :math:`\arcsin(1/n)`, where :math:`r_j` is small (at most 0.077 for the
+bundled glass, t = 0.9, s = 0.9, n = 1.5). So the light a path can still bring after k
+interactions falls geometrically, and :func:`render` traces only as deep as it can change
+the image by more than a tolerance (by default the unit roundoff of the result's dtype,
+relative to the background's brightest radiance): the compiled program is smaller (at
+``depth = 64`` a glass sphere compiled for about 70 s and 2.5 GB, 128 × 128 pixels).
+
 Only what the scene needs is computed (:func:`plan_render`): no light term for a kind of
 light the scene lacks, no reflected ray when the background is black, and no transmitted
 ray for an opaque material. An opaque material over a black background costs exactly the
@@ -47,6 +57,8 @@ local model.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import weakref
 from typing import Any, NamedTuple
 
 import equinox as eqx
@@ -59,10 +71,13 @@ from jax.custom_derivatives import SymbolicZero
 from ..models.material import Material
 from ..models.strauss import (
     DEFAULT_TABLE_SIZE,
+    K_J,
     MODES,
     AngularTerms,
     Mode,
     ShadeWeights,
+    _fresnel,  # F and G on NumPy arrays: the bound of effective_depth
+    _shadow,
     angular_terms,
     combine_rgb,
     diffuse_reflectivity,
@@ -80,7 +95,7 @@ from ..precision import uses_float64
 from ..scene.background import Background, background_radiance
 from ..scene.camera import Rays, intersect_unit_sphere, primary_rays
 from ..scene.lights import sample_lights
-from ..scene.loading import Scene
+from ..scene.loading import Scene, background_peak, check_radiance_range, is_traced
 
 
 class RenderPlan(NamedTuple):
@@ -383,6 +398,175 @@ def interior_radiance(
     return gathered + throughput * background_radiance(background, Rays(origin, direction))
 
 
+#: The depths :func:`effective_depth` rounds up to, so that materials of similar
+#: transparency share one compiled program (a dataset of many materials compiles a few).
+DEPTH_STEPS = (2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
+
+#: The ``depth_tolerance`` of ``strauss-fit render``: float32's unit roundoff, the precision
+#: of the image files it writes (8-bit files are coarser).
+OUTPUT_TOLERANCE = 2.0**-24
+
+#: Estimated compile time (s) from which ``strauss-fit render`` warns (:func:`depth_messages`).
+SLOW_COMPILE_S = 10.0
+
+# Sub-intervals of [0, x_c] over which the mirror j is bounded (the bound is tight to
+# about 1/_J_INTERVALS of its value).
+_J_INTERVALS = 512
+
+
+def unit_roundoff(dtype: Any) -> float:
+    """Half the machine epsilon of a floating-point ``dtype``: 2^-24 for float32, 2^-53 for
+    float64 (the largest relative rounding error of one operation)."""
+    return float(np.finfo(np.dtype(dtype)).eps) / 2
+
+
+@functools.lru_cache(maxsize=256)
+def _angle_intervals(x_c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Over each of the sub-intervals [a, b] of [0, x_c]: an upper bound of j = F G²,
+    F(b) G(a)², and F at both ends (see :func:`interior_reflectance_bound`)."""
+    steps = np.linspace(0.0, x_c, _J_INTERVALS + 1)
+    f, g = _fresnel(steps), _shadow(steps)
+    return f[1:] * g[:-1] ** 2, f[:-1], f[1:]
+
+
+def interior_reflectance_bound(material: Material) -> np.ndarray:
+    r"""An upper bound of the reflected weight :math:`r_j\,C_s` per interaction inside the
+    sphere, per channel (shape (..., 3) for a material with batch axes (...)); concrete
+    material values only.
+
+    A ray refracted into a sphere meets its surface at the same angle at every
+    interaction, and below the critical angle :math:`\alpha_c = \arcsin(1/n)` (the
+    refracted angle from outside, :math:`\sin\alpha_2 = \sin\gamma / n`), so its normalised
+    angle is at most :math:`x_c = 2\alpha_c/\pi` (1 for n = 1) and there is no total
+    internal reflection. The interval [0, x_c] (plus a margin of 10⁻³ for rounding) is cut
+    into 512 pieces [a, b]. F grows and G falls on [0, 1], so on a piece
+    :math:`j = F G^2 \le F(b)\,G(a)^2`, and :math:`r_j = \min\{1, r_n + j (r_n + k_j)\}`
+    grows with j; :math:`C_s = 1 + m (1 - F)(C - 1)` is linear in F, so at most its larger
+    value at F(a) and F(b). The bound is the largest product of the two over the pieces
+    (within a few per cent of the true largest weight)."""
+    return _reflectance_bound(*_material_values(material))
+
+
+def _material_values(material: Material) -> tuple[np.ndarray, ...]:
+    """t, s, m, C, n as float64 NumPy arrays (a tracer raises TracerArrayConversionError)."""
+    fields = (material.transparency, material.smoothness, material.metalness, material.color, material.ior)
+    return tuple(np.asarray(v, dtype=np.float64) for v in fields)
+
+
+def _reflectance_bound(t, s, m, color, ior) -> np.ndarray:
+    """:func:`interior_reflectance_bound` from the material's values (batch axes allowed)."""
+    batch = np.broadcast_shapes(t.shape, s.shape, m.shape, color.shape[:-1], ior.shape)
+    t, s, m, ior = (np.broadcast_to(v, batch) for v in (t, s, m, ior))
+    color = np.broadcast_to(color, batch + (3,))
+    bound = np.empty(batch + (3,))
+    for index in np.ndindex(*batch):
+        x_c = min(2.0 / np.pi * float(np.arcsin(1.0 / max(float(ior[index]), 1.0))) + 1e-3, 1.0)
+        j_upper, f_lower, f_upper = _angle_intervals(x_c)
+        r_n = (1 - t[index]) * s[index] ** 3
+        r_upper = np.minimum(1.0, r_n + j_upper * (r_n + K_J))  # (pieces,)
+        tint = m[index] * (color[index] - 1)  # C_s = 1 + (1 - F) tint
+        c_s = np.maximum(1 + (1 - f_lower)[:, None] * tint, 1 + (1 - f_upper)[:, None] * tint)  # (pieces, 3)
+        bound[index] = np.max(r_upper[:, None] * c_s, axis=0)
+    return bound
+
+
+def effective_depth(scene: Scene, material: Material | None = None, *, tolerance: float) -> int:
+    r"""The depth beyond which the global model cannot change any pixel by more than
+    ``tolerance`` times the background's brightest radiance
+    (:func:`~strauss_fit.scene.loading.background_peak`): at most ``scene.depth``, rounded
+    up to one of :data:`DEPTH_STEPS`.
+
+    Only transmitted light recurses (the reflected ray from outside sees the background at
+    once), so an opaque material, or a black background, needs ``min(depth, 2)``. Otherwise,
+    with :math:`\rho` from :func:`interior_reflectance_bound`: a path has weight at most
+    :math:`z\,C \le t\,C` at entry and keeps at most the factor :math:`\rho` per
+    interaction, and what depth D and any deeper depth give differ by at most what the
+    ray still carries after D − 1 interactions times the background's radiance, since the
+    weights that leave (z) and stay (:math:`r_j`) add up to at most 1. So depth D is exact
+    to :math:`\max_c t\,C_c\,\rho_c^{D-1} \le` ``tolerance`` (in exact arithmetic; the
+    rendering's own rounding comes on top, as at any depth).
+
+    Pure: concrete values only. A traced material or background (inside ``jax.grad`` or a
+    fit), or ``tolerance <= 0``, gives ``scene.depth``.
+    """
+    material = scene.material if material is None else material
+    if scene.depth <= 2:
+        return scene.depth
+    return _effective_depth(scene.depth, material, background_peak(scene.background), tolerance)
+
+
+def _effective_depth(depth: int, material: Material, peak: float | None, tolerance: float) -> int:
+    """:func:`effective_depth` with the background's peak radiance given."""
+    if depth <= 2 or peak is None:
+        return depth
+    try:
+        values = _material_values(material)
+    except jax.errors.TracerArrayConversionError:
+        return depth
+    if all(v.ndim == 0 for v in values[:3] + values[4:]) and values[3].shape == (3,):  # one material: cached
+        return _depth_for(
+            depth, peak == 0, float(tolerance), *(float(v) for v in values[:3]), tuple(values[3]), float(values[4])
+        )
+    return _depth_from(depth, peak == 0, tolerance, *values)
+
+
+@functools.lru_cache(maxsize=1024)
+def _depth_for(depth, black, tolerance, t, s, m, color, ior) -> int:
+    return _depth_from(depth, black, tolerance, *(np.asarray(v, dtype=np.float64) for v in (t, s, m, color, ior)))
+
+
+def _depth_from(depth: int, black: bool, tolerance: float, t, s, m, color, ior) -> int:
+    if not np.any(t > 0) or black:
+        return 2  # nothing is transmitted, or nothing to see through the sphere
+    if not tolerance > 0:
+        return depth
+    rho = _reflectance_bound(t, s, m, color, ior)
+    bound = np.maximum(t, 0.0)[..., None] * np.abs(color)
+    for candidate in range(2, depth):
+        bound = bound * rho  # the bound at depth `candidate`: t C rho^(candidate - 1)
+        if np.all(bound <= tolerance):
+            return min(next(step for step in DEPTH_STEPS if step >= candidate), depth)
+    return depth
+
+
+def estimated_compile_cost(depth: int) -> tuple[float, float]:
+    """Rough seconds and GB of memory of a ``strauss-fit render`` of a transparent material
+    at ``depth``, almost all of it compiling: the interior interactions are unrolled, so the
+    program grows with depth and its compile time faster. Fitted to
+    ``glass_checkerboard.toml`` (float64, one x86 core; the image size hardly matters):
+    5.0 s and 0.47 GB at depth 4, 6.8 s at 8, 9.6 s and 0.56 GB at 16, 70 s and 2.5 GB
+    at 64."""
+    return 4.0 + depth * depth / 64.0, 0.45 + depth * depth / 2000.0
+
+
+def depth_messages(scene: Scene, material: Material | None = None, *, tolerance: float) -> list[str]:
+    """One-line notes for a render of ``scene`` with ``depth_tolerance=tolerance``: that the
+    depth is reduced (:func:`effective_depth`), and a warning when what remains is slow to
+    compile (:func:`estimated_compile_cost` at least :data:`SLOW_COMPILE_S`). Empty when
+    nothing is traced beyond depth 2 (an opaque material, a black background)."""
+    material = scene.material if material is None else material
+    if scene.depth <= 2 or is_traced(material) or not plan_render(scene, material).transmit:
+        return []
+    if not background_peak(scene.background):
+        return []
+    depth = effective_depth(scene, material, tolerance=tolerance)
+    messages = []
+    if depth < scene.depth:
+        messages.append(
+            f"depth {scene.depth} reduced to {depth}: further interactions inside the sphere change no pixel by "
+            f"more than {tolerance:.2g} × the background's brightest radiance"
+        )
+    seconds, gigabytes = estimated_compile_cost(depth)
+    if seconds >= SLOW_COMPILE_S:
+        t, s = (np.asarray(v, dtype=np.float64).max() for v in (material.transparency, material.smoothness))
+        messages.append(
+            f"warning: depth {depth} is needed (transparency {t:g}, smoothness {s:g}: light stays inside the "
+            f"sphere for many interactions); rendering takes about {seconds:.0f} s and {gigabytes:.1f} GB "
+            f"on one CPU core, mostly compiling; a smaller --depth is faster"
+        )
+    return messages
+
+
 def shade_prepared(material: Material, prepared: Prepared, scene: Scene, plan: RenderPlan) -> Array:
     """Add the material to a :class:`Prepared` rendering: the image, (H, W, 3)."""
     radiance = local_radiance(material, prepared)
@@ -399,6 +583,26 @@ def shade_prepared(material: Material, prepared: Prepared, scene: Scene, plan: R
         carried = interior_radiance(material, scene.background, prepared.point, safe_normalize(inside), scene.depth - 1)
         radiance = radiance + z[..., None] * material.color * carried
     return jnp.where(prepared.hit[..., None], radiance, prepared.miss_radiance)
+
+
+# The last few (lights, background) pairs found in range, with the background's peak
+# radiance: render() checks a scene once, not at every call (weak references: an entry
+# never outlives its objects, which are immutable).
+_CHECKED: list[tuple[weakref.ref, weakref.ref, float | None]] = []
+
+
+def _checked_background_peak(scene: Scene) -> float | None:
+    """:func:`~strauss_fit.scene.loading.check_radiance_range` of ``scene`` and the peak
+    radiance of its background, remembered for the last 8 (lights, background) pairs."""
+    for lights, background, peak in _CHECKED:
+        if lights() is scene.lights and background() is scene.background:
+            return peak
+    check_radiance_range(scene)
+    peak = background_peak(scene.background)
+    if not is_traced((scene.lights, scene.background)):
+        _CHECKED.insert(0, (weakref.ref(scene.lights), weakref.ref(scene.background), peak))
+        del _CHECKED[8:]
+    return peak
 
 
 @eqx.filter_jit
@@ -421,6 +625,7 @@ def render(
     table_size: int = DEFAULT_TABLE_SIZE,
     dtype: Any = None,
     plan: RenderPlan | None = None,
+    depth_tolerance: float | None = None,
 ) -> tuple[Array, Array]:
     """Render the sphere: a linear RGB image (height, width, 3) and the sphere mask.
 
@@ -429,8 +634,25 @@ def render(
     Differentiable in the material and in the light intensities (``scene.lights``).
     ``plan`` overrides :func:`plan_render`. ``mode`` and ``table_size`` select the
     evaluator (see :func:`strauss_fit.models.strauss.shade`).
+
+    The global model is traced to :func:`effective_depth` (at most ``scene.depth``): the
+    interactions beyond it change no pixel by more than ``depth_tolerance`` times the
+    background's brightest radiance. ``depth_tolerance`` defaults to the unit roundoff of
+    ``dtype`` (2^-53 for float64, 2^-24 for float32); 0 traces the full ``scene.depth``.
+    With a traced material or background (inside ``jax.grad``) the full depth is traced.
+
+    A scene outside the renderer's range (a light or background brighter than
+    :data:`strauss_fit.scene.loading.MAX_RADIANCE`, see
+    :func:`strauss_fit.scene.loading.check_radiance_range`) raises a
+    :class:`~strauss_fit.scene.loading.RadianceRangeError` before any work.
     """
+    peak = _checked_background_peak(scene)
     material = scene.material if material is None else material
     dtype = jnp.dtype(dtype or jnp.float64)
     plan = plan or plan_render(scene, material)
+    if plan.transmit and scene.depth > 2:  # otherwise the depth changes nothing
+        tolerance = unit_roundoff(dtype) if depth_tolerance is None else float(depth_tolerance)
+        depth = _effective_depth(scene.depth, material, peak, tolerance)
+        if depth != scene.depth:
+            scene = dataclasses.replace(scene, depth=depth)
     return render_jit(scene, material, plan, mode, int(table_size), dtype)

@@ -5,6 +5,17 @@ unknown sections or keys, wrong types, values out of range, a scene without any 
 an environment image holding NaN or infinite values are reported as one-line
 :class:`~strauss_fit.errors.SceneError` messages that name the file, the place and the
 problem — before any work is done.
+
+The renderer's range (:func:`check_radiance_range`, also run by
+:func:`strauss_fit.render.strauss.render` on scenes built in code): every light intensity,
+light colour component and background radiance is at most :data:`MAX_RADIANCE` (10^30), and
+so is the scene's *radiance scale*, the sum of every light's peak irradiance at the sphere
+(:func:`light_peaks`), the ambient intensity and the brightest background radiance. Each
+weight of the Strauss model is at most 1, so no pixel exceeds 3 × 10^30, far below
+float32's largest value (3.4 × 10^38); the margin covers the renderer's intermediate
+products and a fit's (Jacobians, squared residuals, in float64). A scene outside it is a
+:class:`RadianceRangeError` naming the light (or the background) and its value, instead of
+an image of infinities found only when writing it.
 """
 
 from __future__ import annotations
@@ -12,7 +23,7 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -20,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import MaterialError, SceneError, StraussFitError
+from ..io.files import check_input_file
 from ..models.material import Material
 from ..precision import uses_float64
 from .background import BACKGROUND_KINDS, Background
@@ -29,6 +41,14 @@ from .lights import DirectionalLights, Lights, PointLights
 #: Default recursion depth of the global model (see :func:`strauss_fit.render.strauss.render`).
 DEFAULT_DEPTH = 4
 MAX_IMAGE_SIDE = 8192
+#: The largest radiance scale the renderer guarantees finite images for (module docstring).
+MAX_RADIANCE = 1e30
+
+
+class RadianceRangeError(SceneError):
+    """A light or the background is brighter than the renderer's range
+    (:data:`MAX_RADIANCE`): its radiance could overflow to infinity."""
+
 
 _SECTIONS = {"camera", "material", "light", "background", "render"}
 _CAMERA_KEYS = {"projection", "width", "height", "position", "look_at", "fov_deg", "up"}
@@ -195,12 +215,14 @@ def _parse_camera(table: Any, source: str) -> Camera:
     )
 
 
-def _parse_lights(items: Any, source: str) -> Lights:
+def _parse_lights(items: Any, source: str) -> tuple[Lights, dict[tuple[str, int], str]]:
+    """The lights, and the name of each in the file (``("point", 0)`` → ``"[[light]] #3"``)."""
     if not isinstance(items, list):
         raise SceneError(f"{source}: lights must be given as [[light]] tables")
     directional: list[tuple] = []
     point: list[tuple] = []
     ambient: list[float] = []
+    numbers: dict[str, list[int]] = {"directional": [], "point": [], "ambient": []}
     for number, table in enumerate(items, start=1):
         w = _Where(source, f"[[light]] #{number}")
         if not isinstance(table, dict):
@@ -210,6 +232,7 @@ def _parse_lights(items: Any, source: str) -> Lights:
             raise w.error(f"kind must be one of {', '.join(_LIGHT_KEYS)}, got {kind!r}")
         w.keys(table, _LIGHT_KEYS[kind])
         intensity = w.number(table, "intensity", low=0.0)
+        numbers[kind].append(number)
         if kind == "ambient":
             ambient.append(intensity)
             continue
@@ -227,7 +250,12 @@ def _parse_lights(items: Any, source: str) -> Lights:
             point.append((position, intensity, color, attenuation))
     if not items:
         raise SceneError(f"{source}: the scene has no light; add at least one [[light]] table")
-    return Lights(
+    names = {(kind, i): f"[[light]] #{n}" for kind in ("directional", "point") for i, n in enumerate(numbers[kind])}
+    if numbers["ambient"]:  # the ambient lights are added into one intensity
+        several = len(numbers["ambient"]) > 1
+        listed = ", ".join(f"#{n}" for n in numbers["ambient"])
+        names[("ambient", 0)] = f"[[light]] {listed} (ambient, added)" if several else f"[[light]] {listed}"
+    lights = Lights(
         directional=DirectionalLights(
             direction=jnp.asarray(np.array([d[0] for d in directional])),
             intensity=jnp.asarray([d[1] for d in directional]),
@@ -245,6 +273,7 @@ def _parse_lights(items: Any, source: str) -> Lights:
         else None,
         ambient=jnp.asarray(sum(ambient)) if ambient else None,
     )
+    return lights, names
 
 
 def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
@@ -293,6 +322,147 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
     return Background("environment", color, image=jnp.asarray(image))
 
 
+# --- the renderer's range ------------------------------------------------------------------
+
+
+def is_traced(tree: Any) -> bool:
+    """Whether any leaf of ``tree`` is a traced value (inside ``jit``, ``grad``, a fit)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
+
+
+def background_peak(background: Background) -> float | None:
+    """The largest radiance (absolute value, any channel) that a ray can see in
+    ``background``, or None if its values are traced. Every kind interpolates between its
+    colours or pixels with weights in [0, 1], so nothing it shows exceeds this."""
+    if background.kind == "color":
+        parts = [background.color]
+    elif background.kind == "checkerboard":
+        parts = [background.color, background.colors]
+    else:
+        parts = [background.image]
+    try:
+        values = [np.asarray(part) for part in parts if part is not None]
+    except jax.errors.TracerArrayConversionError:
+        return None
+    return max((float(np.max(np.abs(v))) for v in values if v.size), default=0.0)
+
+
+class LightPeak(NamedTuple):
+    """One light's share of the radiance scale (:func:`light_peaks`)."""
+
+    kind: str  #: "directional", "point" or "ambient" (all ambient lights added)
+    index: int  #: position among the lights of its kind
+    intensity: float
+    color: float  #: brightest colour component (1 for ambient light)
+    distance: float  #: from a point light to the sphere's nearest point (0 otherwise)
+    attenuation: float  #: c0 + c1 d + c2 d^2 at that distance (1 otherwise)
+    peak: float  #: intensity × max(1, color) / attenuation (inf where it overflows)
+
+
+def _peak(intensity: float, color: float, attenuation: float) -> float:
+    scaled = intensity * max(1.0, color)  # Python floats: inf on overflow, no exception
+    if scaled == 0:
+        return 0.0
+    return scaled / attenuation if attenuation > 0 else math.inf
+
+
+def light_peaks(lights: Lights) -> list[LightPeak]:
+    """Every light's peak irradiance at the sphere: its intensity × max(1, brightest colour
+    component), divided for a point light by its attenuation at the sphere's nearest point
+    (distance :math:`d = |p| - 1`; the attenuation grows with d). One light adds at most 3
+    × its peak to a pixel: the diffuse, specular and metallic-tint weights are each at most
+    1, and the tint, :math:`w (C - C_L)`, is non-zero even for a black light colour (hence
+    max(1, ·)). Concrete values only."""
+    peaks: list[LightPeak] = []
+    if lights.directional is not None:
+        d = lights.directional
+        for i, (intensity, color) in enumerate(zip(np.asarray(d.intensity).tolist(), np.asarray(d.color).tolist())):
+            brightest = max(color)
+            peaks.append(LightPeak("directional", i, intensity, brightest, 0.0, 1.0, _peak(intensity, brightest, 1.0)))
+    if lights.point is not None:
+        p = lights.point
+        rows = zip(
+            np.asarray(p.intensity).tolist(),
+            np.asarray(p.color).tolist(),
+            np.asarray(p.position).tolist(),
+            np.asarray(p.attenuation).tolist(),
+        )
+        for i, (intensity, color, position, (c0, c1, c2)) in enumerate(rows):
+            distance = max(math.hypot(*position) - 1.0, 0.0)
+            falloff = c0 + c1 * distance + c2 * distance * distance
+            brightest = max(color)
+            peaks.append(
+                LightPeak("point", i, intensity, brightest, distance, falloff, _peak(intensity, brightest, falloff))
+            )
+    if lights.ambient is not None:
+        ambient = float(np.asarray(lights.ambient))
+        peaks.append(LightPeak("ambient", 0, ambient, 1.0, 0.0, 1.0, ambient))
+    return peaks
+
+
+def _light_name(kind: str, index: int, names: dict[tuple[str, int], str] | None) -> str:
+    if names and (kind, index) in names:
+        return names[(kind, index)]
+    return "the ambient light" if kind == "ambient" else f"{kind} light #{index + 1}"
+
+
+def check_radiance_range(scene: Scene, source: str = "scene", names: dict[tuple[str, int], str] | None = None) -> None:
+    """Raise a one-line :class:`RadianceRangeError` if the scene is outside the renderer's
+    range (module docstring): a light's intensity, colour component or peak irradiance
+    (:func:`light_peaks`), a background radiance (:func:`background_peak`), or their sum,
+    above :data:`MAX_RADIANCE`. ``names`` names the lights by ``(kind, index)`` (a scene
+    file's ``[[light]] #n``). Does nothing for traced lights or background (the values are
+    read with ``np.asarray``, which a tracer refuses)."""
+    try:
+        peaks = light_peaks(scene.lights)
+    except jax.errors.TracerArrayConversionError:
+        return
+    background = background_peak(scene.background)
+    if background is None:
+        return
+    total = sum(light.peak for light in peaks) + background  # (inf or NaN fail every test below)
+    parts = [background] + [value for light in peaks for value in (light.intensity, light.color, light.peak)]
+    if total <= MAX_RADIANCE and all(value <= MAX_RADIANCE for value in parts):
+        return
+    limit = f"{MAX_RADIANCE:g}"
+    for light in peaks:
+        name = _light_name(light.kind, light.index, names)
+        where = f"{source}: {name}"
+        if not light.intensity <= MAX_RADIANCE:
+            raise RadianceRangeError(
+                f"{where}: intensity {light.intensity:g} overflows the renderer's range: a light's intensity "
+                f"must be at most {limit}"
+            )
+        if not light.color <= MAX_RADIANCE:
+            raise RadianceRangeError(
+                f"{where}: color component {light.color:g} overflows the renderer's range: a light's colour "
+                f"components must be at most {limit}"
+            )
+        if not light.peak <= MAX_RADIANCE:
+            if light.kind == "point":
+                detail = (
+                    f"intensity {light.intensity:g} × max(1, color {light.color:g}) ÷ attenuation "
+                    f"{light.attenuation:.3g} at the sphere's nearest point (distance {light.distance:.3g})"
+                )
+            else:
+                detail = f"intensity {light.intensity:g} × max(1, color {light.color:g})"
+            raise RadianceRangeError(
+                f"{where}: peak irradiance {detail} = {light.peak:.3g} overflows the renderer's range (at most {limit})"
+            )
+    if not background <= MAX_RADIANCE:
+        raise RadianceRangeError(
+            f"{source}: [background]: radiance {background:g} overflows the renderer's range: background "
+            f"colours (an environment image × scale) must be at most {limit}"
+        )
+    if not total <= MAX_RADIANCE:
+        largest = max(peaks, key=lambda light: light.peak)
+        raise RadianceRangeError(
+            f"{source}: the lights' peak irradiances and the background's radiance add up to {total:.3g}, "
+            f"more than the renderer's range ({limit}); the largest: "
+            f"{_light_name(largest.kind, largest.index, names)} ({largest.peak:.3g})"
+        )
+
+
 @uses_float64
 def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | str = ".") -> Scene:
     """Build a :class:`Scene` from a parsed TOML mapping (see docs/formats.md, scene files)."""
@@ -304,7 +474,7 @@ def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | st
     if "light" not in data:
         raise SceneError(f"{source}: the scene has no light; add at least one [[light]] table")
     camera = _parse_camera(data["camera"], source)
-    lights = _parse_lights(data["light"], source)
+    lights, light_names = _parse_lights(data["light"], source)
     background = _parse_background(data.get("background", {}), source, Path(base_dir))
     material_table = data.get("material", {})
     if not isinstance(material_table, dict):
@@ -315,17 +485,18 @@ def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | st
         raise SceneError(f"{source}: [material]: {exc}") from None
     render_table = _Where(source, "[render]").keys(data.get("render", {}), _RENDER_KEYS)
     depth = _Where(source, "[render]").integer(render_table, "depth", DEFAULT_DEPTH, low=1, high=64)
-    return Scene(camera=camera, lights=lights, background=background, material=material, depth=depth)
+    scene = Scene(camera=camera, lights=lights, background=background, material=material, depth=depth)
+    check_radiance_range(scene, source, light_names)
+    return scene
 
 
 @uses_float64
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a TOML scene file."""
     path = Path(path)
-    if not path.exists():
-        raise SceneError(f"scene file not found: {path}")
     if path.is_dir():
         raise SceneError(f"scene file is a directory: {path}")
+    check_input_file(path, "scene file", SceneError)  # a FIFO would block the read
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:

@@ -134,6 +134,10 @@ def test_a_fifo_fails_its_own_target_and_the_others_are_fitted(dataset, tmp_path
     for argv in (["fit", f"@{fifo}", "-o", str(out)], ["fit", "--manifest", str(fifo), "-o", str(out)]):
         assert main([*argv, "--scene", str(scene)]) == 2
         assert "is not a regular file (a FIFO)" in capsys.readouterr().err
+    fifo_scene = tmp_path / "fifo.toml"
+    os.mkfifo(fifo_scene)
+    assert main(["fit", str(folder / "t1.exr"), "--scene", str(fifo_scene), "-o", str(tmp_path / "s.json")]) == 2
+    assert f"scene file {fifo_scene} is not a regular file (a FIFO)" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
