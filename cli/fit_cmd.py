@@ -318,6 +318,10 @@ def check_outputs(args: argparse.Namespace) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
+    if not args.output.strip():
+        from strauss_fit.errors import StraussFitError
+
+        raise StraussFitError("-o is empty: give a RESULT.json, or a folder (OUTDIR/) for several targets")
     if is_batch(args):
         return run_batch(args)
     compare_path = check_outputs(args)

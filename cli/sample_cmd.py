@@ -233,7 +233,6 @@ def _check_options(args: argparse.Namespace):
 
     from strauss_fit import SampleSettings
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.inference.noise import check_noise_level
     from strauss_fit.inference.posterior import check_sigma, parse_priors
     from strauss_fit.io.files import check_distinct
 
@@ -242,8 +241,7 @@ def _check_options(args: argparse.Namespace):
 
     check_evaluator_options(args)
     if args.sigma is not None:
-        check_sigma(args.sigma)
-        check_noise_level(args.sigma, "--sigma")  # σ² and 1/σ² must stay within float64's range
+        check_sigma(args.sigma, "--sigma")  # > 0, and σ² and 1/σ² within float64's range
     settings = SampleSettings.preset(
         args.quality,
         max_steps=args.max_steps,

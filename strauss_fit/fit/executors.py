@@ -108,6 +108,43 @@ def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
         raise StraussFitError(f"cannot reach the Dask scheduler at {address}: {reason}") from None
 
 
+#: Seconds for the whole handshake with a scheduler (Dask's own connect timeout covers the
+#: connection, not a peer that accepts it and then says nothing).
+HANDSHAKE_TIMEOUT_S = 20.0
+
+
+def connect(address: str, timeout: float = HANDSHAKE_TIMEOUT_S) -> Any:
+    """A ``dask.distributed.Client`` of the scheduler at ``address``, or a one-line error
+    when what answers there is not a Dask scheduler: a program speaking another protocol
+    (Dask then fails in its message decoder, even asking for exabytes of memory) or one
+    that accepts the connection and never answers (Dask would wait for ever). The client
+    is made in a daemon thread so that a peer that never answers cannot hold the command."""
+    import threading
+
+    from dask.distributed import Client
+
+    outcome: dict[str, Any] = {}
+
+    def make() -> None:
+        try:
+            outcome["client"] = Client(address, timeout=f"{min(timeout, 10.0):g}s")
+        except BaseException as error:  # anything a foreign peer provokes
+            outcome["error"] = error
+
+    thread = threading.Thread(target=make, name="strauss-fit-dask-connect", daemon=True)
+    thread.start()
+    thread.join(timeout)
+    if thread.is_alive():
+        raise StraussFitError(
+            f"the Dask scheduler at {address} did not answer within {timeout:g} s: is a Dask scheduler listening there?"
+        )
+    if "error" in outcome:
+        error = outcome["error"]
+        reason = (str(error).splitlines() or [type(error).__name__])[0]
+        raise StraussFitError(f"{address} did not answer as a Dask scheduler: {reason}")
+    return outcome["client"]
+
+
 class DaskExecutor:
     """Fit the chunks on a Dask cluster (see the module docstring): ``workers`` local
     worker processes, or the cluster at ``scheduler`` (an address such as
@@ -136,10 +173,7 @@ class DaskExecutor:
             return self.client, None
         if self.scheduler is not None:
             check_reachable(self.scheduler)
-            try:
-                return Client(self.scheduler, timeout="10s"), None
-            except (OSError, TimeoutError) as error:
-                raise StraussFitError(f"cannot reach the Dask scheduler at {self.scheduler}: {error}") from None
+            return connect(self.scheduler), None
         # processes, one thread each: every worker has its own JAX runtime and compiles once
         cluster = None
         try:

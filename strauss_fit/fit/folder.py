@@ -20,7 +20,10 @@ The rules that keep a folder's results honest, all checked before any work:
   the key made of them with strauss-fit's version (:func:`~strauss_fit.io.journal.run_key`).
   ``resume`` keeps a result whose key is this run's; a result of another configuration (or
   one without a key) is refused with what differs, never silently kept; a result missing its
-  core keys (:data:`CORE_KEYS`: hand-edited, say) is incomplete and fitted again.
+  core keys (:data:`CORE_KEYS`: hand-edited, say) is incomplete and fitted again, as is a
+  kept result without the comparison image ``compare`` asks for.
+- **Outputs go where files may go.** A folder, a device or a FIFO at an output's path is
+  refused (:func:`~strauss_fit.io.files.check_replaceable`), ``force`` or not.
 - **Each target once.** The same target given twice, and two targets whose results would
   share a name, are refused.
 - The folder itself is created only once the work has started (the cluster reached, the
@@ -50,7 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import OutputExistsError, StraussFitError
-from ..io.files import Outputs, check_input_file, read_json
+from ..io.files import Outputs, check_input_file, check_replaceable, read_json
 from ..io.images import read_image
 from ..io.journal import file_digest, pytree_digest, run_key
 from ..io.targets import Target
@@ -222,7 +225,13 @@ def check_outputs_are_not_inputs(
 
 #: What a complete result holds besides the material and ``free``: a result without one of
 #: these (hand-edited, say) is incomplete, and ``resume`` fits its target again.
-CORE_KEYS = {"residual": ("rms", "sum_of_squares"), "solver": ("status",), "uncertainty": (), "settings": ()}
+#: Each maps to its fields and their types (a ± for every free parameter is checked too).
+CORE_KEYS: dict[str, dict[str, tuple[type, ...]]] = {
+    "residual": {"rms": (int, float), "sum_of_squares": (int, float)},
+    "solver": {"status": (str,)},
+    "uncertainty": {},
+    "settings": {},
+}
 
 
 def provenance(job: FitJob) -> dict[str, Any] | None:
@@ -276,6 +285,30 @@ class FolderRun:
     summary: Path
 
 
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _complete(data: dict[str, Any]) -> bool:
+    """Whether a result holds every core key (:data:`CORE_KEYS`) with numbers where numbers
+    belong, and a deviation for every free parameter."""
+    for key, fields in CORE_KEYS.items():
+        part = data.get(key)
+        if not isinstance(part, dict):
+            return False
+        for field, kinds in fields.items():
+            value = part.get(field)
+            if not isinstance(value, kinds) or isinstance(value, bool):
+                return False
+    uncertainty = data["uncertainty"]
+    for name in data.get("free") or []:
+        value = uncertainty.get(name)
+        values = value if isinstance(value, list) else [value]
+        if not values or not all(_is_number(v) for v in values):
+            return False
+    return True
+
+
 def _kept(path: Path, expected: dict[str, Any] | None) -> tuple[dict[str, Any] | None, str | None]:
     """What ``resume`` does with the result at ``path``: ``(data, None)`` keeps it (complete,
     and of this run: same provenance key); ``(None, None)`` fits the target again (no result
@@ -286,9 +319,8 @@ def _kept(path: Path, expected: dict[str, Any] | None) -> tuple[dict[str, Any] |
         FitResult.from_json(data)
     except Exception:
         return None, None  # not a result (a half-edited file): nothing to keep
-    for key, fields in CORE_KEYS.items():
-        if not isinstance(data.get(key), dict) or any(data[key].get(field) is None for field in fields):
-            return None, None  # incomplete
+    if not _complete(data):
+        return None, None
     recorded = data.get("provenance")
     if not isinstance(recorded, dict) or "key" not in recorded:
         return None, "it records no provenance (an older strauss-fit wrote it, or it was edited)"
@@ -297,10 +329,7 @@ def _kept(path: Path, expected: dict[str, Any] | None) -> tuple[dict[str, Any] |
             name for key, name in _PROVENANCE_NAMES.items() if expected and recorded.get(key) != expected.get(key)
         ]
         which = ", ".join(differ) or "its key"
-        return (
-            None,
-            f"it was fitted with other inputs or options ({which} {'differ' if len(differ) > 1 else 'differs'})",
-        )
+        return None, f"it was fitted with other inputs or options (different: {which})"
     return data, None
 
 
@@ -340,6 +369,8 @@ def fit_to_folder(
     summary = folder / SUMMARY_NAME
     outputs = [*paths, summary, *([folder / f"{name}.compare.png" for name in names] if compare else [])]
     check_outputs_are_not_inputs(outputs, jobs, inputs)
+    for output in outputs:  # a folder or a device where a result must go: refused, whatever the flags
+        check_replaceable(output)
     if not (resume or force):
         # results are the targets' JSON files; summary.csv is not one, but would be replaced
         existing = [p for p in paths if p.exists()]
@@ -355,7 +386,7 @@ def fit_to_folder(
             )
     keys = [provenance(job) for job in jobs]
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
-    todo, incomplete = [], 0
+    todo, incomplete, uncompared = [], 0, 0
     for index, (job, path) in enumerate(zip(jobs, paths)):
         done, refused = _kept(path, keys[index]) if resume and path.exists() else (None, None)
         if refused is not None:
@@ -363,16 +394,21 @@ def fit_to_folder(
                 f"{path} is not a result of this run: {refused}; resuming would mix two configurations: pass "
                 "--force to fit every target again with this one, or fit into another folder"
             )
+        if done is not None and compare and not (folder / f"{names[index]}.compare.png").is_file():
+            done, uncompared = None, uncompared + 1  # its comparison image needs the fit's images: fit again
+        elif done is None:
+            incomplete += resume and path.exists()
         if done is not None:
             rows[index] = summary_row(job.name, done, path=path.name)
         else:
-            incomplete += resume and path.exists()
             todo.append(index)
-    if incomplete and log is not None:
+    if log is not None and incomplete:
         log(
             f"{incomplete} incomplete result(s) in {folder} (missing {', '.join(CORE_KEYS)} or their figures): "
             "fitted again"
         )
+    if log is not None and uncompared:
+        log(f"{uncompared} kept result(s) have no comparison image for --compare: fitted again to draw it")
     if resume and folder.is_dir():  # a killed run's half-written temporaries of these results
         for name in names:
             for stale in folder.glob(f".{name}.*.tmp*"):

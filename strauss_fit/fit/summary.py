@@ -46,6 +46,10 @@ SUMMARY_COLUMNS = (
 )
 
 
+#: Where the noise came from, as the verdict line says it (``residual.noise_source``).
+_NOISE_FROM = {"given": "noise as given", "sensor": "noise from the sensor", "image": "noise estimated from the image"}
+
+
 def verdict_lines(result: dict[str, Any]) -> list[str]:
     """The verdict (does the model reproduce the target?) and the warnings, one per line."""
     residual = result.get("residual", {})
@@ -54,18 +58,23 @@ def verdict_lines(result: dict[str, Any]) -> list[str]:
     if verdict == "consistent":
         lines.append(
             f"verdict: the model reproduces the target within its noise (χ²/dof {residual['chi2_per_dof']:.3g}, "
-            f"expected 1 ± {residual['chi2_expected_sd']:.2g}; noise from the {residual.get('noise_source')})"
+            f"expected 1 ± {residual['chi2_expected_sd']:.2g}; {_noise_from(residual)})"
         )
     elif verdict == "mismatch":
         lines.append(
             f"verdict: the Strauss model CANNOT reproduce this target (χ²/dof {residual['chi2_per_dof']:.4g}, "
-            f"expected 1 ± {residual['chi2_expected_sd']:.2g}; noise from the {residual.get('noise_source')})"
+            f"expected 1 ± {residual['chi2_expected_sd']:.2g}; {_noise_from(residual)})"
         )
     elif verdict == "undetermined":
         lines.append("verdict: undetermined — the target's noise is unknown (give it with --noise)")
     for warning in result.get("warnings", []):
         lines.append(f"warning [{warning['code']}]: {warning['message']}")
     return lines
+
+
+def _noise_from(residual: dict[str, Any]) -> str:
+    source = residual.get("noise_source")
+    return _NOISE_FROM.get(source, f"noise from the {source}")
 
 
 def _uncertainty_header(result: dict[str, Any]) -> str:

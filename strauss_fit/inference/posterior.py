@@ -129,14 +129,15 @@ def parse_priors(items: list[str]) -> dict[str, tuple[float, float]]:
     return priors
 
 
-def check_sigma(sigma: float) -> float:
+def check_sigma(sigma: float, what: str = "the noise level sigma") -> float:
     """σ must be a finite positive number, within
-    :data:`~strauss_fit.inference.noise.NOISE_RANGE` (σ² and 1/σ² stay in float64's range)."""
+    :data:`~strauss_fit.inference.noise.NOISE_RANGE` (σ² and 1/σ² stay in float64's range);
+    ``what`` names it in the error (``--sigma`` on the command line)."""
     from .noise import check_noise_level
 
     if not np.isfinite(sigma) or sigma <= 0:
         raise PosteriorError(f"the noise level sigma must be a finite number > 0, got {sigma:g}")
-    check_noise_level(sigma, "the noise level sigma")
+    check_noise_level(sigma, what)
     return float(sigma)
 
 

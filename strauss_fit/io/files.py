@@ -48,11 +48,33 @@ def os_error_message(exc: OSError, path: str | Path | None = None) -> str:
     return f"cannot write {where}: {reason}" if where is not None else f"cannot write: {reason}"
 
 
-def check_writable(path: str | Path, force: bool) -> Path:
-    """Refuse an existing output without ``force`` and a missing parent folder."""
+def check_replaceable(path: str | Path) -> Path:
+    """Refuse, with or without ``--force``, an output path where something other than a
+    regular file (or a link to one) stands: a folder, a device, a FIFO, a socket, a broken
+    or looping symbolic link. Replacing ``/dev/null`` by a result, as root, would break the
+    system; a folder is never a file's place."""
     path = Path(path)
-    if path.is_dir():
+    if not os.path.lexists(path):
+        return path
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        what = "a symbolic link loop" if exc.errno == errno.ELOOP else "a broken symbolic link"
+        raise StraussFitError(
+            f"output {path} is {what}: refusing to replace it; remove it or choose another name"
+        ) from None
+    if stat.S_ISDIR(mode):
         raise ImageError(f"output path is a directory: {path}")
+    if not stat.S_ISREG(mode):
+        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
+        raise StraussFitError(f"output {path} is {kind}, not a regular file: strauss-fit never replaces it")
+    return path
+
+
+def check_writable(path: str | Path, force: bool) -> Path:
+    """Refuse an existing output without ``force``, a path no output may replace
+    (:func:`check_replaceable`) and a missing parent folder."""
+    path = check_replaceable(path)
     if path.exists() and not force:
         raise OutputExistsError(f"output {path} exists; pass --force to overwrite it")
     parent = path.parent if str(path.parent) else Path(".")

@@ -190,9 +190,9 @@ def test_resume_refuses_results_of_another_configuration(dataset, tmp_path, caps
     other_scene = tmp_path / "other.toml"
     other_scene.write_text(scene.read_text().replace("intensity = 0.5", "intensity = 0.6"))
     for change, named in (
-        (["--fix", "metalness=0.5"], "the settings differs"),
-        (["--loss", "huber"], "the settings differs"),
-        (["--scene", str(other_scene)], "the scene differs"),
+        (["--fix", "metalness=0.5"], "different: the settings"),
+        (["--loss", "huber"], "different: the settings"),
+        (["--scene", str(other_scene)], "different: the scene"),
     ):
         capsys.readouterr()
         assert main([*argv, "--resume", *change]) == 2
@@ -213,16 +213,26 @@ def test_resume_refits_a_result_missing_its_core_keys(dataset, tmp_path, capsys)
     out = tmp_path / "out"
     argv = ["fit", str(folder / "t0.exr"), str(folder / "t1.exr"), "--scene", str(scene), "-o", str(out), *FAST]
     assert main(argv) == 0
-    data = json.loads((out / "t1.json").read_text())
-    del data["residual"]
-    (out / "t1.json").write_text(json.dumps(data))
-    capsys.readouterr()
-    assert main([*argv, "--resume"]) == 0
-    captured = capsys.readouterr()
-    assert "1 fitted, 0 failed, 1 kept from before" in captured.out
-    assert "1 incomplete result(s)" in captured.err
-    assert "residual" in json.loads((out / "t1.json").read_text())
-    assert all(r["verdict"] and r["rms"] for r in rows(out))
+    complete = json.loads((out / "t1.json").read_text())
+    for edit in (
+        lambda d: d.pop("residual"),
+        lambda d: d.update(uncertainty={}),  # no ± for the free parameters
+        lambda d: d["residual"].update(rms="x"),
+    ):
+        data = json.loads(json.dumps(complete))
+        edit(data)
+        (out / "t1.json").write_text(json.dumps(data))
+        capsys.readouterr()
+        assert main([*argv, "--resume"]) == 0
+        captured = capsys.readouterr()
+        assert "1 fitted, 0 failed, 1 kept from before" in captured.out
+        assert "1 incomplete result(s)" in captured.err
+        assert json.loads((out / "t1.json").read_text())["residual"]["rms"] == complete["residual"]["rms"]
+        assert all(r["verdict"] and r["rms"] and r["sd_smoothness"] for r in rows(out))
+    # --compare on a folder fitted without it: the kept results get their images (fitted again)
+    assert main([*argv, "--resume", "--compare"]) == 0
+    assert "2 kept result(s) have no comparison image" in capsys.readouterr().err
+    assert sorted(p.name for p in out.glob("*.compare.png")) == ["t0.compare.png", "t1.compare.png"]
 
 
 def test_an_unreachable_scheduler_fails_at_once_and_leaves_no_folder(dataset, tmp_path, capsys):
@@ -276,3 +286,71 @@ def test_an_equivalence_threshold_asks_for_the_ranges(dataset, capsys):
     assert not fit_options(args, ()).equivalence and fit_options(args, ()).equivalence_de == 1.0
     code = main([*base, "--no-equivalence", "--equivalence-de", "2"])
     assert code == 2 and "--no-equivalence" in capsys.readouterr().err
+
+
+def test_outputs_where_no_file_may_go_are_refused_before_any_work(dataset, tmp_path, capsys):
+    # before: --force replaced a FIFO or a device at -o by a regular file (as root,
+    # "-o /dev/null --force" would replace /dev/null); a folder named like summary.csv failed
+    # only after every target was fitted; -o "" fitted into the current folder
+    scene, folder = dataset
+    target = str(folder / "t0.exr")
+    fifo = tmp_path / "out.json"
+    os.mkfifo(fifo)
+    broken = tmp_path / "broken.json"
+    broken.symlink_to(tmp_path / "nowhere.json")
+    for output, message in ((fifo, "is a FIFO, not a regular file"), (broken, "is a broken symbolic link")):
+        assert main(["fit", target, "--scene", str(scene), "-o", str(output), "--force"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
+    assert fifo.is_fifo() and broken.is_symlink()
+    assert main(["render", str(scene), "-o", str(fifo), "--force"]) == 2
+    assert "is a FIFO, not a regular file" in capsys.readouterr().err
+    out = tmp_path / "out"
+    (out / "summary.csv").mkdir(parents=True)
+    argv = ["fit", target, str(folder / "t1.exr"), "--scene", str(scene), "-o", str(out), "--force", *FAST]
+    assert main(argv) == 2
+    assert "output path is a directory" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv"]  # nothing fitted, nothing written
+    assert main(["fit", target, "--scene", str(scene), "-o", ""]) == 2
+    assert "-o is empty" in capsys.readouterr().err
+
+
+def test_a_peer_that_is_not_a_dask_scheduler_is_one_line(tmp_path):
+    # before: a port answering another protocol gave a traceback (Dask's decoder asked for
+    # exabytes); one that accepted and said nothing hung the command for good
+    pytest.importorskip("dask.distributed")
+    import threading
+    import time
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.fit.executors import connect
+
+    def server(reply: bytes) -> tuple[socket.socket, int]:
+        listener = socket.socket()
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(4)
+
+        def serve():
+            try:
+                while True:
+                    peer, _ = listener.accept()
+                    if reply:
+                        peer.sendall(reply)
+                    threading.Thread(target=lambda p=peer: (time.sleep(30), p.close()), daemon=True).start()
+            except OSError:
+                return
+
+        threading.Thread(target=serve, daemon=True).start()
+        return listener, listener.getsockname()[1]
+
+    talking, talking_port = server(b"HTTP/1.0 400 Bad Request\r\nContent-Type: text/html\r\n\r\n" + b"x" * 200)
+    silent, silent_port = server(b"")
+    try:
+        with pytest.raises(StraussFitError, match="did not answer as a Dask scheduler") as info:
+            connect(f"tcp://127.0.0.1:{talking_port}", timeout=20)
+        assert "\n" not in str(info.value)
+        with pytest.raises(StraussFitError, match="did not answer within 2 s"):
+            connect(f"tcp://127.0.0.1:{silent_port}", timeout=2)
+    finally:
+        talking.close()
+        silent.close()
