@@ -157,6 +157,17 @@ def check_image_output(path: str | Path, force: bool = False) -> Path:
     return path
 
 
+def _memory_file(name: str) -> int | None:
+    """The descriptor of a new anonymous in-memory file, reachable as
+    ``/proc/self/fd/N``; None where the system has none."""
+    if not (hasattr(os, "memfd_create") and Path("/proc/self/fd").is_dir()):
+        return None
+    try:
+        return os.memfd_create(name)
+    except OSError:
+        return None
+
+
 #: Bytes per read when an input is copied into memory (:func:`_readable_copy`).
 _READ_CHUNK = 1 << 24
 
@@ -171,12 +182,7 @@ def _readable_copy(path: Path) -> Iterator[str]:
     a hung network file system) would hang the command for good. Python's own reads wait
     with the lock released and let a signal handler raise, so Ctrl-C ends the read (exit
     130). The file is opened non-blocking and must still be a regular file once open."""
-    fd = None
-    if hasattr(os, "memfd_create") and Path("/proc/self/fd").is_dir():
-        try:
-            fd = os.memfd_create("strauss-fit-input")
-        except OSError:
-            fd = None
+    fd = _memory_file("strauss-fit-input")
     if fd is None:
         yield str(path)
         return
@@ -205,12 +211,7 @@ def _readable_copy(path: Path) -> Iterator[str]:
 def _scratch_file(suffix: str) -> Iterator[str]:
     """A path to encode an image into: an anonymous in-memory file where the system has
     them (it cannot run out of disk space), else a temporary file."""
-    fd = None
-    if hasattr(os, "memfd_create") and Path("/proc/self/fd").is_dir():
-        try:
-            fd = os.memfd_create("strauss-fit-image")
-        except OSError:
-            fd = None
+    fd = _memory_file("strauss-fit-image")
     if fd is not None:
         try:
             yield f"/proc/self/fd/{fd}"
