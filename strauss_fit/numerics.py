@@ -8,6 +8,9 @@ differentiates both branches and ``0 * inf = nan`` poisons the gradient.
 
 from __future__ import annotations
 
+from typing import Any
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -106,3 +109,10 @@ def dot(a: ArrayLike, b: ArrayLike) -> Array:
     """
     a, b = jnp.asarray(a), jnp.asarray(b)
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def is_traced(tree: Any) -> bool:
+    """Whether any leaf of ``tree`` is a traced value (inside ``jit``, ``grad`` or a fit):
+    such values cannot be checked or turned into NumPy numbers. A tuple such as
+    ``(p[0], p[1], p[2])`` inside ``jax.grad`` is traced through its elements."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))

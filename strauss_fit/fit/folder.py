@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import OutputExistsError, StraussFitError
+from ..inference.noise import sidecar_path
 from ..io.files import Outputs, check_input_file, check_replaceable, read_json
 from ..io.images import read_image
 from ..io.journal import file_digest, pytree_digest, run_key
@@ -187,7 +188,7 @@ def sidecar_of(target: str | Path) -> Path | None:
     dataset's noise and truth, see docs/datasets.md), unless that file is itself a fit
     result (a result fitted into the target's own folder earlier). An output must never
     replace it."""
-    candidate = Path(target).with_suffix(".json")
+    candidate = sidecar_path(target)
     if Path(target).suffix.lower() == ".json" or not candidate.is_file():
         return None
     try:

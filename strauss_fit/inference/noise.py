@@ -81,6 +81,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -1157,15 +1158,19 @@ def _zero_or_in_range(sigma: float) -> bool:
     return sigma == 0 or (math.isfinite(sigma) and NOISE_RANGE[0] <= sigma <= NOISE_RANGE[1])
 
 
+def sidecar_path(path: str | Path) -> Path:
+    """Where an image's sidecar would be: ``ID.json`` beside ``ID.png`` (docs/datasets.md)."""
+    return Path(path).with_suffix(".json")
+
+
 def read_sidecar(path: str | None) -> dict | None:
     """The synth sidecar beside an image (``ID.png`` → ``ID.json``, see docs/datasets.md)
     if there is one and it is a strauss-fit sample description, else None."""
     if not path:
         return None
     import json
-    from pathlib import Path
 
-    candidate = Path(path).with_suffix(".json")
+    candidate = sidecar_path(path)
     if not candidate.is_file():  # a regular file only: reading a FIFO would block
         return None
     try:

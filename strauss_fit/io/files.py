@@ -48,6 +48,11 @@ def os_error_message(exc: OSError, path: str | Path | None = None) -> str:
     return f"cannot write {where}: {reason}" if where is not None else f"cannot write: {reason}"
 
 
+def _kind(mode: int) -> str:
+    """What a file that is neither a regular file nor a folder is, in words."""
+    return "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
+
+
 def check_replaceable(path: str | Path) -> Path:
     """Refuse, with or without ``--force``, an output path where something other than a
     regular file (or a link to one) stands: a folder, a device, a FIFO, a socket, a broken
@@ -66,8 +71,7 @@ def check_replaceable(path: str | Path) -> Path:
     if stat.S_ISDIR(mode):
         raise ImageError(f"output path is a directory: {path}")
     if not stat.S_ISREG(mode):
-        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
-        raise StraussFitError(f"output {path} is {kind}, not a regular file: strauss-fit never replaces it")
+        raise StraussFitError(f"output {path} is {_kind(mode)}, not a regular file: strauss-fit never replaces it")
     return path
 
 
@@ -108,9 +112,7 @@ def check_input_file(path: str | Path, what: str = "input", error: type[StraussF
     if stat.S_ISDIR(status.st_mode):
         raise error(f"{what} path is a directory: {path}")
     if not stat.S_ISREG(status.st_mode):
-        mode = status.st_mode
-        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
-        raise error(f"{what} {path} is not a regular file ({kind})")
+        raise error(f"{what} {path} is not a regular file ({_kind(status.st_mode)})")
     return path
 
 

@@ -12,6 +12,7 @@ import numpy as np
 from jax import Array
 
 from ..errors import MaterialError
+from ..numerics import is_traced
 from ..precision import uses_float64
 
 #: Ranges of the scalar parameters, (low, high); ``None`` means unbounded.
@@ -24,12 +25,6 @@ PARAMETER_RANGES: dict[str, tuple[float, float | None]] = {
 COLOR_RANGE = (0.0, 1.0)
 #: Names of all material parameters, in the order used by fits and reports.
 PARAMETER_NAMES = ("color", "smoothness", "metalness", "transparency", "ior")
-
-
-def _is_concrete(x: Any) -> bool:
-    """Whether ``x`` holds no traced value (a tuple such as ``(p[0], p[1], p[2])`` inside
-    ``jax.grad`` is traced through its elements)."""
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
 def _plain_within(value: Any, low: float, high: float | None, sizes: tuple[int, ...]) -> bool:
@@ -48,7 +43,7 @@ def _plain_within(value: Any, low: float, high: float | None, sizes: tuple[int, 
 
 def _check_scalar(name: str, value: Any) -> None:
     low, high = PARAMETER_RANGES[name]
-    if _plain_within(value, low, high, (0,)) or not _is_concrete(value):
+    if _plain_within(value, low, high, (0,)) or is_traced(value):
         return
     arr = np.asarray(value, dtype=float)
     span = f"[{low:g}, {'inf' if high is None else f'{high:g}'}]"
@@ -59,7 +54,7 @@ def _check_scalar(name: str, value: Any) -> None:
 
 
 def _check_color(value: Any) -> None:
-    if _plain_within(value, *COLOR_RANGE, (3,)) or not _is_concrete(value):
+    if _plain_within(value, *COLOR_RANGE, (3,)) or is_traced(value):
         return
     arr = np.asarray(value, dtype=float)
     if arr.shape[-1:] != (3,):

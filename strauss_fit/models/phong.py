@@ -60,7 +60,7 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from ..errors import MaterialError
-from ..numerics import dot, safe_normalize
+from ..numerics import dot, is_traced, safe_normalize
 from ..precision import uses_float64
 
 #: Largest accepted Phong exponent (beyond it the highlight is narrower than a pixel of any
@@ -76,11 +76,6 @@ COEFFICIENT_RANGES: dict[str, tuple[float, float | None]] = {
 COLOR_FIELDS = ("diffuse_color", "specular_color")
 #: Names of all Phong parameters (``blinn`` is a structural switch, not a number).
 PARAMETER_NAMES = ("ka", "kd", "ks", "exponent", "diffuse_color", "specular_color")
-
-
-def _is_concrete(x: Any) -> bool:
-    """Whether ``x`` holds no traced value (also inside a tuple)."""
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
 def _plain_within(value: Any, low: float, high: float | None, sizes: tuple[int, ...]) -> bool:
@@ -103,7 +98,7 @@ def _span(low: float, high: float | None) -> str:
 
 def _check_number(name: str, value: Any, *, rgb_allowed: bool) -> None:
     low, high = COEFFICIENT_RANGES[name]
-    if _plain_within(value, low, high, (0, 3) if rgb_allowed else (0,)) or not _is_concrete(value):
+    if _plain_within(value, low, high, (0, 3) if rgb_allowed else (0,)) or is_traced(value):
         return
     span = _span(low, high)
     arr = np.asarray(value, dtype=float)
@@ -121,7 +116,7 @@ def _check_number(name: str, value: Any, *, rgb_allowed: bool) -> None:
 
 
 def _check_color(name: str, value: Any) -> None:
-    if _plain_within(value, 0.0, 1.0, (3,)) or not _is_concrete(value):
+    if _plain_within(value, 0.0, 1.0, (3,)) or is_traced(value):
         return
     arr = np.asarray(value, dtype=float)
     if arr.shape != (3,):

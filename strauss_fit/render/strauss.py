@@ -90,12 +90,12 @@ from ..models.strauss import (
     weight_slopes,
     weights_of,
 )
-from ..numerics import dot, safe_divide, safe_normalize, safe_sqrt
+from ..numerics import dot, is_traced, safe_divide, safe_normalize, safe_sqrt
 from ..precision import uses_float64
 from ..scene.background import Background, background_radiance
 from ..scene.camera import Rays, intersect_unit_sphere, primary_rays
 from ..scene.lights import sample_lights
-from ..scene.loading import Scene, background_peak, check_radiance_range, is_traced
+from ..scene.loading import Scene, background_peak, check_radiance_range
 
 
 class RenderPlan(NamedTuple):

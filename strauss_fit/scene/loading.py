@@ -325,11 +325,6 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
 # --- the renderer's range ------------------------------------------------------------------
 
 
-def is_traced(tree: Any) -> bool:
-    """Whether any leaf of ``tree`` is a traced value (inside ``jit``, ``grad``, a fit)."""
-    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
-
-
 def background_peak(background: Background) -> float | None:
     """The largest radiance (absolute value, any channel) that a ray can see in
     ``background``, or None if its values are traced. Every kind interpolates between its
