@@ -17,10 +17,12 @@ Example::
 physically based targets rendered by Mitsuba 3 (:mod:`data_synth.mitsuba_backend`), made by
 ``python -m data_synth.make_bundled_mitsuba`` (:mod:`data_synth.make_bundled_mitsuba`);
 :func:`load_sample` reads both.
+:func:`write_capture` (:mod:`data_synth.capture`) writes synthetic captures: many photos of one sphere, with truth.
 """
 
 from pathlib import Path
 
+from .capture import CaptureSpec, example_capture_spec, render_capture_images, write_capture
 from .generate import GenerationError, Progress, Report, generate, render_clean, render_model
 from .index import Sample, load_sample, read_index
 from .params import MODELS, SpecError
@@ -41,6 +43,7 @@ SCENES = Path(__file__).with_name("scenes")
 __all__ = [
     "BUNDLED",
     "BUNDLED_MITSUBA",
+    "CaptureSpec",
     "DatasetSpec",
     "GenerationError",
     "MODELS",
@@ -53,12 +56,15 @@ __all__ = [
     "Sensor",
     "SpecError",
     "encode_ldr",
+    "example_capture_spec",
     "generate",
     "load_sample",
     "load_spec",
     "parse_spec",
     "plan_samples",
     "read_index",
+    "render_capture_images",
     "render_clean",
     "render_model",
+    "write_capture",
 ]

@@ -25,3 +25,7 @@ class ImageError(StraussFitError):
 
 class OutputExistsError(StraussFitError):
     """An output file exists and ``--force`` was not given."""
+
+
+class CaptureError(StraussFitError):
+    """A capture (its manifest, lights, images, or the sphere in its frame) cannot be used as given."""

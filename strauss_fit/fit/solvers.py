@@ -65,13 +65,20 @@ GROW_RATIO = 0.75
 REJECT_RATIO = 0.1
 
 
-def levenberg_marquardt(rtol: float, atol: float) -> optx.LevenbergMarquardt:
+def levenberg_marquardt(rtol: float, atol: float, *, normal_equations: bool = False) -> optx.LevenbergMarquardt:
     """:class:`optimistix.LevenbergMarquardt` with the textbook cutoffs :data:`GROW_RATIO`
     and :data:`REJECT_RATIO` in its trust region (see the module). The one Levenberg–Marquardt
-    of the package: the fits, the Phong → Strauss conversions and the Phong fitter use it."""
+    of the package: the fits, the Phong → Strauss conversions and the Phong fitter use it.
+
+    ``normal_equations``: solve each damped step from the normal equations (Cholesky of
+    JᵀJ + λI) instead of a QR of the stacked Jacobian. Why: with millions of residuals and a
+    handful of parameters (a capture) the QR of the tall matrix dominates every step, while
+    JᵀJ is a few passes over the data; the squared condition number costs nothing there."""
+    import lineax as lx
     import optimistix as optx
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    linear_solver = lx.Normal(lx.Cholesky()) if normal_equations else lx.QR()
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=linear_solver)
     search = optx.ClassicalTrustRegion(high_cutoff=GROW_RATIO, low_cutoff=REJECT_RATIO)
     return eqx.tree_at(lambda s: s.search, solver, search)
 

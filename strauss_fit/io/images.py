@@ -43,11 +43,13 @@ Encoding = Literal["auto", "linear", "srgb"]
 
 class LoadedImage(NamedTuple):
     """A decoded image: ``pixels`` linear RGB float64 (H, W, 3); ``clipped`` (H, W) bool,
-    true where an LDR pixel is saturated; ``encoding`` the decoding applied."""
+    true where an LDR pixel is saturated; ``encoding`` the decoding applied; ``bits`` the
+    stored integer depth (8, 16, ...), None for floating-point files."""
 
     pixels: np.ndarray
     clipped: np.ndarray
     encoding: str
+    bits: int | None = None
 
 
 def _oiio():
@@ -125,6 +127,11 @@ def _decode(oiio, path: Path, readable: str, config, encoding: Encoding) -> Load
         if raw is None or damaged:
             raise ImageError(f"cannot read image {path}: {_first_line(detail, 'corrupt or truncated data')}")
         integer = spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
+        bits = spec.format.size() * 8 if integer else None
+        # a file may store fewer bits than its container (a 12-bit camera in 16-bit PNG)
+        declared = spec.get_int_attribute("oiio:BitsPerSample", 0)
+        if integer and 0 < declared < bits:
+            bits = declared
         real_format = image_input.format_name()
     finally:
         image_input.close()
@@ -142,7 +149,7 @@ def _decode(oiio, path: Path, readable: str, config, encoding: Encoding) -> Load
     clipped = np.any(pixels >= 1.0, axis=-1) if integer else np.zeros(pixels.shape[:2], dtype=bool)
     if encoding == "srgb":
         pixels = srgb_decode(pixels)
-    return LoadedImage(pixels, clipped, encoding)
+    return LoadedImage(pixels, clipped, encoding, bits)
 
 
 def check_image_output(path: str | Path, force: bool = False) -> Path:

@@ -1,0 +1,1 @@
+"""Captures: many photographs of one sample sphere (being assembled)."""

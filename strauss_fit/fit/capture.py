@@ -1,0 +1,579 @@
+r"""Fitting one material to a whole capture: joint least squares over every image.
+
+For image l, sphere pixel p and channel c the model predicts
+
+.. math::
+
+    \hat I_{lpc} = e_l\, W_c \Big[\sum_k I_{lkc}\, f_c(n_p, \omega_{lk}, v_p; \theta)
+                   + A_c\, a_c(\theta)\Big]
+
+with :math:`I_{lkc}` the k-th light's intensity in channel c, f the reflectance model's
+radiance per unit white light (:data:`MODELS`), :math:`e_l` the exposure (one global value
+for Strauss, whose C ≤ 1 cannot absorb the scale of the photographs; per image with
+``exposure="per-image"``, the first image's fixed at the global one), :math:`W_c` an optional
+white balance (:math:`W_g = 1`) and :math:`A_c` an optional ambient (room) light reaching
+every point (its reflectance :math:`a_c`: :math:`r_d C_c` for Strauss, the diffuse albedo
+otherwise). The fit minimises :math:`\tfrac12 \sum (\hat I - I)^2` over the usable values
+(saturated and under-exposed channels left out), first from a global search (the linear
+parameters solved exactly on a grid of the non-linear ones, on a subsample), then by
+Levenberg–Marquardt on every value.
+
+Speed: the angular terms of every (image, light, pixel) do not depend on the material and
+are computed once; one evaluation is then a few element-wise passes.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..capture._samples import CaptureSamples
+from ..color import delta_e_2000
+from ..errors import CaptureError
+from ..inference.laplace import covariance, sandwich
+from ..models.strauss import angular_terms, combine_rgb, weights_of
+from ..numerics import dot, safe_normalize
+from ..precision import float64
+from .solvers import levenberg_marquardt
+
+#: The reflectance models a capture can be fitted with.
+MODELS = ("strauss", "lambert", "phong", "blinn-phong")
+EXPOSURES = ("global", "per-image", "fixed")
+#: Values (image × pixel × channel) the global search and the starts use.
+SEARCH_VALUES = 60_000
+#: A residual whose RMS exceeds this many times the noise bound is a mismatch whatever the
+#: noise is (a factor of 2 leaves room for noise correlated between neighbouring pixels,
+#: which lowers the bound: demosaicing correlates them).
+BOUND_FACTOR = 2.0
+
+#: Levenberg–Marquardt steps per start on the subsample, before the projected steps.
+START_STEPS = 40
+
+UNIT, POSITIVE, FREE = "unit", "positive", "free"
+
+
+@dataclass(frozen=True)
+class CaptureFitOptions:
+    """How a capture is fitted (see the module docstring)."""
+
+    model: str = "strauss"
+    exposure: str = "global"
+    white_balance: bool = False
+    ambient: bool = False
+    max_steps: int = 200
+    rtol: float = 1e-6
+    atol: float = 1e-9
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.model not in MODELS:
+            raise CaptureError(f"unknown model {self.model!r}; expected one of {', '.join(MODELS)}")
+        if self.exposure not in EXPOSURES:
+            raise CaptureError(f"unknown exposure {self.exposure!r}; expected one of {', '.join(EXPOSURES)}")
+
+
+@dataclass(frozen=True)
+class _Param:
+    name: str
+    size: int
+    kind: str
+
+
+def _parameters(options: CaptureFitOptions, images: int) -> tuple[_Param, ...]:
+    if options.model == "strauss":
+        params = [_Param("color", 3, UNIT), _Param("smoothness", 1, UNIT), _Param("metalness", 1, UNIT)]
+        if options.exposure != "fixed":
+            params.append(_Param("exposure", 1, POSITIVE))
+    elif options.model == "lambert":
+        params = [_Param("albedo", 3, POSITIVE)]
+    else:
+        params = [_Param("diffuse", 3, POSITIVE), _Param("specular", 1, POSITIVE), _Param("exponent", 1, POSITIVE)]
+    if options.exposure == "per-image" and images > 1:
+        params.append(_Param("image_exposure", images - 1, POSITIVE))
+    if options.white_balance:
+        params.append(_Param("white_balance", 2, POSITIVE))
+    if options.ambient:
+        params.append(_Param("ambient", 3, FREE))
+    return tuple(params)
+
+
+def _offsets(params: Sequence[_Param]) -> list[int]:
+    return [int(v) for v in np.cumsum([0] + [p.size for p in params])]
+
+
+def _to_physical(params: Sequence[_Param], theta: jax.Array) -> jax.Array:
+    """θ → physical values: (1 + sin θ)/2 on [0, 1] (reaches the bounds, and can leave them
+    again), exp θ for scales, θ itself for the ambient light."""
+    parts = []
+    for p, start in zip(params, _offsets(params)):
+        t = theta[start : start + p.size]
+        parts.append((1 + jnp.sin(t)) / 2 if p.kind == UNIT else jnp.exp(t) if p.kind == POSITIVE else t)
+    return jnp.concatenate(parts)
+
+
+def _to_unconstrained(params: Sequence[_Param], physical: np.ndarray) -> np.ndarray:
+    out = []
+    for p, start in zip(params, _offsets(params)):
+        x = np.asarray(physical[start : start + p.size], dtype=np.float64)
+        if p.kind == UNIT:
+            out.append(np.arcsin(np.clip(2 * np.clip(x, 1e-3, 1 - 1e-3) - 1, -1, 1)))
+        elif p.kind == POSITIVE:
+            out.append(np.log(np.maximum(x, 1e-12)))
+        else:
+            out.append(x)
+    return np.concatenate(out)
+
+
+def _split(params: Sequence[_Param], vector: jax.Array) -> dict[str, jax.Array]:
+    return {p.name: vector[start : start + p.size] for p, start in zip(params, _offsets(params))}
+
+
+def _terms(samples: CaptureSamples) -> dict[str, jax.Array]:
+    """The material-independent terms of every (image, light, pixel), shapes (L, K, P)."""
+    normal = jnp.asarray(samples.normals)[None, None]
+    view = jnp.asarray(samples.views)[None, None]
+    to_light = jnp.asarray(samples.light_dirs)
+    terms = angular_terms(normal, to_light, view)
+    half = safe_normalize(to_light + view)
+    cos_nh = jnp.where(terms.lit, jnp.clip(dot(normal, half), 0.0, 1.0), 0.0)
+    return {
+        "lit": terms.lit,
+        "cos_alpha": terms.cos_alpha,
+        "cos_beta": terms.cos_beta,
+        "cos_nh": cos_nh,
+        "fresnel_alpha": terms.fresnel_alpha,
+        "j": terms.j,
+        "light_rgb": jnp.asarray(samples.light_rgb),
+    }
+
+
+def _reflected(model: str, x: dict[str, jax.Array], terms: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
+    """Σ_k I_lkc f_c (L, P, 3) and the ambient reflectance a_c (3,)."""
+    if model == "strauss":
+        from ..models.strauss import AngularTerms
+
+        angular = AngularTerms(terms["lit"], terms["cos_alpha"], terms["cos_beta"], terms["fresnel_alpha"], terms["j"])
+        s, m = x["smoothness"][0], x["metalness"][0]
+        weights = weights_of(s, m, jnp.zeros_like(s), angular)
+        per_light = combine_rgb(weights, x["color"], jnp.ones(3, dtype=s.dtype))
+        ambient = (1 - s**3) * x["color"]
+    elif model == "lambert":
+        per_light = terms["cos_alpha"][..., None] * x["albedo"]
+        ambient = x["albedo"]
+    else:
+        cos = terms["cos_nh"] if model == "blinn-phong" else terms["cos_beta"]
+        positive = cos > 0
+        lobe = jnp.where(positive, jnp.exp(x["exponent"][0] * jnp.log(jnp.where(positive, cos, 1.0))), 0.0)
+        per_light = terms["cos_alpha"][..., None] * x["diffuse"] + (lobe * x["specular"][0])[..., None]
+        ambient = x["diffuse"]
+    return jnp.sum(per_light * terms["light_rgb"], axis=1), ambient
+
+
+def _predict(model: str, params: tuple[_Param, ...], physical: jax.Array, terms: dict[str, jax.Array]) -> jax.Array:
+    x = _split(params, physical)
+    reflected, ambient_reflectance = _reflected(model, x, terms)
+    if "ambient" in x:
+        reflected = reflected + x["ambient"] * ambient_reflectance
+    images = reflected.shape[0]
+    scale = x["exposure"][0] if "exposure" in x else jnp.ones((), reflected.dtype)
+    per_image = jnp.full((images,), scale)
+    if "image_exposure" in x:
+        per_image = per_image * jnp.concatenate([jnp.ones(1, reflected.dtype), x["image_exposure"]])
+    balance = jnp.ones(3, reflected.dtype)
+    if "white_balance" in x:
+        balance = jnp.stack([x["white_balance"][0], jnp.ones((), reflected.dtype), x["white_balance"][1]])
+    return reflected * per_image[:, None, None] * balance
+
+
+@dataclass
+class _Problem:
+    model: str
+    params: tuple[_Param, ...]
+    terms: dict[str, jax.Array]
+    observed: jax.Array
+    weight: jax.Array
+
+    def residual(self, physical: jax.Array) -> jax.Array:
+        return ((_predict(self.model, self.params, physical, self.terms) - self.observed) * self.weight).ravel()
+
+
+def _problem(samples: CaptureSamples, options: CaptureFitOptions) -> _Problem:
+    return _Problem(
+        options.model,
+        _parameters(options, samples.count),
+        _terms(samples),
+        jnp.asarray(samples.values),
+        jnp.asarray(samples.usable, dtype=jnp.float64),
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _residual_function(model: str, params: tuple[_Param, ...]) -> Callable:
+    """The residual in θ for one model and parameter set: one function object per set, so
+    that optimistix compiles it once per data shape."""
+
+    def residuals(theta, data):
+        terms, observed, weight = data
+        physical = _to_physical(params, theta)
+        return ((_predict(model, params, physical, terms) - observed) * weight).ravel()
+
+    return residuals
+
+
+def _solve(problem: _Problem, theta0: np.ndarray, max_steps: int, rtol: float, atol: float) -> tuple[np.ndarray, int, str]:
+    """Levenberg–Marquardt from θ0; returns θ, the steps and the status."""
+    import optimistix as optx
+
+    residuals = _residual_function(problem.model, problem.params)
+    solver = levenberg_marquardt(rtol, atol, normal_equations=True)
+    solution = _least_squares(residuals, solver, jnp.asarray(theta0), (problem.terms, problem.observed, problem.weight), max_steps)
+    theta = np.asarray(solution.value)
+    steps = int(solution.stats["num_steps"])
+    status = "successful" if solution.result == optx.RESULTS.successful else str(solution.result).split(".")[-1].strip("'>")
+    return theta, steps, status
+
+
+def _least_squares(residuals, solver, theta0, data, max_steps):
+    import optimistix as optx
+
+    return optx.least_squares(residuals, solver, theta0, args=data, max_steps=max_steps, throw=False)
+
+
+def _subsample(samples: CaptureSamples, values: int, seed: int) -> CaptureSamples:
+    pixels = max(50, values // max(1, 3 * samples.count))
+    if pixels >= len(samples.rows):
+        return samples
+    rng = np.random.default_rng(seed)
+    return samples.pixels(np.sort(rng.choice(len(samples.rows), pixels, replace=False)))
+
+
+# --- starts: the linear parameters solved exactly on a grid of the non-linear ones ---------
+
+
+def _least_squares_linear(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:
+    solution, *_ = np.linalg.lstsq(design, target, rcond=None)
+    return solution, float(np.sum((design @ solution - target) ** 2))
+
+
+def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
+    """Grid over (s, m); for each, :math:`\\hat I_c = X_c\\,a_c + Y\\,b_c` with X = E·C and
+    Y = E solved by linear least squares (a = Σ I (d + w), b = Σ I (r_s − w))."""
+    from ..models.strauss import AngularTerms
+
+    t = problem.terms
+    angular = AngularTerms(t["lit"], t["cos_alpha"], t["cos_beta"], t["fresnel_alpha"], t["j"])
+    observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
+    rgb = np.asarray(t["light_rgb"])
+    found = []
+    for s in (0.05, 0.3, 0.5, 0.65, 0.75, 0.85, 0.92):
+        for m in (0.0, 0.25, 0.5, 0.75, 1.0):
+            w = weights_of(jnp.asarray(s), jnp.asarray(m), jnp.asarray(0.0), angular)
+            a = np.sum(np.asarray(w.diffuse + w.tint)[..., None] * rgb, axis=1)  # (L, P, 3)
+            b = np.sum(np.asarray(w.specular - w.tint)[..., None] * rgb, axis=1)
+            rows, target = [], []
+            for c in range(3):
+                design = np.zeros(a.shape[:2] + (4,))
+                design[..., c] = a[..., c]
+                design[..., 3] = b[..., c]
+                rows.append((design * weight[..., c : c + 1]).reshape(-1, 4))
+                target.append((observed[..., c] * weight[..., c]).ravel())
+            design, target_v = np.concatenate(rows), np.concatenate(target)
+            solution, _ = _least_squares_linear(design, target_v)
+            exposure = max(float(solution[3]), 1e-6)
+            color = np.clip(solution[:3] / exposure, 0.01, 0.99)
+            # the exposure again for the clipped colour (one linear unknown)
+            column = design[:, :3] @ color + design[:, 3]
+            exposure = max(float(column @ target_v / max(column @ column, 1e-300)), 1e-6)
+            cost = float(np.sum((exposure * column - target_v) ** 2))
+            found.append((cost, {"color": color, "smoothness": np.array([s]), "metalness": np.array([m]), "exposure": np.array([exposure])}))
+    found.sort(key=lambda item: item[0])
+    return [values for _, values in found[:keep]]
+
+
+def _phong_starts(problem: _Problem, keep: int = 2) -> list[dict[str, np.ndarray]]:
+    t = problem.terms
+    observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
+    rgb = np.asarray(t["light_rgb"])
+    cos = np.asarray(t["cos_nh"] if problem.model == "blinn-phong" else t["cos_beta"])
+    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * rgb, axis=1)
+    found = []
+    for exponent in np.geomspace(2.0, 5000.0, 14):
+        lobe = np.sum((np.where(cos > 0, cos, 0.0) ** exponent)[..., None] * rgb, axis=1)
+        rows, target = [], []
+        for c in range(3):
+            design = np.zeros(diffuse.shape[:2] + (4,))
+            design[..., c] = diffuse[..., c]
+            design[..., 3] = lobe[..., c]
+            rows.append((design * weight[..., c : c + 1]).reshape(-1, 4))
+            target.append((observed[..., c] * weight[..., c]).ravel())
+        solution, cost = _least_squares_linear(np.concatenate(rows), np.concatenate(target))
+        solution = np.maximum(solution, 1e-6)
+        found.append((cost, {"diffuse": solution[:3], "specular": solution[3:4], "exponent": np.array([exponent])}))
+    found.sort(key=lambda item: item[0])
+    return [values for _, values in found[:keep]]
+
+
+def _lambert_starts(problem: _Problem) -> list[dict[str, np.ndarray]]:
+    t = problem.terms
+    observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
+    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * np.asarray(t["light_rgb"]), axis=1)
+    albedo = np.array(
+        [
+            max(float(np.sum(weight[..., c] * diffuse[..., c] * observed[..., c]) / max(np.sum(weight[..., c] * diffuse[..., c] ** 2), 1e-300)), 1e-6)
+            for c in range(3)
+        ]
+    )
+    return [{"albedo": albedo}]
+
+
+def _starts(problem: _Problem) -> list[np.ndarray]:
+    if problem.model == "strauss":
+        found = _strauss_starts(problem)
+    elif problem.model == "lambert":
+        found = _lambert_starts(problem)
+    else:
+        found = _phong_starts(problem)
+    out = []
+    for values in found:
+        full = []
+        for p in problem.params:
+            if p.name in values:
+                full.append(np.asarray(values[p.name], dtype=np.float64))
+            elif p.name == "ambient":
+                full.append(np.zeros(3))
+            else:  # image exposures, white balance: 1
+                full.append(np.ones(p.size))
+        out.append(np.concatenate(full))
+    return out
+
+
+# --- statistics ----------------------------------------------------------------------------
+
+
+def _labels(params: Sequence[_Param]) -> list[str]:
+    labels = []
+    for p in params:
+        if p.name in ("color", "albedo", "diffuse", "ambient"):
+            labels += [f"{p.name}_{c}" for c in "rgb"]
+        elif p.name == "white_balance":
+            labels += ["white_balance_r", "white_balance_b"]
+        elif p.name == "image_exposure":
+            labels += [f"image_exposure_{i + 2}" for i in range(p.size)]
+        else:
+            labels.append(p.name)
+    return labels
+
+
+def _jacobian(problem: _Problem, physical: np.ndarray) -> np.ndarray:
+    """d residual / d physical values, (L·P·3, N), forward mode (N is small)."""
+    return np.asarray(jax.jacfwd(problem.residual)(jnp.asarray(physical)))
+
+
+def _by_name(params: Sequence[_Param], vector: np.ndarray) -> dict[str, Any]:
+    out = {}
+    for p, start in zip(params, _offsets(params)):
+        part = [float(v) for v in vector[start : start + p.size]]
+        out[p.name] = part if p.size > 1 or p.name in ("color",) else part[0]
+    return out
+
+
+def relative_rms(predicted: np.ndarray, observed: np.ndarray, usable: np.ndarray) -> float:
+    """:math:`\\sqrt{\\sum (\\hat I - I)^2 / \\sum I^2}` over the usable values."""
+    num = float(np.sum(((predicted - observed) * usable) ** 2))
+    den = float(np.sum((observed * usable) ** 2))
+    return math.sqrt(num / den) if den > 0 else float("nan")
+
+
+def delta_e_mean(predicted: np.ndarray, observed: np.ndarray, usable: np.ndarray) -> float:
+    """Mean CIEDE2000 over the pixels whose three channels are usable, image by image (each
+    image scaled by its own 99th percentile, see :func:`strauss_fit.color.delta_e_2000`)."""
+    values = []
+    for pred, obs, ok in zip(predicted, observed, usable):
+        keep = ok.all(axis=-1)
+        if keep.any():
+            values.append(delta_e_2000(np.maximum(pred[keep], 0.0), np.maximum(obs[keep], 0.0)))
+    return float(np.mean(np.concatenate(values))) if values else float("nan")
+
+
+@dataclass
+class CaptureFit:
+    """A capture's fit: the values, their two kinds of covariance, and the prediction."""
+
+    model: str
+    params: tuple[_Param, ...]
+    physical: np.ndarray
+    labels: list[str]
+    laplace: np.ndarray
+    clustered: np.ndarray
+    predicted: np.ndarray
+    steps: int
+    status: str
+    starts: list[dict[str, Any]] = field(default_factory=list)
+    timing: dict[str, float] = field(default_factory=dict)
+
+    def values(self) -> dict[str, Any]:
+        return _by_name(self.params, self.physical)
+
+    def deviations(self, which: str = "clustered") -> dict[str, Any]:
+        cov = self.clustered if which == "clustered" else self.laplace
+        return _by_name(self.params, np.sqrt(np.maximum(np.diag(cov), 0.0)))
+
+
+def fit_capture_samples(samples: CaptureSamples, options: CaptureFitOptions | None = None) -> CaptureFit:
+    """Fit one material to every usable value of ``samples`` (see the module docstring)."""
+    options = options or CaptureFitOptions()
+    with float64():
+        return _fit(samples, options)
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(model: str, params: tuple[_Param, ...]) -> tuple[Callable, Callable]:
+    """The residual and its Jacobian in the physical values, compiled once per model,
+    parameter set and data shape."""
+
+    def residual(physical, data):
+        terms, observed, weight = data
+        return ((_predict(model, params, physical, terms) - observed) * weight).ravel()
+
+    return jax.jit(residual), jax.jit(jax.jacfwd(residual))
+
+
+def _bounds(params: Sequence[_Param]) -> tuple[np.ndarray, np.ndarray]:
+    low, high = [], []
+    for p in params:
+        low += [0.0 if p.kind in (UNIT, POSITIVE) else -np.inf] * p.size
+        high += [1.0 if p.kind == UNIT else np.inf] * p.size
+    return np.array(low), np.array(high)
+
+
+def _projected_step(
+    x: np.ndarray, low: np.ndarray, high: np.ndarray, gradient: np.ndarray, bread: np.ndarray, damping: float
+) -> np.ndarray:
+    """A damped Gauss–Newton (Marquardt) step, (JᵀJ + λ diag JᵀJ) δ = −Jᵀr, with the values
+    that would cross a bound held on it: the step is solved for the free values, any value it
+    would carry across its bound is put on the bound and held, and the step is solved again
+    for the rest (at most one pass per value)."""
+    span = np.where(np.isfinite(high - low), high - low, 1.0)
+    on_low = x <= low + 1e-9 * span
+    on_high = x >= high - 1e-9 * span
+    held = (on_low & (gradient > 0)) | (on_high & (gradient < 0))
+    step = np.zeros_like(x)
+    for _ in range(len(x) + 1):
+        free = ~held
+        step = np.where(on_low & held, low - x, np.where(on_high & held, high - x, 0.0))
+        step = np.where(held & ~on_low & ~on_high, np.clip(step, low - x, high - x), step)
+        if free.any():
+            sub = bread[np.ix_(free, free)]
+            sub = sub + np.diag(damping * np.diag(sub) + 1e-12 * np.trace(sub) / max(int(free.sum()), 1))
+            rhs = gradient[free] + bread[np.ix_(free, held)] @ step[held]
+            step[free] = -np.linalg.lstsq(sub, rhs, rcond=None)[0]
+        crossing = free & ((x + step < low) | (x + step > high))
+        if not crossing.any():
+            break
+        on_low = on_low | (crossing & (x + step < low))
+        on_high = on_high | (crossing & (x + step > high))
+        held = held | crossing
+    return step
+
+
+def _polish(problem: _Problem, physical: np.ndarray, max_steps: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Projected Levenberg–Marquardt steps in the physical values (:func:`_projected_step`).
+
+    Why not optimistix's solver here: on every value each step is dominated by the
+    Jacobian, which these steps compute once per accepted step and which then also serves
+    the covariances; from the subsample's optimum they converge in a few steps. And in the
+    physical values a value can sit exactly on its bound (an active set), where the θ
+    transform only creeps toward it. A step that does not lower the cost is retried with
+    10× the damping. Returns the values, the Jacobian and the residual at them, and
+    the steps taken."""
+    residual_fn, jacobian_fn = _compiled(problem.model, problem.params)
+    data = (problem.terms, problem.observed, problem.weight)
+    low, high = _bounds(problem.params)
+    x = np.clip(physical, low, high)
+    r = np.asarray(residual_fn(jnp.asarray(x), data))
+    cost = float(r @ r)
+    jac = np.asarray(jacobian_fn(jnp.asarray(x), data))
+    steps, damping = 0, 1e-4
+    for steps in range(1, max_steps + 1):
+        gradient = jac.T @ r
+        bread = jac.T @ jac
+        improved = False
+        for _ in range(12):
+            trial = np.clip(x + _projected_step(x, low, high, gradient, bread, damping), low, high)
+            r_trial = np.asarray(residual_fn(jnp.asarray(trial), data))
+            cost_trial = float(r_trial @ r_trial)
+            if cost_trial <= cost:
+                improved = True
+                damping = max(damping / 10, 1e-9)
+                break
+            damping *= 10
+        if not improved:
+            break
+        change = cost - cost_trial
+        x, r, cost = trial, r_trial, cost_trial
+        jac = np.asarray(jacobian_fn(jnp.asarray(x), data))
+        if change <= 1e-9 * max(cost, 1e-300):
+            break
+    return x, jac, r, steps
+
+
+def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
+    t0 = time.perf_counter()
+    if not np.asarray(samples.usable).any():
+        raise CaptureError("no usable values: every sphere pixel is saturated or under-exposed in every image")
+    coarse = _problem(_subsample(samples, SEARCH_VALUES, options.seed), options)
+    starts = _starts(coarse)
+    t_search = time.perf_counter()
+    ends = []
+    for start in starts:
+        theta, steps, status = _solve(coarse, _to_unconstrained(coarse.params, start), START_STEPS, options.rtol, options.atol)
+        physical = np.asarray(_to_physical(coarse.params, jnp.asarray(theta)))
+        cost = float(np.sum(np.asarray(coarse.residual(jnp.asarray(physical))) ** 2))
+        ends.append((cost, physical, {"start": _by_name(coarse.params, start), "end": _by_name(coarse.params, physical), "cost": cost, "steps": steps, "status": status}))
+    ends.sort(key=lambda item: item[0])
+    t_starts = time.perf_counter()
+    # the bounds: LM in θ creeps toward a value on its bound (the transform's slope vanishes
+    # there); the projected steps put it there, first on the subsample, then on every value
+    physical, _, _, coarse_steps = _polish(coarse, ends[0][1], max_steps=options.max_steps)
+    problem = _problem(samples, options)
+    physical, jac, residual, polish_steps = _polish(problem, physical)
+    t_solve = time.perf_counter()
+    bread = jac.T @ jac
+    count = int(np.asarray(samples.usable).sum())
+    size = len(physical)
+    sigma2 = float(residual @ residual) / max(count - size, 1)
+    laplace = sigma2 * covariance(bread)
+    # The image-cluster sandwich: residuals of one image are correlated (a misfit is smooth
+    # over the sphere), so their scores are summed per image before the outer product.
+    images = samples.count
+    scores = (jac * residual[:, None]).reshape(images, -1, size).sum(axis=1)
+    meat = scores.T @ scores * (images / max(images - 1, 1))
+    clustered = sandwich(bread, meat)
+    predicted = np.asarray(_predict(problem.model, problem.params, jnp.asarray(physical), problem.terms))
+    t_end = time.perf_counter()
+    return CaptureFit(
+        model=options.model,
+        params=problem.params,
+        physical=physical,
+        labels=_labels(problem.params),
+        laplace=laplace,
+        clustered=clustered,
+        predicted=predicted,
+        steps=ends[0][2]["steps"] + coarse_steps + polish_steps,
+        status=ends[0][2]["status"],
+        starts=[info for _, _, info in ends],
+        timing={
+            "search_s": t_search - t0,
+            "starts_s": t_starts - t_search,
+            "solve_s": t_solve - t_starts,
+            "statistics_s": t_end - t_solve,
+        },
+    )
