@@ -143,6 +143,9 @@ def add_parser(subparsers) -> None:
     )
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
     parser.add_argument("--quiet", action="store_true", help="print only the result table")
+    from .fit_capture import add_capture_options
+
+    add_capture_options(parser)
     batch = parser.add_argument_group("several targets (-o is a folder)")
     batch.add_argument(
         "--manifest",
@@ -322,6 +325,19 @@ def run(args: argparse.Namespace) -> int:
         from strauss_fit.errors import StraussFitError
 
         raise StraussFitError("-o is empty: give a RESULT.json, or a folder (OUTDIR/) for several targets")
+    if args.capture:
+        from .fit_capture import run_capture
+
+        return run_capture(args)
+    for option in ("lights", "ambient", "white_balance", "holdout"):
+        if getattr(args, option):
+            from strauss_fit.errors import StraussFitError
+
+            raise StraussFitError(f"--{option.replace('_', '-')} is for captures (--capture)")
+    if args.model != "strauss":
+        from strauss_fit.errors import StraussFitError
+
+        raise StraussFitError("--model is for captures (--capture) for now; single targets are fitted with Strauss")
     if is_batch(args):
         return run_batch(args)
     compare_path = check_outputs(args)

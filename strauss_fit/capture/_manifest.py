@@ -97,7 +97,9 @@ def _where(source: Path, key: str) -> str:
     return f"{source}: {key}"
 
 
-def _number(value: Any, where: str, *, low: float | None = None, high: float | None = None, open_low: bool = False) -> float:
+def _number(
+    value: Any, where: str, *, low: float | None = None, high: float | None = None, open_low: bool = False
+) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CaptureError(f"{where} must be a number, not {value!r}")
     value = float(value)
@@ -273,7 +275,7 @@ def read_manifest(path: str | Path) -> Capture:
         _check_keys(table, ("file", "exposure", "light"), where)
         name = table.get("file")
         if not isinstance(name, str) or not name:
-            raise CaptureError(f"{where} needs file = \"NAME\"")
+            raise CaptureError(f'{where} needs file = "NAME"')
         exposure = _number(table.get("exposure", 1.0), f"{where}.exposure", low=0.0, open_low=True)
         entries = table.get("light")
         if entries is not None:
@@ -342,12 +344,16 @@ def read_diligent(folder: str | Path) -> Capture:
         raise CaptureError(f"{names_path} lists no images")
     directions = _table_rows(folder / "light_directions.txt", 3, "DiLiGenT light directions")
     if len(directions) != len(names):
-        raise CaptureError(f"{folder}: filenames.txt lists {len(names)} images, light_directions.txt {len(directions)} lights")
+        raise CaptureError(
+            f"{folder}: filenames.txt lists {len(names)} images, light_directions.txt {len(directions)} lights"
+        )
     intensity_path = folder / "light_intensities.txt"
     if intensity_path.exists():
         intensities = _table_rows(intensity_path, 3, "DiLiGenT light intensities")
         if len(intensities) != len(names):
-            raise CaptureError(f"{folder}: filenames.txt lists {len(names)} images, light_intensities.txt {len(intensities)}")
+            raise CaptureError(
+                f"{folder}: filenames.txt lists {len(names)} images, light_intensities.txt {len(intensities)}"
+            )
     else:
         intensities = [(1.0, 1.0, 1.0)] * len(names)
     images = []

@@ -33,6 +33,8 @@ from ._sphere import Camera, Circle, circle_from_images, circle_from_mask, spher
 #: Pixels this close to the silhouette (in pixels) are left out: they blend sphere and
 #: background, which the model of one surface point does not describe.
 RIM_MARGIN_PX = 1.0
+#: Background pixels (evenly spread) its level and noise are measured on.
+BACKGROUND_PIXELS = 20_000
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,11 @@ class CaptureSamples:
     background_noise: np.ndarray | None
     #: Per channel: the noise level of one stored step (quantisation), linear units at mid grey.
     quantisation: np.ndarray
+    #: (L, P, 3): the five-point Laplacian 4 I(p) − Σ I(neighbours) of each image at each
+    #: pixel whose four neighbours are sphere pixels and usable; NaN elsewhere. Noise of
+    #: level σ gives it a spread of √20 σ; the image's own curvature only adds to it, so it
+    #: bounds the noise from above (:func:`strauss_fit.fit.capture_result.noise_bound`).
+    laplacian: np.ndarray
     circle: Circle
     camera: Camera
     encodings: tuple[str, ...]
@@ -83,6 +90,7 @@ class CaptureSamples:
             files=tuple(self.files[i] for i in idx),
             values=self.values[idx],
             usable=self.usable[idx],
+            laplacian=self.laplacian[idx],
             light_dirs=self.light_dirs[idx],
             light_rgb=self.light_rgb[idx],
             saturated=self.saturated[idx],
@@ -107,6 +115,7 @@ class CaptureSamples:
             views=self.views[index],
             values=self.values[:, index],
             usable=self.usable[:, index],
+            laplacian=self.laplacian[:, index],
             light_dirs=per_pixel(self.light_dirs),
             light_rgb=per_pixel(self.light_rgb),
         )
@@ -156,7 +165,9 @@ def _camera(capture: Capture) -> Camera:
 def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     mask = read_image(path, encoding="linear")
     if mask.pixels.shape[:2] != shape:
-        raise CaptureError(f"the mask {path} is {mask.pixels.shape[1]}×{mask.pixels.shape[0]}, the images {shape[1]}×{shape[0]}")
+        raise CaptureError(
+            f"the mask {path} is {mask.pixels.shape[1]}×{mask.pixels.shape[0]}, the images {shape[1]}×{shape[0]}"
+        )
     return mask.pixels.max(axis=-1) > 0
 
 
@@ -239,7 +250,15 @@ def load_samples(
     flags = np.stack([m[:, rows, cols] for m in saturated_maps])  # (L, 2, P, 3)
     usable = ~(flags[:, 0] | flags[:, 1])
     dirs, rgb = _light_arrays(capture.images, normals)
+    laplacian = _laplacian(frames, [~(m[0] | m[1]) for m in saturated_maps], rows, cols, shape)
     outside = _outside(shape, circle, camera, mask)
+    # the background's statistics from an even spread of at most BACKGROUND_PIXELS of its pixels
+    # (a median over the whole frame of every image would cost more than the fit)
+    spots = np.flatnonzero(outside)
+    spots = spots[:: max(1, len(spots) // BACKGROUND_PIXELS)]
+    picked = np.zeros(shape, dtype=bool)
+    picked.flat[spots] = True
+    outside = picked
     background = np.stack([np.median(frame[outside], axis=0) if outside.any() else np.zeros(3) for frame in frames])
     step = np.array([_quantisation(bits, enc) for bits, enc in zip(bits_seen, encodings)]).max()
     return CaptureSamples(
@@ -258,11 +277,35 @@ def load_samples(
         background=background,
         background_noise=_background_noise(frames, outside),
         quantisation=np.full(3, step),
+        laplacian=laplacian,
         circle=circle,
         camera=camera,
         encodings=tuple(encodings),
         images=tuple(capture.images),
     )
+
+
+def _laplacian(
+    frames: list[np.ndarray], usable_maps: list[np.ndarray], rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
+) -> np.ndarray:
+    """Per image, the five-point Laplacian at the sphere pixels whose four neighbours are
+    sphere pixels too (NaN where a neighbour is missing or not usable)."""
+    on_sphere = np.zeros(shape, dtype=bool)
+    on_sphere[rows, cols] = True
+    height, width = shape
+    inner = (rows > 0) & (rows < height - 1) & (cols > 0) & (cols < width - 1)
+    r, c = np.where(inner, rows, 1), np.where(inner, cols, 1)
+    neighbours = [(r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)]
+    complete = inner & np.all([on_sphere[nr, nc] for nr, nc in neighbours], axis=0)
+    out = np.full((len(frames), len(rows), 3), np.nan)
+    for i, (frame, usable) in enumerate(zip(frames, usable_maps)):
+        ok = usable[r, c] & complete[:, None]
+        value = 4 * frame[r, c]
+        for nr, nc in neighbours:
+            ok &= usable[nr, nc]
+            value = value - frame[nr, nc]
+        out[i] = np.where(ok, value, np.nan)
+    return out
 
 
 def _quantisation(bits: int | None, encoding: str) -> float:

@@ -38,7 +38,7 @@ import numpy as np
 from ..capture._samples import CaptureSamples
 from ..color import delta_e_2000
 from ..errors import CaptureError
-from ..inference.laplace import covariance, sandwich
+from ..inference.laplace import sandwich
 from ..models.strauss import angular_terms, combine_rgb, weights_of
 from ..numerics import dot, safe_normalize
 from ..precision import float64
@@ -228,16 +228,22 @@ def _residual_function(model: str, params: tuple[_Param, ...]) -> Callable:
     return residuals
 
 
-def _solve(problem: _Problem, theta0: np.ndarray, max_steps: int, rtol: float, atol: float) -> tuple[np.ndarray, int, str]:
+def _solve(
+    problem: _Problem, theta0: np.ndarray, max_steps: int, rtol: float, atol: float
+) -> tuple[np.ndarray, int, str]:
     """Levenberg–Marquardt from θ0; returns θ, the steps and the status."""
     import optimistix as optx
 
     residuals = _residual_function(problem.model, problem.params)
     solver = levenberg_marquardt(rtol, atol, normal_equations=True)
-    solution = _least_squares(residuals, solver, jnp.asarray(theta0), (problem.terms, problem.observed, problem.weight), max_steps)
+    solution = _least_squares(
+        residuals, solver, jnp.asarray(theta0), (problem.terms, problem.observed, problem.weight), max_steps
+    )
     theta = np.asarray(solution.value)
     steps = int(solution.stats["num_steps"])
-    status = "successful" if solution.result == optx.RESULTS.successful else str(solution.result).split(".")[-1].strip("'>")
+    status = (
+        "successful" if solution.result == optx.RESULTS.successful else str(solution.result).split(".")[-1].strip("'>")
+    )
     return theta, steps, status
 
 
@@ -293,7 +299,17 @@ def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarr
             column = design[:, :3] @ color + design[:, 3]
             exposure = max(float(column @ target_v / max(column @ column, 1e-300)), 1e-6)
             cost = float(np.sum((exposure * column - target_v) ** 2))
-            found.append((cost, {"color": color, "smoothness": np.array([s]), "metalness": np.array([m]), "exposure": np.array([exposure])}))
+            found.append(
+                (
+                    cost,
+                    {
+                        "color": color,
+                        "smoothness": np.array([s]),
+                        "metalness": np.array([m]),
+                        "exposure": np.array([exposure]),
+                    },
+                )
+            )
     found.sort(key=lambda item: item[0])
     return [values for _, values in found[:keep]]
 
@@ -327,7 +343,13 @@ def _lambert_starts(problem: _Problem) -> list[dict[str, np.ndarray]]:
     diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * np.asarray(t["light_rgb"]), axis=1)
     albedo = np.array(
         [
-            max(float(np.sum(weight[..., c] * diffuse[..., c] * observed[..., c]) / max(np.sum(weight[..., c] * diffuse[..., c] ** 2), 1e-300)), 1e-6)
+            max(
+                float(
+                    np.sum(weight[..., c] * diffuse[..., c] * observed[..., c])
+                    / max(np.sum(weight[..., c] * diffuse[..., c] ** 2), 1e-300)
+                ),
+                1e-6,
+            )
             for c in range(3)
         ]
     )
@@ -484,7 +506,9 @@ def _projected_step(
     return step
 
 
-def _polish(problem: _Problem, physical: np.ndarray, max_steps: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def _polish(
+    problem: _Problem, physical: np.ndarray, max_steps: int = 8
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Projected Levenberg–Marquardt steps in the physical values (:func:`_projected_step`).
 
     Why not optimistix's solver here: on every value each step is dominated by the
@@ -534,10 +558,24 @@ def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
     t_search = time.perf_counter()
     ends = []
     for start in starts:
-        theta, steps, status = _solve(coarse, _to_unconstrained(coarse.params, start), START_STEPS, options.rtol, options.atol)
+        theta, steps, status = _solve(
+            coarse, _to_unconstrained(coarse.params, start), START_STEPS, options.rtol, options.atol
+        )
         physical = np.asarray(_to_physical(coarse.params, jnp.asarray(theta)))
         cost = float(np.sum(np.asarray(coarse.residual(jnp.asarray(physical))) ** 2))
-        ends.append((cost, physical, {"start": _by_name(coarse.params, start), "end": _by_name(coarse.params, physical), "cost": cost, "steps": steps, "status": status}))
+        ends.append(
+            (
+                cost,
+                physical,
+                {
+                    "start": _by_name(coarse.params, start),
+                    "end": _by_name(coarse.params, physical),
+                    "cost": cost,
+                    "steps": steps,
+                    "status": status,
+                },
+            )
+        )
     ends.sort(key=lambda item: item[0])
     t_starts = time.perf_counter()
     # the bounds: LM in θ creeps toward a value on its bound (the transform's slope vanishes
@@ -549,14 +587,17 @@ def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
     bread = jac.T @ jac
     count = int(np.asarray(samples.usable).sum())
     size = len(physical)
-    sigma2 = float(residual @ residual) / max(count - size, 1)
-    laplace = sigma2 * covariance(bread)
+    low, high = _bounds(problem.params)
+    # a value on its bound is held there: no symmetric interval (0, as in single fits)
+    free = (physical > low) & (physical < high)
+    sigma2 = float(residual @ residual) / max(count - int(free.sum()), 1)
+    laplace = sandwich(bread, sigma2 * bread, free)
     # The image-cluster sandwich: residuals of one image are correlated (a misfit is smooth
     # over the sphere), so their scores are summed per image before the outer product.
     images = samples.count
     scores = (jac * residual[:, None]).reshape(images, -1, size).sum(axis=1)
     meat = scores.T @ scores * (images / max(images - 1, 1))
-    clustered = sandwich(bread, meat)
+    clustered = sandwich(bread, meat, free)
     predicted = np.asarray(_predict(problem.model, problem.params, jnp.asarray(physical), problem.terms))
     t_end = time.perf_counter()
     return CaptureFit(

@@ -1,0 +1,89 @@
+"""``strauss-fit fit --capture``: one material from a capture (many photographs of one sphere).
+
+A thin shell over :func:`strauss_fit.fit.capture_result.fit_capture`; the options are added
+to ``fit`` by :func:`add_capture_options` (see docs/captures.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .common import escape, progress_printer
+
+
+def add_capture_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("captures (many photographs of one sphere, docs/captures.md)")
+    group.add_argument(
+        "--capture",
+        nargs="+",
+        metavar="PATH",
+        help="a capture manifest (TOML), a folder holding capture.toml or in the DiLiGenT layout, or image files "
+        "(with --lights)",
+    )
+    group.add_argument(
+        "--lights", metavar="LIGHTS.toml", help="each image's lights, by order (what 'strauss-fit lights' writes)"
+    )
+    group.add_argument(
+        "--model",
+        choices=("strauss", "lambert", "phong", "blinn-phong"),
+        default="strauss",
+        help="the reflectance model fitted to the capture (default strauss)",
+    )
+    group.add_argument(
+        "--ambient", action="store_true", help="also fit an ambient (room) light reaching every point of the sphere"
+    )
+    group.add_argument("--white-balance", action="store_true", help="also fit a white balance (red and blue gains)")
+    group.add_argument(
+        "--holdout",
+        metavar="K|LIST",
+        help="leave out every K-th image (or the 1-based images in LIST, e.g. 2,5,9), predict them, and compare "
+        "with Lambert, Phong and Blinn-Phong fits of the same images",
+    )
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    from strauss_fit.capture._manifest import capture_from_images, read_capture
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.fit.capture import CaptureFitOptions
+    from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
+    from strauss_fit.fit.capture_result import format_capture_table
+    from strauss_fit.io.files import Outputs, check_distinct, check_writable
+
+    if args.target:
+        raise StraussFitError("give either TARGET images (one image each) or --capture, not both")
+    if args.scene is not None:
+        raise StraussFitError("a capture states its own lights and camera: --scene is for single targets")
+    for option in ("compare", "resume", "workers", "scheduler", "render_fit", "manifest"):
+        if getattr(args, option, None):
+            raise StraussFitError(f"--{option.replace('_', '-')} is not available with --capture")
+    paths = args.capture
+    if len(paths) == 1 and args.lights is None:
+        capture = read_capture(paths[0])
+    else:
+        if args.lights is None:
+            raise StraussFitError("several --capture images need --lights LIGHTS.toml (their lights, in order)")
+        capture = capture_from_images(paths, args.lights, mask=args.mask)
+    if args.mask is not None and capture.mask is None:
+        from dataclasses import replace
+
+        capture = replace(capture, mask=Path(args.mask))
+    inputs = {f"--capture image {i + 1}": image.path for i, image in enumerate(capture.images)}
+    inputs.update({"--capture": paths[0], "--lights": args.lights, "--mask": capture.mask})
+    check_distinct({"-o": args.output}, inputs)
+    check_writable(args.output, args.force)
+    options = CaptureFitOptions(
+        model=args.model,
+        exposure="per-image" if args.fit_exposure else "global",
+        white_balance=args.white_balance,
+        ambient=args.ambient,
+    )
+    log = progress_printer(args.quiet, "... ")
+    result = fit_capture_api(capture, options, holdout=args.holdout, progress=log)
+    result["capture"] = [str(p) for p in paths]
+    with Outputs(force=args.force) as out:
+        out.add_json(args.output, result)
+        written = out.commit(final=True)
+    print(escape(format_capture_table(result)))
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    return 0

@@ -1,0 +1,504 @@
+r"""A capture's fit as users get it: the result (JSON), its verdict and warnings, held-out
+validation against other models, and the printed table.
+
+The verdict needs the noise, which a photograph does not state. A capture bounds it from
+both sides:
+
+- from below, by the noise of the background away from the sphere (differences between
+  images of the same dark pixels: read noise, no shot noise) and the quantisation of the
+  stored values;
+- from above, by the images' five-point Laplacian on the sphere, binned by level: noise of
+  level σ gives it a spread of √20 σ, and the picture's own curvature only adds to it
+  (:func:`noise_bound`).
+
+``consistent`` when the residual is within even the lower bound; ``mismatch`` when its RMS
+exceeds :data:`strauss_fit.fit.capture.BOUND_FACTOR` times the upper bound (whatever the
+noise, the model does not reproduce the photographs); ``undetermined`` in between.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..capture._manifest import Capture
+from ..capture._samples import CaptureSamples, load_samples
+from ..color import delta_e_2000
+from ..errors import CaptureError
+from ..precision import float64
+from .capture import (
+    BOUND_FACTOR,
+    MODELS,
+    CaptureFit,
+    CaptureFitOptions,
+    _predict,
+    _terms,
+    delta_e_mean,
+    fit_capture_samples,
+    relative_rms,
+)
+
+#: Median of χ²₁: the median of z² for Gaussian z (turns a median of squares into a variance).
+MEDIAN_CHI2_1 = 0.454936423119572
+#: Level bins of the noise bound (quantiles of the observed values).
+BOUND_BINS = 8
+#: The models a held-out validation compares with the one fitted.
+COMPARED = ("lambert", "phong", "blinn-phong")
+
+
+def holdout_indices(spec: str | int | Sequence[int], count: int) -> list[int]:
+    """0-based indices of the held-out images: every k-th (``"2"``: images 2, 4, 6, … in
+    1-based numbering) or a list of 1-based numbers (``"1,5,9"``)."""
+    if isinstance(spec, int):
+        items = [spec]
+        every = True
+    elif isinstance(spec, str):
+        text = spec.strip()
+        every = "," not in text
+        try:
+            items = [int(part) for part in text.split(",") if part.strip()]
+        except ValueError:
+            raise CaptureError(
+                f"--holdout takes a number k (every k-th image) or a list like 2,5,9, not {spec!r}"
+            ) from None
+    else:
+        items, every = [int(v) for v in spec], False
+    if not items:
+        raise CaptureError("--holdout is empty")
+    if every:
+        k = items[0]
+        if not 2 <= k <= count:
+            raise CaptureError(f"--holdout {k}: k must be between 2 and the number of images ({count})")
+        held = [i for i in range(count) if (i + 1) % k == 0]
+    else:
+        bad = [v for v in items if not 1 <= v <= count]
+        if bad:
+            raise CaptureError(
+                f"--holdout: image {bad[0]} does not exist (the capture has {count} images, numbered from 1)"
+            )
+        held = sorted(set(v - 1 for v in items))
+    if len(held) >= count:
+        raise CaptureError("--holdout leaves no image to fit")
+    return held
+
+
+def noise_bound(samples: CaptureSamples, residual_levels: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """Per value (L, P, 3): an upper bound on the noise σ at the observed level.
+
+    The Laplacians of all images are binned by the observed value's level (quantiles), and
+    in each bin and channel σ² ≤ median(Δ²)/(20 · median χ²₁). Why the median: a few pixels
+    of strong curvature (a highlight's edge) would dominate a mean; the median still only
+    grows with curvature. Returns the per-value bound and the bins (for the result)."""
+    lap = samples.laplacian
+    levels = samples.values
+    bound = np.full(levels.shape, np.nan)
+    bins: list[dict[str, Any]] = []
+    for c in range(3):
+        ok = np.isfinite(lap[..., c]) & samples.usable[..., c]
+        if ok.sum() < 50:
+            continue
+        edges = np.quantile(levels[..., c][ok], np.linspace(0, 1, BOUND_BINS + 1))
+        edges[0], edges[-1] = -np.inf, np.inf
+        which = np.clip(np.searchsorted(edges, residual_levels[..., c], side="right") - 1, 0, BOUND_BINS - 1)
+        own = np.clip(np.searchsorted(edges, levels[..., c][ok], side="right") - 1, 0, BOUND_BINS - 1)
+        squares = lap[..., c][ok] ** 2
+        sigma = np.zeros(BOUND_BINS)
+        for b in range(BOUND_BINS):
+            values = squares[own == b]
+            sigma[b] = math.sqrt(float(np.median(values)) / (20 * MEDIAN_CHI2_1)) if values.size >= 20 else np.nan
+        # an empty bin borrows its neighbour's (larger-level bins have larger noise)
+        for b in range(BOUND_BINS):
+            if not np.isfinite(sigma[b]):
+                finite = np.where(np.isfinite(sigma))[0]
+                sigma[b] = sigma[finite[np.argmin(np.abs(finite - b))]] if finite.size else np.nan
+        bound[..., c] = sigma[which]
+        bins.append(
+            {"channel": "rgb"[c], "level_edges": [float(e) for e in edges[1:-1]], "sigma": [float(v) for v in sigma]}
+        )
+    return bound, bins
+
+
+def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], list[dict[str, str]]]:
+    usable = samples.usable
+    residual = (fit.predicted - samples.values)[usable]
+    count = residual.size
+    dof = max(count - len(fit.physical), 1)
+    bound, bins = noise_bound(samples, samples.values)
+    bound_used = bound[usable]
+    finite = np.isfinite(bound_used) & (bound_used > 0)
+    floor = np.sqrt(
+        (samples.background_noise if samples.background_noise is not None else np.zeros(3)) ** 2
+        + samples.quantisation**2
+    )
+    floor_per_value = np.broadcast_to(floor, samples.values.shape)[usable]
+    out: dict[str, Any] = {
+        "noise_floor": [float(v) for v in floor],
+        "noise_floor_source": "background differences and quantisation"
+        if samples.background_noise is not None
+        else "quantisation",
+        "noise_bound_bins": bins,
+    }
+    warnings: list[dict[str, str]] = []
+    chi2_up = float(np.mean(residual[finite] ** 2 / bound_used[finite] ** 2)) if finite.any() else None
+    chi2_low = float(np.sum(residual**2 / floor_per_value**2) / dof) if np.all(floor_per_value > 0) else None
+    out["chi2_per_dof_at_bound"] = chi2_up
+    out["chi2_per_dof_at_floor"] = chi2_low
+    expected_sd = math.sqrt(2.0 / dof)
+    if chi2_up is not None and chi2_up > BOUND_FACTOR**2:
+        verdict = "mismatch"
+        ratio = math.sqrt(chi2_up)
+        warnings.append(
+            {
+                "code": "model-mismatch",
+                "message": f"the residual's RMS is {ratio:.1f} times the largest noise the photographs allow (a bound from "
+                f"their pixel-to-pixel differences; a mismatch above {BOUND_FACTOR:g} times): the {fit.model} model does not "
+                "reproduce this capture, whatever its noise",
+            }
+        )
+    elif chi2_low is not None and chi2_low <= 1 + 3 * expected_sd:
+        verdict = "consistent"
+    else:
+        verdict = "undetermined"
+        warnings.append(
+            {
+                "code": "noise-unknown",
+                "message": "the residual lies between the noise floor (background, quantisation) and the largest noise the "
+                "photographs allow: no verdict",
+            }
+        )
+    out["verdict"] = verdict
+    return out, warnings
+
+
+def _regions(samples: CaptureSamples, fit: CaptureFit, terms: dict[str, Any]) -> dict[str, Any]:
+    """Where the residual sits: the highlight (within about 25° of a light's mirror
+    direction), the lit body, and the side no stated light reaches."""
+    cos_beta = np.asarray(terms["cos_beta"]).max(axis=1)  # (L, P)
+    lit = np.asarray(terms["cos_alpha"]).max(axis=1) > 0
+    regions = {"highlight": lit & (cos_beta > 0.9), "body": lit & (cos_beta <= 0.9), "unlit": ~lit}
+    out = {}
+    for name, where in regions.items():
+        use = samples.usable & where[..., None]
+        if not use.any():
+            continue
+        observed, predicted = samples.values[use], fit.predicted[use]
+        scale = float(np.sqrt(np.mean(observed**2))) or 1.0
+        out[name] = {
+            "values": int(use.sum()),
+            "relative_rms": float(np.sqrt(np.mean((predicted - observed) ** 2)) / scale),
+            "mean_residual": float(np.mean(observed - predicted)),
+            "observed_median": float(np.median(observed)),
+            "predicted_median": float(np.median(predicted)),
+        }
+    return out
+
+
+def _room_light_warning(
+    regions: dict[str, Any], floor: np.ndarray, options: CaptureFitOptions
+) -> dict[str, str] | None:
+    unlit, body = regions.get("unlit"), regions.get("body")
+    if options.ambient or unlit is None or body is None:
+        return None
+    excess = unlit["observed_median"] - unlit["predicted_median"]
+    if excess > max(3 * float(np.max(floor)), 0.01 * body["observed_median"]):
+        share = 100 * unlit["observed_median"] / max(body["observed_median"], 1e-300)
+        return {
+            "code": "unstated-light",
+            "message": f"where no stated light reaches ({unlit['values']} values on the shadowed side), the photographs show a "
+            f"median of {unlit['observed_median']:.3g} ({share:.1f} % of the lit side's median) and the fit "
+            f"{unlit['predicted_median']:.3g}: light the capture does not state (the room, stray light). "
+            "Fit it with --ambient",
+        }
+    return None
+
+
+def _per_image(samples: CaptureSamples, predicted: np.ndarray, held: Sequence[bool]) -> list[dict[str, Any]]:
+    rows = []
+    for i in range(samples.count):
+        use = samples.usable[i]
+        keep = use.all(axis=-1)
+        rows.append(
+            {
+                "file": samples.files[i],
+                "held_out": bool(held[i]),
+                "values_used": int(use.sum()),
+                "saturated_pixels": int(samples.saturated[i]),
+                "relative_rms": relative_rms(
+                    predicted[i : i + 1], samples.values[i : i + 1], samples.usable[i : i + 1]
+                ),
+                "delta_e2000_mean": float(
+                    np.mean(delta_e_2000(np.maximum(predicted[i][keep], 0), np.maximum(samples.values[i][keep], 0)))
+                )
+                if keep.any()
+                else None,
+            }
+        )
+    return rows
+
+
+def predict(samples: CaptureSamples, fit: CaptureFit) -> tuple[np.ndarray, list[float]]:
+    """The fitted material's prediction of ``samples``' images (other images than it was
+    fitted to, e.g. held out). Where the fit had a free exposure per image, each image's
+    exposure is fitted alone (one scale); returns the prediction and those scales."""
+    params = tuple(p for p in fit.params if p.name != "image_exposure")
+    names = {p.name for p in fit.params}
+    physical = np.concatenate(
+        [
+            fit.physical[start : start + p.size]
+            for p, start in zip(fit.params, _starts(fit.params))
+            if p.name != "image_exposure"
+        ]
+    )
+    with float64():
+        predicted = np.asarray(_predict(fit.model, params, jnp.asarray(physical), _terms(samples)))
+    scales = [1.0] * samples.count
+    if "image_exposure" in names:
+        for i in range(samples.count):
+            use = samples.usable[i]
+            den = float(np.sum((predicted[i] * use) ** 2))
+            scales[i] = float(np.sum(predicted[i] * samples.values[i] * use) / den) if den > 0 else 1.0
+            predicted[i] = predicted[i] * scales[i]
+    return predicted, scales
+
+
+def _starts(params) -> list[int]:
+    return [int(v) for v in np.cumsum([0] + [p.size for p in params])][:-1]
+
+
+def _material(fit: CaptureFit) -> dict[str, Any]:
+    values = fit.values()
+    if fit.model == "strauss":
+        return {
+            "color": values["color"],
+            "smoothness": values["smoothness"],
+            "metalness": values["metalness"],
+            "transparency": 0.0,
+            "ior": 1.5,
+        }
+    return {k: v for k, v in values.items() if k in ("albedo", "diffuse", "specular", "exponent")}
+
+
+def _held(model: str) -> dict[str, Any]:
+    if model != "strauss":
+        return {}
+    return {
+        "transparency": {
+            "value": 0.0,
+            "reason": "a capture of an opaque sample against a dark background: t only dims the surface and trades off with C",
+        },
+        "ior": {
+            "value": 1.5,
+            "reason": "nothing is seen through the sphere: refraction has no effect on the photographs",
+        },
+    }
+
+
+def _correlation(cov: np.ndarray, labels: list[str]) -> dict[str, Any]:
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    corr = np.where(np.outer(sd, sd) > 0, corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return {"labels": labels, "matrix": [[round(float(v), 6) for v in row] for row in corr]}
+
+
+def _fit_summary(samples: CaptureSamples, fit: CaptureFit) -> dict[str, Any]:
+    return {
+        "model": fit.model,
+        "values": fit.values(),
+        "relative_rms": relative_rms(fit.predicted, samples.values, samples.usable),
+        "delta_e2000_mean": delta_e_mean(fit.predicted, samples.values, samples.usable),
+    }
+
+
+def _validation(test: CaptureSamples, fit: CaptureFit) -> dict[str, Any]:
+    predicted, scales = predict(test, fit)
+    per_image = _per_image(test, predicted, [True] * test.count)
+    out = {
+        "model": fit.model,
+        "relative_rms": relative_rms(predicted, test.values, test.usable),
+        "delta_e2000_mean": delta_e_mean(predicted, test.values, test.usable),
+        "per_image": [
+            {"file": r["file"], "relative_rms": r["relative_rms"], "delta_e2000_mean": r["delta_e2000_mean"]}
+            for r in per_image
+        ],
+    }
+    if any(p.name == "image_exposure" for p in fit.params):
+        out["exposures_fitted_per_held_out_image"] = scales
+    return out
+
+
+def fit_capture(
+    capture: Capture | CaptureSamples,
+    options: CaptureFitOptions | None = None,
+    *,
+    holdout: str | int | Sequence[int] | None = None,
+    compare: Sequence[str] | None = None,
+    progress: Callable[[str], Any] | None = None,
+) -> dict[str, Any]:
+    """Fit one material to a whole capture and describe the fit (the result of
+    ``strauss-fit fit --capture``, see docs/formats.md).
+
+    With ``holdout``, the images it names are left out of the fit and predicted by it; the
+    models in ``compare`` (default: Lambert, Phong and Blinn–Phong) are fitted to the same
+    images and predict the same held-out ones."""
+    options = options or CaptureFitOptions()
+    log = progress or (lambda message: None)
+    t0 = time.perf_counter()
+    if isinstance(capture, Capture):
+        log(f"reading {len(capture.images)} images")
+        samples = load_samples(capture)
+    else:
+        samples = capture
+    t_read = time.perf_counter() - t0
+    log(f"sphere: {samples.circle.describe()}; {len(samples.rows)} pixels × {samples.count} images")
+    held = holdout_indices(holdout, samples.count) if holdout is not None else []
+    train_idx = [i for i in range(samples.count) if i not in set(held)]
+    train = samples.select(train_idx) if held else samples
+    log(f"fitting {options.model} to {train.count} images")
+    fit = fit_capture_samples(train, options)
+    with float64():
+        terms = _terms(train)
+    verdict, warnings = _verdict(train, fit)
+    regions = _regions(train, fit, terms)
+    floor = np.asarray(verdict["noise_floor"])
+    room = _room_light_warning(regions, floor, options)
+    if room is not None:
+        warnings.append(room)
+    background = samples.background
+    sphere_median = float(np.median(samples.values[samples.usable])) if samples.usable.any() else 0.0
+    stray = float(np.median(background))
+    if sphere_median > 0 and stray > max(3 * float(np.max(floor)), 0.02 * sphere_median):
+        warnings.append(
+            {
+                "code": "stray-light",
+                "message": f"the frame away from the sphere reads {stray:.3g} ({100 * stray / sphere_median:.1f} % of the "
+                "sphere's median): stray light or a black level not subtracted (set black_level in the manifest)",
+            }
+        )
+    pairs = []
+    cov = fit.clustered
+    for i, a in enumerate(fit.labels):
+        for j in range(i + 1, len(fit.labels)):
+            denom = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
+            if denom > 0 and abs(cov[i, j] / denom) > 0.95:
+                pairs.append(f"{a} and {fit.labels[j]} ({cov[i, j] / denom:+.2f})")
+    if pairs:
+        more = f" and {len(pairs) - 3} more pairs" if len(pairs) > 3 else ""
+        warnings.append(
+            {"code": "strong-correlation", "message": "values that trade off: " + ", ".join(pairs[:3]) + more}
+        )
+    residual = (fit.predicted - train.values)[train.usable]
+    result: dict[str, Any] = {
+        "model": fit.model,
+        **_material(fit),
+        "free": [p.name for p in fit.params],
+        "held": _held(fit.model),
+        "uncertainty": fit.deviations("clustered"),
+        "uncertainty_method": {
+            "name": "image-cluster sandwich",
+            "conditional_on_model": False,
+            "meaning": "how far the fitted values would move with other photographs of this kind: the residuals of one "
+            "image are summed before the spread is taken, since a misfit is correlated over the sphere",
+        },
+        "uncertainty_laplace": fit.deviations("laplace"),
+        "correlation": _correlation(fit.clustered, fit.labels),
+        "residual": {
+            "rms": float(np.sqrt(np.mean(residual**2))),
+            "relative_rms": relative_rms(fit.predicted, train.values, train.usable),
+            "max_abs": float(np.max(np.abs(residual))),
+            "delta_e2000_mean": delta_e_mean(fit.predicted, train.values, train.usable),
+            "sum_of_squares": float(residual @ residual),
+            **verdict,
+            "regions": regions,
+        },
+        "per_image": _per_image(train, fit.predicted, [False] * train.count),
+        "circle": samples.circle.to_dict(),
+        "camera": samples.camera.to_dict(),
+        "images": samples.count,
+        "images_fitted": train.count,
+        "pixels": int(len(samples.rows)),
+        "values_used": int(train.usable.sum()),
+        "saturated_values": int(train.count * 0 + (~train.usable).sum()),
+        "background": [[float(v) for v in row] for row in samples.background],
+        "solver": {"name": "lm", "steps": fit.steps, "status": fit.status or "max_steps_reached"},
+        "starts": fit.starts,
+        "warnings": warnings,
+        "notes": [],
+        "settings": {
+            "model": options.model,
+            "exposure": options.exposure,
+            "white_balance": options.white_balance,
+            "ambient": options.ambient,
+            "max_steps": options.max_steps,
+            "holdout": None if holdout is None else str(holdout),
+        },
+    }
+    if fit.model == "strauss" and "exposure" in fit.values():
+        result["exposure"] = fit.values()["exposure"]
+    if samples.saturated.any():
+        result["notes"].append(
+            f"{int(samples.saturated.sum())} saturated pixels in {int((samples.saturated > 0).sum())} images were left out"
+        )
+    if held:
+        test = samples.select(held)
+        log(f"predicting {test.count} held-out images")
+        models = [fit.model] + [m for m in (COMPARED if compare is None else compare) if m != fit.model]
+        validation = {"held_out": [samples.files[i] for i in held], "models": {fit.model: _validation(test, fit)}}
+        for other in models[1:]:
+            if other not in MODELS:
+                raise CaptureError(f"unknown model {other!r} to compare with; expected one of {', '.join(MODELS)}")
+            log(f"fitting {other} to the same images")
+            other_options = replace(
+                options, model=other, exposure="per-image" if options.exposure == "per-image" else "global"
+            )
+            other_fit = fit_capture_samples(train, other_options)
+            entry = _validation(test, other_fit)
+            entry["fit"] = _fit_summary(train, other_fit)
+            validation["models"][other] = entry
+        result["holdout"] = validation
+    result["timing"] = {"read_s": t_read, **fit.timing}
+    result["wall_time_s"] = time.perf_counter() - t0
+    return result
+
+
+def format_capture_table(result: dict[str, Any]) -> str:
+    """The printed summary of a capture's fit."""
+    lines = [
+        f"capture: {result['images_fitted']} of {result['images']} images, {result['pixels']} sphere pixels, model {result['model']}"
+    ]
+    lines.append(f"sphere: {result['circle'].get('description', '')}".rstrip())
+    unc, lap = result["uncertainty"], result["uncertainty_laplace"]
+    lines.append(f"{'parameter':<16}{'value':>10}{'± cluster':>12}{'± Laplace':>12}")
+    for name in result["free"]:
+        value = result.get(name, result.get("values", {}).get(name))
+        if value is None:
+            continue
+        values = value if isinstance(value, list) else [value]
+        sds = unc[name] if isinstance(unc[name], list) else [unc[name]]
+        lsd = lap[name] if isinstance(lap[name], list) else [lap[name]]
+        for k, (v, sd, ls) in enumerate(zip(values, sds, lsd)):
+            label = f"{name}[{'rgb'[k]}]" if len(values) == 3 else (f"{name}[{k + 2}]" if len(values) > 1 else name)
+            lines.append(f"{label:<16}{v:>10.4f}{sd:>12.4f}{ls:>12.4f}")
+    res = result["residual"]
+    lines.append(
+        f"residual: relative RMS {100 * res['relative_rms']:.1f} %, mean CIEDE2000 {res['delta_e2000_mean']:.2f}, "
+        f"verdict: {res['verdict']}"
+    )
+    if "holdout" in result:
+        lines.append(f"held-out images: {len(result['holdout']['held_out'])}")
+        lines.append(f"{'model':<14}{'held-out rel. RMS':>18}{'mean CIEDE2000':>16}")
+        for name, entry in result["holdout"]["models"].items():
+            lines.append(f"{name:<14}{100 * entry['relative_rms']:>17.1f}%{entry['delta_e2000_mean']:>16.2f}")
+    for warning in result["warnings"]:
+        lines.append(f"warning [{warning['code']}]: {warning['message']}")
+    for note in result["notes"]:
+        lines.append(f"note: {note}")
+    lines.append(f"wall time {result['wall_time_s']:.2f} s")
+    return "\n".join(lines)
