@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "report_cmd",
     "phong2strauss_cmd",
     "study_cmd",
+    "lights_cmd",
 )
 
 

@@ -8,8 +8,8 @@ is cropped or resampled: the pixels are read where they lie in the frame.
 
 Decoding of a stored value x (a fraction of full scale, as the file holds it):
 
-- saturated where x ≥ ``saturation`` (per channel; by default the largest code of an
-  integer file), under-exposed where the decoded value is below ``dark`` (by default: code
+- saturated where x ≥ ``saturation`` (per channel; by default within
+  :data:`SATURATION_MARGIN` of the largest code of an integer file), under-exposed where the decoded value is below ``dark`` (by default: code
   0 of an integer file, which clips the noise at black); both are left out of the fit;
 - decoded: linear files as stored, sRGB files through the sRGB transfer curve, then the
   black level subtracted and the result divided by the image's known exposure.
@@ -33,6 +33,9 @@ from ._sphere import Camera, Circle, circle_from_images, circle_from_mask, spher
 #: Pixels this close to the silhouette (in pixels) are left out: they blend sphere and
 #: background, which the model of one surface point does not describe.
 RIM_MARGIN_PX = 1.0
+#: Below the largest code of an integer file, the band (fraction of full scale) left out
+#: with the saturated values by default.
+SATURATION_MARGIN = 0.02
 #: Background pixels (evenly spread) its level and noise are measured on.
 BACKGROUND_PIXELS = 20_000
 
@@ -168,7 +171,9 @@ def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
         raise CaptureError(
             f"the mask {path} is {mask.pixels.shape[1]}×{mask.pixels.shape[0]}, the images {shape[1]}×{shape[0]}"
         )
-    return mask.pixels.max(axis=-1) > 0
+    # an anti-aliased mask's grey rim counts where it is at least half on (as circle_from_mask)
+    level = mask.pixels.max(axis=-1)
+    return level >= 0.5 * max(float(level.max()), 1e-300)
 
 
 def _background_noise(frames: list[np.ndarray], outside: np.ndarray) -> np.ndarray | None:
@@ -211,7 +216,9 @@ def load_samples(
         if capture.saturation is not None:
             saturated = stored >= capture.saturation
         elif loaded.bits is not None:
-            saturated = stored >= 1.0
+            # a value near the clip is censored by its own noise (those pushed over are
+            # lost, the rest kept): the band below the largest code goes too
+            saturated = stored >= 1.0 - SATURATION_MARGIN
         else:
             saturated = np.zeros(stored.shape, dtype=bool)
         decoded = _decoded(stored, encoding, capture.black_level, image.exposure)

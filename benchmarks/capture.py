@@ -1,0 +1,113 @@
+"""Speed and held-out accuracy of a capture's fit, on a capture given by path (the DiLiGenT
+``ballPNG`` folder as downloaded, for the figures in docs/benchmarks.md).
+
+    python benchmarks/capture.py PATH/TO/ballPNG [--holdout 2] [--json OUT.json]
+
+Prints and records:
+
+- the whole capture fitted jointly: the wall time cold (a fresh process with the compilation
+  cache off) and warm (the second fit in one process), and the peak resident memory of the
+  cold process;
+- the held-out validation (``--holdout``, default every 2nd image: fit on the odd images,
+  predict the even ones): per model (Strauss, Lambert, Phong, Blinn–Phong) the held-out
+  relative RMS and mean CIEDE2000, and its wall time.
+
+The data stays where it is: the real photographs are for research use and never enter the
+repository.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+COLD = """
+import sys, time, resource
+t = time.perf_counter()
+from strauss_fit.capture._manifest import read_capture
+from strauss_fit.fit.capture_result import fit_capture
+fit_capture(read_capture(sys.argv[1]))
+print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("capture", type=Path, help="a capture folder or manifest (e.g. DiLiGenT ballPNG)")
+    parser.add_argument("--holdout", default="2", help="held-out images: every K-th, or a list (default 2)")
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    args = parser.parse_args(argv)
+
+    env = dict(os.environ, STRAUSS_FIT_CACHE_DIR="off")
+    cold = subprocess.run([sys.executable, "-c", COLD, str(args.capture)], env=env, capture_output=True, text=True)
+    if cold.returncode != 0:
+        print(cold.stderr.strip().splitlines()[-1] if cold.stderr.strip() else "the cold run failed", file=sys.stderr)
+        return 1
+    cold_s, cold_rss_kb = (float(v) for v in cold.stdout.split())
+
+    from strauss_fit.capture._manifest import read_capture
+    from strauss_fit.fit.capture_result import fit_capture
+
+    capture = read_capture(args.capture)
+    fit_capture(capture)  # compiles
+    t = time.perf_counter()
+    whole = fit_capture(capture)
+    warm_s = time.perf_counter() - t
+    t = time.perf_counter()
+    held = fit_capture(capture, holdout=args.holdout)
+    holdout_s = time.perf_counter() - t
+
+    figures = {
+        "date": datetime.date.today().isoformat(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+        "capture": str(args.capture),
+        "images": whole["images"],
+        "pixels": whole["pixels"],
+        "values_used": whole["values_used"],
+        "joint_fit": {
+            "cold_s": cold_s,
+            "cold_peak_rss_gb": cold_rss_kb / 1024**2,
+            "warm_s": warm_s,
+            "warm_process_peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
+            "relative_rms": whole["residual"]["relative_rms"],
+            "verdict": whole["residual"]["verdict"],
+            "material": {k: whole[k] for k in ("color", "smoothness", "metalness", "exposure")},
+        },
+        "holdout": {
+            "spec": args.holdout,
+            "held_out_images": len(held["holdout"]["held_out"]),
+            "wall_s": holdout_s,
+            "models": {
+                name: {"relative_rms": entry["relative_rms"], "delta_e2000_mean": entry["delta_e2000_mean"]}
+                for name, entry in held["holdout"]["models"].items()
+            },
+        },
+    }
+    print(f"{figures['date']}, {figures['machine']}")
+    print(
+        f"capture {args.capture}: {whole['images']} images, {whole['pixels']} sphere pixels, {whole['values_used']} values"
+    )
+    jf = figures["joint_fit"]
+    print(f"joint fit: cold {jf['cold_s']:.1f} s (peak {jf['cold_peak_rss_gb']:.2f} GB), warm {jf['warm_s']:.1f} s")
+    print(
+        f"held-out validation (--holdout {args.holdout}, {figures['holdout']['held_out_images']} images): "
+        f"{holdout_s:.1f} s"
+    )
+    print(f"{'model':<14}{'held-out rel. RMS':>18}{'mean CIEDE2000':>16}")
+    for name, entry in figures["holdout"]["models"].items():
+        print(f"{name:<14}{100 * entry['relative_rms']:>17.1f}%{entry['delta_e2000_mean']:>16.2f}")
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
