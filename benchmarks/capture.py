@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(f"{figures['date']}, {figures['machine']}")
     print(
-        f"capture {args.capture}: {whole['images']} images, {whole['pixels']} sphere pixels, {whole['values_used']} values"
+        f"capture {args.capture}: {whole['images']} images, {whole['pixels']} sphere pixels, "
+        f"{whole['values_used']} values"
     )
     jf = figures["joint_fit"]
     print(f"joint fit: cold {jf['cold_s']:.1f} s (peak {jf['cold_peak_rss_gb']:.2f} GB), warm {jf['warm_s']:.1f} s")

@@ -9,8 +9,9 @@ is cropped or resampled: the pixels are read where they lie in the frame.
 Decoding of a stored value x (a fraction of full scale, as the file holds it):
 
 - saturated where x ≥ ``saturation`` (per channel; by default within
-  :data:`SATURATION_MARGIN` of the largest code of an integer file), under-exposed where the decoded value is below ``dark`` (by default: code
-  0 of an integer file, which clips the noise at black); both are left out of the fit;
+  :data:`SATURATION_MARGIN` of the largest code of an integer file), under-exposed where
+  the decoded value is below ``dark`` (by default: code 0 of an integer file, which clips
+  the noise at black); both are left out of the fit;
 - decoded: linear files as stored, sRGB files through the sRGB transfer curve, then the
   black level subtracted and the result divided by the image's known exposure.
 """

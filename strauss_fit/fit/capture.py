@@ -526,7 +526,8 @@ def _polish(
     cost = float(r @ r)
     jac = np.asarray(jacobian_fn(jnp.asarray(x), data))
     steps, damping = 0, 1e-4
-    for steps in range(1, max_steps + 1):
+    for _ in range(max_steps):
+        steps += 1
         gradient = jac.T @ r
         bread = jac.T @ jac
         improved = False

@@ -156,9 +156,9 @@ def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], 
         warnings.append(
             {
                 "code": "model-mismatch",
-                "message": f"the residual's RMS is {ratio:.1f} times the largest noise the photographs allow (a bound from "
-                f"their pixel-to-pixel differences; a mismatch above {BOUND_FACTOR:g} times): the {fit.model} model does not "
-                "reproduce this capture, whatever its noise",
+                "message": f"the residual's RMS is {ratio:.1f} times the largest noise the photographs allow "
+                f"(a bound from their pixel-to-pixel differences; a mismatch above {BOUND_FACTOR:g} times): "
+                f"the {fit.model} model does not reproduce this capture, whatever its noise",
             }
         )
     elif chi2_low is not None and chi2_low <= 1 + 3 * expected_sd:
@@ -168,8 +168,8 @@ def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], 
         warnings.append(
             {
                 "code": "noise-unknown",
-                "message": "the residual lies between the noise floor (background, quantisation) and the largest noise the "
-                "photographs allow: no verdict",
+                "message": "the residual lies between the noise floor (background, quantisation) and the largest "
+                "noise the photographs allow: no verdict",
             }
         )
     out["verdict"] = verdict
@@ -210,8 +210,9 @@ def _room_light_warning(
         share = 100 * unlit["observed_median"] / max(body["observed_median"], 1e-300)
         return {
             "code": "unstated-light",
-            "message": f"where no stated light reaches ({unlit['values']} values on the shadowed side), the photographs show a "
-            f"median of {unlit['observed_median']:.3g} ({share:.1f} % of the lit side's median) and the fit "
+            "message": f"where no stated light reaches ({unlit['values']} values on the shadowed side), "
+            f"the photographs show a median of {unlit['observed_median']:.3g} "
+            f"({share:.1f} % of the lit side's median) and the fit "
             f"{unlit['predicted_median']:.3g}: light the capture does not state (the room, stray light). "
             "Fit it with --ambient",
         }
@@ -290,7 +291,8 @@ def _held(model: str) -> dict[str, Any]:
     return {
         "transparency": {
             "value": 0.0,
-            "reason": "a capture of an opaque sample against a dark background: t only dims the surface and trades off with C",
+            "reason": "a capture of an opaque sample against a dark background: t only dims the surface "
+            "and trades off with C",
         },
         "ior": {
             "value": 1.5,
@@ -378,7 +380,8 @@ def fit_capture(
         warnings.append(
             {
                 "code": "stray-light",
-                "message": f"the frame away from the sphere reads {stray:.3g} ({100 * stray / sphere_median:.1f} % of the "
+                "message": f"the frame away from the sphere reads {stray:.3g} "
+                f"({100 * stray / sphere_median:.1f} % of the "
                 "sphere's median): stray light or a black level not subtracted (set black_level in the manifest)",
             }
         )
@@ -444,7 +447,8 @@ def fit_capture(
         result["exposure"] = fit.values()["exposure"]
     if samples.saturated.any():
         result["notes"].append(
-            f"{int(samples.saturated.sum())} saturated pixels in {int((samples.saturated > 0).sum())} images were left out"
+            f"{int(samples.saturated.sum())} saturated pixels in {int((samples.saturated > 0).sum())} images "
+            "were left out"
         )
     if held:
         test = samples.select(held)
@@ -471,7 +475,8 @@ def fit_capture(
 def format_capture_table(result: dict[str, Any]) -> str:
     """The printed summary of a capture's fit."""
     lines = [
-        f"capture: {result['images_fitted']} of {result['images']} images, {result['pixels']} sphere pixels, model {result['model']}"
+        f"capture: {result['images_fitted']} of {result['images']} images, {result['pixels']} sphere pixels, "
+        f"model {result['model']}"
     ]
     lines.append(f"sphere: {result['circle'].get('description', '')}".rstrip())
     unc, lap = result["uncertainty"], result["uncertainty_laplace"]
