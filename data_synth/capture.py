@@ -87,7 +87,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,7 +98,7 @@ from strauss_fit.color import srgb_encode
 from strauss_fit.errors import ImageError, StraussFitError
 from strauss_fit.io.files import Outputs, check_writable
 
-from .files import mask_bytes
+from .files import encoded_bytes, mask_bytes
 from .params import SpecError
 
 #: The manifest's name (what the library's reader looks for in a folder).
@@ -780,16 +779,7 @@ def encode_codes(codes: np.ndarray, name: str, *, quality: int | None = None) ->
     spec.attribute("DateTime", "")  # an empty value drops OpenImageIO's timestamp
     if quality is not None:
         spec.attribute("compression", f"jpeg:{int(quality)}")
-    with tempfile.TemporaryDirectory(prefix="strauss-fit-capture-") as folder:
-        path = str(Path(folder) / name)
-        output = oiio.ImageOutput.create(path)
-        ok = output is not None and output.open(path, spec) and output.write_image(data) and not output.has_error
-        message = output.geterror() if output is not None and not ok else ""
-        if output is not None and not output.close() and ok:
-            message, ok = output.geterror(), False
-        if not ok:
-            raise ImageError(f"cannot encode {name}: {message or 'the encoder failed'}")
-        return Path(path).read_bytes()
+    return encoded_bytes(data, spec, name, name)
 
 
 def write_capture(spec: CaptureSpec, folder: str | Path, *, force: bool = False) -> dict[str, Any]:

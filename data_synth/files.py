@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -52,15 +53,24 @@ def float_exr_bytes(image: np.ndarray, *, compression: str = "zip", channel_name
     spec.attribute("DateTime", "")  # an empty value drops OpenImageIO's timestamp
     if channel_names:
         spec.channelnames = tuple(channel_names)
-    with tempfile.TemporaryDirectory(prefix="strauss-fit-exr-") as folder:
-        path = str(Path(folder) / "image.exr")
+    return encoded_bytes(data, spec, "image.exr", "an OpenEXR image")
+
+
+def encoded_bytes(data: np.ndarray, spec: Any, name: str, what: str) -> bytes:
+    """``data`` encoded by OpenImageIO with ``spec`` into the format ``name``'s extension
+    names (written to a scratch folder, since OpenImageIO encodes to files), or an
+    :class:`ImageError` naming ``what``."""
+    with tempfile.TemporaryDirectory(prefix="strauss-fit-encode-") as folder:
+        path = str(Path(folder) / name)
+        import OpenImageIO as oiio
+
         output = oiio.ImageOutput.create(path)
         ok = output is not None and output.open(path, spec) and output.write_image(data) and not output.has_error
         message = output.geterror() if output is not None and not ok else ""
         if output is not None and not output.close() and ok:
             message, ok = output.geterror(), False
         if not ok:
-            raise ImageError(f"cannot encode an OpenEXR image: {message or 'the encoder failed'}")
+            raise ImageError(f"cannot encode {what}: {message or 'the encoder failed'}")
         return Path(path).read_bytes()
 
 
