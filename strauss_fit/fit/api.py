@@ -433,6 +433,8 @@ def _conclude(
         delta_e_mean=float(np.mean(delta_e)),
         at_bound=[label for label, p in zip(layout.labels(), pinned) if p],
         reach=reach,
+        image=target.pixels,  # an unknown noise is bounded from the whole image
+        index=kept.index,
     )
     return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis)
 
@@ -546,6 +548,7 @@ def _result(
         "verdict": diagnosis.verdict,
         "per_channel": diagnosis.per_channel,
         "regions": diagnosis.regions,
+        **diagnosis.bound_keys(),
     }
     result = FitResult(
         material=fitted_material,

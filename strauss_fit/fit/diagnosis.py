@@ -10,7 +10,18 @@ residual): with σ each value's noise at the fitted radiance,
 whose expected value is 1 with a spread of :math:`\sqrt{2/\mathrm{dof}}` when the model is
 right, widened by the noise level's own relative uncertainty ε (:math:`2ε` on χ²/dof). The
 verdict is *consistent* when :math:`z = (\chi^2/\mathrm{dof} - 1)/\mathrm{spread} \le 3`,
-otherwise *mismatch*; *undetermined* when the noise is unknown.
+otherwise *mismatch*.
+
+When the noise is unknown (no sidecar, and :func:`~strauss_fit.inference.noise.estimate_noise`
+cannot separate it from the image's content), the image still bounds it from above: the
+local mean square of a second-difference high-pass residual is the noise variance plus the
+signal's own curvature (:func:`~strauss_fit.inference.noise.noise_bound`). The verdict is
+then one-sided (:func:`~strauss_fit.inference.noise.one_sided_verdict`): *mismatch* when the
+residual is too large (χ²/dof at the bound above
+:data:`~strauss_fit.inference.noise.BOUND_CHI2`) or too structured (its smooth part alone
+above :data:`~strauss_fit.inference.noise.STRUCTURE_POWER` times the bound's variance, by
+:data:`~strauss_fit.inference.noise.STRUCTURE_Z` standard errors) for any noise up to that
+bound, else *undetermined*: a residual within the bound may or may not be noise.
 
 Where: the used pixels fall into regions — the *highlight* of a light (within
 :data:`HIGHLIGHT_CORE_DEG` of its mirror direction, and its *wings* out to
@@ -20,8 +31,10 @@ residual in noise units (positive: the target is brighter than the fit).
 
 Why, as warnings with stable codes (``docs/formats.md``):
 
-- ``model-mismatch`` — the residual is inconsistent with the noise; the message says
-  where, and how visible (CIEDE2000) the difference is;
+- ``model-mismatch`` — the residual is inconsistent with the noise (or, the noise being
+  unknown, with the largest noise the image can hold: the message then says that the
+  verdict is one-sided); the message says where, and how visible (CIEDE2000) the
+  difference is;
 - ``highlight-out-of-reach`` — somewhere the target is brighter than any Strauss material
   can be under the scene's lights (:func:`reachable_maximum`): the lights (or the exposure)
   are stronger than the scene says, or the surface is a physically based metal whose
@@ -30,8 +43,8 @@ Why, as warnings with stable codes (``docs/formats.md``):
 - ``highlight-too-narrow`` / ``highlight-too-wide`` — the target's highlight is brighter at
   its core and darker in its wings than the fit (or the reverse): Strauss ties the lobe's
   width and strength to the one smoothness s;
-- ``noise-unknown`` — the noise could not be measured, so no verdict: the ± then assume the
-  model is right.
+- ``noise-unknown`` — the noise could not be measured and the residual is within the
+  largest noise the image can hold, so no verdict: the ± then assume the model is right.
 """
 
 from __future__ import annotations
@@ -47,7 +60,17 @@ import numpy as np
 from jax import Array
 
 from ..engine import Kernel, Steps, run
-from ..inference.noise import NoiseModel
+from ..inference.noise import (
+    BOUND_CHI2,
+    BOUND_TILE,
+    STRUCTURE_POWER,
+    STRUCTURE_Z,
+    NoiseEstimationError,
+    NoiseModel,
+    OneSidedVerdict,
+    noise_bound,
+    one_sided_verdict,
+)
 from .parameters import Layout
 
 #: z of χ²/dof above which the model is said not to reproduce the target.
@@ -79,9 +102,44 @@ class Diagnosis:
     #: (N,) RMS over channels of the residual in noise units at the used pixels (NaN
     #: when the noise is unknown), for the map in the comparison image.
     standardized: np.ndarray | None = None
+    #: The noise being unknown: the bound the image sets on it, (3,) per channel (the
+    #: RMS over the used pixels of the local bound), how it was computed, and the
+    #: one-sided test against it (None when the noise is known or cannot be bounded).
+    noise_bound: np.ndarray | None = None
+    noise_bound_method: str | None = None
+    one_sided: OneSidedVerdict | None = None
 
     def warn(self, code: str, message: str) -> None:
         self.warnings.append({"code": code, "message": message})
+
+    def bound_keys(self) -> dict[str, Any]:
+        """The result's ``residual`` keys of the one-sided verdict (docs/formats.md):
+        ``noise_bound``, ``chi2_per_dof_at_bound`` and ``one_sided``, all None when the
+        noise is known (or could not be bounded)."""
+        test = self.one_sided
+        if test is None or self.noise_bound is None:
+            return {"noise_bound": None, "chi2_per_dof_at_bound": None, "one_sided": None}
+        return {
+            "noise_bound": [float(v) for v in self.noise_bound],
+            "chi2_per_dof_at_bound": test.chi2_dof,
+            "one_sided": {
+                "method": self.noise_bound_method,
+                "per_channel": list(test.per_channel),
+                "worst_tile": test.worst_tile,
+                "lag1_correlation": test.lag1_correlation,
+                "structured_power": test.structured_power,
+                "structure_z": test.structure_z,
+                "pairs": test.pairs,
+                "too_large": test.too_large,
+                "too_structured": test.too_structured,
+                "thresholds": {
+                    "chi2_per_dof": BOUND_CHI2,
+                    "tile": BOUND_TILE,
+                    "structured_power": STRUCTURE_POWER,
+                    "structure_z": STRUCTURE_Z,
+                },
+            },
+        }
 
 
 def chi2_statistics(z2: np.ndarray, parameters: int, relative_stderr: np.ndarray) -> tuple[float, int, float, float]:
@@ -156,12 +214,17 @@ def diagnose(
     delta_e_mean: float,
     at_bound: list[str],
     reach: np.ndarray | None,
+    image: np.ndarray | None = None,
+    index: np.ndarray | None = None,
 ) -> Diagnosis:
     """The verdict for the fitted radiance ``model`` (N, 3) at the used pixels of
     ``problem`` (whose ``target`` it is compared with), ``parameters`` fitted values,
     the fit's mean CIEDE2000, the labels the fit pinned on a bound, and ``reach`` (N, 3),
     the :func:`reachable_maximum` (None when lights or exposure were fitted: then any
-    brightness is reachable)."""
+    brightness is reachable). ``image`` (H, W, 3), the whole target, and ``index`` (N,),
+    the flat indices of the used pixels in it (the rows of ``model``), let an unknown
+    noise be bounded from the image for a one-sided verdict (:func:`_one_sided`);
+    without them the verdict on such a target stays undetermined."""
     target = problem.real(problem.target)
     regions = {name: problem.real(mask) for name, mask in pixel_regions(problem.prepared).items()}
     diagnosis = Diagnosis("undetermined")
@@ -169,13 +232,24 @@ def diagnose(
     color_at_one = [c for c in color_at_one if _pinned_at_one(problem, "color_" + c)]
     if not noise.known:
         sigma = None
-        diagnosis.warn(
-            "noise-unknown",
-            "the target's noise could not be measured ("
-            + "; ".join(noise.notes)
-            + "): no verdict on whether the model reproduces the target, and the ± assume it does; "
-            "give the noise level (--noise)",
-        )
+        if image is not None and index is not None:
+            # σ ≤ the bound: the out-of-reach check below may use it as its margin
+            sigma = _one_sided(diagnosis, target, model, noise, parameters, image, index, regions, delta_e_mean)
+        if diagnosis.verdict != "mismatch":
+            test = diagnosis.one_sided
+            within = (
+                ""
+                if test is None
+                else f"the residual is within the largest noise the image can hold (χ²/dof {test.chi2_dof:.3g} at "
+                f"that level, structured power {test.structured_power:.2g}), so "
+            )
+            diagnosis.warn(
+                "noise-unknown",
+                "the target's noise could not be measured ("
+                + "; ".join(noise.notes)
+                + f"): {within}no verdict on whether the model reproduces the target, and the ± assume it does; "
+                "give the noise level (--noise)",
+            )
     else:
         sigma = noise.sigma_at(model)
         z = (target - model) / sigma
@@ -211,6 +285,103 @@ def diagnose(
             "or the exposure are probably stronger than the scene says (try --fit-exposure)",
         )
     return diagnosis
+
+
+def _one_sided(
+    diagnosis: Diagnosis,
+    target: np.ndarray,
+    model: np.ndarray,
+    noise: NoiseModel,
+    parameters: int,
+    image: np.ndarray,
+    index: np.ndarray,
+    regions: dict[str, np.ndarray],
+    delta_e_mean: float,
+) -> np.ndarray | None:
+    """The one-sided verdict of a target whose noise is unknown: the residual against the
+    largest noise the image can hold (:func:`~strauss_fit.inference.noise.noise_bound`,
+    :func:`~strauss_fit.inference.noise.one_sided_verdict`). Sets ``diagnosis``'s bound
+    and test, and on a mismatch its verdict and a ``model-mismatch`` warning that says the
+    verdict is one-sided. Returns the bound σ_b (N, 3) at the used pixels; None, with
+    nothing set, when the used pixels are too few to bound the noise (the verdict stays
+    undetermined)."""
+    pixels = np.asarray(image, dtype=np.float64)
+    height, width = pixels.shape[:2]
+    index = np.asarray(index)
+    used = np.zeros(height * width, dtype=bool)
+    used[index] = True
+    used = used.reshape(height, width)
+    try:
+        bound = noise_bound(pixels, used, storage=noise.storage, quantised=noise.quantised)
+    except NoiseEstimationError:
+        return None
+    residual = np.zeros(pixels.shape)
+    residual.reshape(-1, pixels.shape[-1])[index] = target - model  # positive: the target is brighter
+    test = one_sided_verdict(residual, bound, parameters)
+    diagnosis.noise_bound, diagnosis.noise_bound_method, diagnosis.one_sided = bound.sigma, bound.method, test
+    sigma = bound.at(index)
+    if test.mismatch:
+        diagnosis.verdict = "mismatch"
+        z2 = np.sum(((target - model) / sigma) ** 2, axis=-1)  # per used pixel, in bound units
+        diagnosis.warn("model-mismatch", _one_sided_message(test, bound.sigma, z2, regions, delta_e_mean))
+    return sigma
+
+
+def _one_sided_message(
+    test: OneSidedVerdict,
+    bound: np.ndarray,
+    z2: np.ndarray,
+    regions: dict[str, np.ndarray],
+    delta_e_mean: float,
+) -> str:
+    """The ``model-mismatch`` message of a one-sided verdict: which test fired and by how
+    much, in units of the bound ``bound`` (3,); where the residual concentrates (``z2``,
+    (N,): Σ_c (r/σ_b)² per used pixel, over the ``regions``); how visible it is."""
+    reasons = []
+    tile = test.worst_tile
+    if test.too_large and test.chi2_dof > BOUND_CHI2:
+        reasons.append(
+            f"too large: {math.sqrt(max(test.chi2_dof, 0.0)):.3g} times that level (χ²/dof {test.chi2_dof:.4g} at it, "
+            f"where the test allows {BOUND_CHI2:g})"
+        )
+    elif test.too_large and tile is not None:  # only a tile is beyond: a misfit confined to a region
+        reasons.append(
+            f"too large in the {tile['size']}×{tile['size']} pixels from row {tile['row']}, column {tile['column']}: "
+            f"{math.sqrt(max(tile['chi2_per_dof'], 0.0)):.3g} times that level there (its mean square is "
+            f"{tile['chi2_per_dof']:.4g} times that level's variance, where the test allows {BOUND_CHI2:g}; "
+            f"{test.chi2_dof:.3g} over the sphere)"
+        )
+    if test.too_structured:
+        reasons.append(
+            f"too structured: its smooth part alone holds {test.structured_power:.3g} times that level's variance "
+            f"(neighbouring pixels agree, ρ₁ = {test.lag1_correlation:.2f}, {test.structure_z:.3g} standard errors "
+            "above the 0 of noise independent between pixels)"
+        )
+    total, count = float(np.sum(z2)), sum(int(mask.sum()) for mask in regions.values())
+    location = ""
+    if total > 0 and count > 0:
+        ratio, name, share, pixels = max(
+            (float(np.sum(z2[mask])) / total / (mask.sum() / count), name, float(np.sum(z2[mask])) / total, mask.sum())
+            for name, mask in regions.items()
+            if mask.any()
+        )
+        if ratio > 1.5:  # as for the two-sided verdict: a region that holds clearly more than its share
+            location = (
+                f"; it concentrates in the {name} ({100 * share:.0f} % of χ² at the bound on "
+                f"{100 * pixels / count:.0f} % of the pixels)"
+            )
+    visible = (
+        "below one just-noticeable difference, so the fit still looks right"
+        if delta_e_mean < 1
+        else "a visible difference"
+    )
+    levels = ", ".join(f"{v:.2g}" for v in bound)
+    return (
+        "the Strauss model cannot reproduce this target — a one-sided verdict: the target's noise is unknown, "
+        f"but even at the largest level the image can hold (RMS {levels} per channel, bounded by its "
+        f"high-frequency content) the residual is {' and '.join(reasons)}{location}; "
+        f"mean CIEDE2000 {delta_e_mean:.2g}, {visible}"
+    )
 
 
 def _pinned_at_one(problem: Any, label: str) -> bool:

@@ -60,6 +60,8 @@ def verdict_lines(result: dict[str, Any]) -> list[str]:
             f"verdict: the model reproduces the target within its noise (χ²/dof {residual['chi2_per_dof']:.3g}, "
             f"expected 1 ± {residual['chi2_expected_sd']:.2g}; {_noise_from(residual)})"
         )
+    elif verdict == "mismatch" and residual.get("chi2_per_dof") is None and residual.get("one_sided"):
+        lines.append(f"verdict: the Strauss model CANNOT reproduce this target ({_one_sided_reason(residual)})")
     elif verdict == "mismatch":
         lines.append(
             f"verdict: the Strauss model CANNOT reproduce this target (χ²/dof {residual['chi2_per_dof']:.4g}, "
@@ -70,6 +72,22 @@ def verdict_lines(result: dict[str, Any]) -> list[str]:
     for warning in result.get("warnings", []):
         lines.append(f"warning [{warning['code']}]: {warning['message']}")
     return lines
+
+
+def _one_sided_reason(residual: dict[str, Any]) -> str:
+    """Why a target of unknown noise is a mismatch, in one parenthesis: the verdict is
+    one-sided, against the largest noise the image can hold (``residual.one_sided``)."""
+    test = residual["one_sided"]
+    why = " and ".join(
+        text
+        for text, fired in (("too large", test.get("too_large")), ("too structured", test.get("too_structured")))
+        if fired
+    )
+    bound = ", ".join(f"{v:.2g}" for v in residual.get("noise_bound") or [])
+    return (
+        f"one-sided, the noise being unknown: the residual is {why or 'too large'} for any noise up to the "
+        f"largest the image can hold, {bound}; χ²/dof {residual['chi2_per_dof_at_bound']:.4g} at that noise"
+    )
 
 
 def _noise_from(residual: dict[str, Any]) -> str:

@@ -16,7 +16,10 @@ Four sources of a per-channel noise level:
    (bin width in linear units / √12), and :func:`combine_with_quantisation`.
 
 :func:`mismatch_verdict` turns a fit's residual and a noise level into χ²/dof, its
-expected spread and the decision.
+expected spread and the decision. When the noise cannot be measured, :func:`noise_bound`
+still bounds it from above (the local mean square of a second-difference residual: the
+noise plus the signal's own curvature), and :func:`one_sided_verdict` tests a residual
+against that bound: too large, or too structured, for any noise up to it.
 
 Method (estimate_noise)
 -----------------------
@@ -1023,6 +1026,307 @@ def mismatch_verdict(
         sd_c = math.sqrt(2.0 / dof_c + (2 * float(eps_c[c])) ** 2)
         per.append({"chi2_dof": chi_c, "expected_sd": sd_c, "z": (chi_c - 1.0) / sd_c})
     return Verdict(chi, dof, sd, float(zval), bool(zval < z_threshold), per)
+
+
+# --------------------------------------------------------------------------------------
+# the largest noise an image can hold: a one-sided verdict when its noise is unknown
+# --------------------------------------------------------------------------------------
+
+#: Standard deviation, in pixels, of the Gaussian neighbourhood over which
+#: :func:`noise_bound` averages the squared high-pass residual: about 4π·4² ≈ 200 positions
+#: inside the sphere, narrow enough to follow a highlight or a reflection, wide enough
+#: for a local mean square with a relative standard error of about √(κ/200) ≈ 0.19.
+BOUND_WIDTH = 4.0
+#: Standard errors of the local mean square added to it (an upper confidence limit).
+BOUND_CONFIDENCE = 3.0
+#: Every bound is at least this fraction of the image's level (the 98th percentile of
+#: |x| over the used pixels, at least 1e-6): a residual below a millionth of the level is
+#: the solver's tolerance on a noise-free (in-memory) image, not a mismatch.
+BOUND_FLOOR = 1e-6
+#: χ²/dof at the bound above which the residual is too large for any noise the image can
+#: hold (the "magnitude" test): the residual's RMS is then over √10 ≈ 3.2 times the bound,
+#: over the whole sphere or over one tile (below).
+BOUND_CHI2 = 10.0
+#: The magnitude test is also made on square tiles of this many pixels a side (a fixed
+#: grid from the image's corner) that hold at least half a tile of used pixels: a misfit
+#: confined to a small region (a refraction's centre, a highlight) is diluted in the
+#: sphere's mean but not in its tile's.
+BOUND_TILE = 8
+#: The "structure" test: the residual's lag-1 autocovariance, in units of the bound's
+#: variance, above this (its smooth part alone holds twice the largest noise variance)...
+STRUCTURE_POWER = 2.0
+#: ...and at least this many of its own standard errors above 0 (white noise: N(0, 1)).
+STRUCTURE_Z = 8.0
+
+
+@dataclass
+class NoiseBound:
+    r"""An upper bound on an image's noise, per pixel and channel (:func:`noise_bound`).
+
+    ``variance`` (H, W, C): the bound on the noise variance at every pixel of ``used``
+    (0 elsewhere); ``sigma`` (C,): the root mean square of its square root over the used
+    pixels, √⟨U⟩, the one number per channel a result reports; ``positions``: the
+    high-pass positions it was computed from; ``method``: how, in words."""
+
+    variance: np.ndarray
+    used: np.ndarray
+    sigma: np.ndarray
+    positions: int
+    method: str
+
+    def at(self, index: np.ndarray) -> np.ndarray:
+        """(N, C): the bound's σ at the flat pixel indices ``index``."""
+        flat = self.variance.reshape(-1, self.variance.shape[-1])
+        return np.sqrt(flat[np.asarray(index)])
+
+
+def _gaussian_1d(width: float) -> np.ndarray:
+    """A sampled Gaussian of standard deviation ``width`` over ±4·width, summing to 1."""
+    radius = max(int(math.ceil(4.0 * width)), 1)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (x / width) ** 2)
+    return g / g.sum()
+
+
+def _separable(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``values`` (H, W[, C]) correlated with the 2-D kernel kernel ⊗ kernel, zero outside."""
+    out = ndimage.correlate1d(values, kernel, axis=0, mode="constant", cval=0.0)
+    return ndimage.correlate1d(out, kernel, axis=1, mode="constant", cval=0.0)
+
+
+def noise_bound(
+    image: np.ndarray,
+    used: np.ndarray,
+    *,
+    storage: float = 0.0,
+    quantised: bool = False,
+    width: float = BOUND_WIDTH,
+    confidence: float = BOUND_CONFIDENCE,
+    floor: float = BOUND_FLOOR,
+    min_positions: int = MIN_PIXELS,
+) -> NoiseBound:
+    r"""An upper bound on the noise of ``image`` (H, W, C) at each of its ``used`` pixels,
+    from the image alone: what the noise can at most be, even where it cannot be measured.
+
+    High-pass residual. h = K ⋆ x with Immerkær's kernel K (``KERNELS["d2"]``, unit L2
+    norm), at every position whose 3 × 3 footprint lies inside ``used``. For an image
+    x = s + n, s the noise-free signal and n zero-mean noise, independent between pixels,
+    of variance σ²(q) at pixel q,
+
+    .. math:: E[h_p^2] = (K \star s)_p^2 + \sum_q K_q^2\,\sigma^2(p + q) \;\ge\; \sum_q K_q^2\,\sigma^2(p + q),
+
+    the local mean noise variance (the weights K² sum to 1): the signal's own curvature
+    only adds to it, however strong (a highlight, a reflection, a pattern).
+
+    Local mean square. At each used pixel i, B(i) = Σ_p w_ip h_p² / Σ_p w_ip, w a Gaussian
+    of standard deviation ``width`` pixels centred on i (p the footprints' centres): an
+    upper bound, in expectation, on the noise variance around i, that follows
+    signal-dependent (shot) noise and a highlight's local curvature alike. Its relative
+    standard error for white noise is √(κ/n_eff), n_eff = (Σw)²/Σw² (about 200 inside the
+    sphere, fewer at the rim) and κ = :func:`kernel_kappa` (7.56: neighbouring h share
+    pixels), so the bound is the upper confidence limit
+
+    .. math:: U(i) = B(i)\,\bigl(1 + c\sqrt{\kappa / n_\mathrm{eff}(i)}\bigr)
+              + (\varepsilon_\mathrm{storage}\,x_i)^2 + \sigma_q(x_i)^2 + (f\,L)^2,
+
+    c = ``confidence``; plus the known floors: the file's storage precision ``storage``
+    (relative), the 8-bit quantisation σ_q when ``quantised``, and ``floor`` times the
+    image's level L (the 98th percentile of |x| over the used pixels, at least 1e-6), so
+    that U > 0 everywhere and every z = r/√U stays finite. A used pixel farther
+    than 4·``width`` from every footprint gets the largest bound of the image.
+
+    Assumes noise that is independent between neighbouring pixels (renders, raw sensor
+    data): noise correlated between neighbours (demosaicing, denoising, compression)
+    leaks less through K, and the bound can fall below it.
+
+    Raises :class:`NoiseEstimationError` when fewer than ``min_positions`` footprints fit
+    inside ``used``."""
+    img = _as_image(image)
+    H, W, C = img.shape
+    mask = _as_mask(used, (H, W))
+    _check_finite(img, mask)
+    kernel = KERNELS["d2"]
+    valid = _valid_positions(mask, kernel.shape)
+    positions = int(valid.sum())
+    if positions < min_positions:
+        raise NoiseEstimationError(
+            f"only {positions} pixel(s) have their whole 3×3 neighbourhood among the pixels used; "
+            f"need at least {min_positions} to bound the noise"
+        )
+    # the squared residual at the centre of each footprint (the 3 × 3 kernel's centre is
+    # one pixel below and right of its top-left position), 0 where there is none
+    centre = np.zeros((H, W), dtype=bool)
+    centre[1 : H - 1, 1 : W - 1] = valid
+    square = np.zeros((H, W, C))
+    square[1 : H - 1, 1 : W - 1] = np.where(valid[..., None], _correlate_valid(img, kernel) ** 2, 0.0)
+    g = _gaussian_1d(width)
+    weight = _separable(centre.astype(np.float64), g)  # Σ_p w_ip
+    weight_sq = _separable(centre.astype(np.float64), g * g)  # Σ_p w_ip² (w² = g² ⊗ g²)
+    summed = np.stack([_separable(square[..., c], g) for c in range(C)], axis=-1)
+    # the sums of zeros are exactly 0: a pixel is unreached only beyond the truncation
+    # radius (4·width) of every footprint; a barely reached one has n_eff ≈ 1 and a wide
+    # confidence margin
+    reached = weight > 0
+    safe = np.where(reached, weight, 1.0)
+    mean_square = summed / safe[..., None]
+    n_eff = np.where(reached, weight**2 / np.where(reached, weight_sq, 1.0), 1.0)
+    variance = mean_square * (1.0 + confidence * np.sqrt(kernel_kappa(kernel) / np.maximum(n_eff, 1e-12)))[..., None]
+    inside = mask & reached
+    if (mask & ~reached).any():  # thin or scattered masks: the largest bound there is
+        largest = np.max(variance[inside], axis=0) if inside.any() else np.max(mean_square[centre], axis=0)
+        variance = np.where((mask & ~reached)[..., None], largest, variance)
+    values = img[mask]
+    level = float(np.percentile(np.abs(values), 98)) if values.size else 1.0
+    # the level as the reference noise takes it (at least 1e-6, so that a black image's
+    # floor stays far inside float64: z² of a unit residual is then at most 1e24)
+    floors = (storage * img) ** 2 + (floor * max(level, 1e-6)) ** 2
+    if quantised:
+        floors = floors + quantisation_sigma(np.clip(img, 0.0, 1.0)) ** 2
+    variance = np.where(mask[..., None], variance + floors, 0.0)
+    sigma = np.sqrt(np.mean(variance[mask], axis=0))
+    method = (
+        f"local mean square of the 3×3 second-difference residual (Immerkær's kernel) over a Gaussian "
+        f"neighbourhood of {width:g} px, plus {confidence:g} standard errors, over {positions} positions: "
+        "an upper bound on noise independent between neighbouring pixels"
+    )
+    return NoiseBound(variance, mask, sigma, positions, method)
+
+
+@dataclass
+class OneSidedVerdict:
+    """The residual of a fit against the largest noise its target can hold
+    (:func:`one_sided_verdict`).
+
+    ``chi2_dof``: Σ(r/σ_b)²/(N − P); ``per_channel``: the same per channel;
+    ``worst_tile``: the tile with the largest mean (r/σ_b)² (``chi2_per_dof``, ``pixels``
+    used in it, its top-left ``row`` and ``column``, its ``size``), None when no tile holds
+    enough used pixels; ``lag1_correlation``: ρ₁ of the residual in bound units over
+    neighbouring used pixels; ``structured_power``: their mean product C₁ (the power of the
+    residual's smooth part, in units of the bound's variance); ``structure_z``: C₁ in its
+    own standard errors; ``pairs``: how many neighbour pairs; ``too_large`` /
+    ``too_structured``: which test fired. ``mismatch`` when either did."""
+
+    chi2_dof: float
+    per_channel: list[float]
+    worst_tile: dict | None
+    lag1_correlation: float
+    structured_power: float
+    structure_z: float
+    pairs: int
+    too_large: bool
+    too_structured: bool
+
+    @property
+    def mismatch(self) -> bool:
+        return self.too_large or self.too_structured
+
+
+def one_sided_verdict(
+    residual: np.ndarray,
+    bound: NoiseBound,
+    n_params: int,
+    *,
+    chi2_threshold: float = BOUND_CHI2,
+    tile: int = BOUND_TILE,
+    structure_power: float = STRUCTURE_POWER,
+    structure_z: float = STRUCTURE_Z,
+) -> OneSidedVerdict:
+    r"""Is the residual ``residual`` (H, W, C; read at ``bound.used``) too large or too
+    structured for any noise up to ``bound``? A one-sided test: it can say that the model
+    does not reproduce the target, never that it does.
+
+    With z_i = r_i/σ_b(i) (σ_b² = ``bound.variance``, each value's noise σ_i ≤ σ_b(i)):
+
+    - **magnitude**: χ²_b = Σ z²/(N − P) ≤ χ²/dof at the true noise, whose expected value
+      is 1 when the model is right. The test fires when χ²_b > ``chi2_threshold`` (10)
+      over the used pixels, or when the mean z² over the used values of one ``tile`` ×
+      ``tile`` square (a fixed grid; squares with fewer than tile²/2 used pixels are
+      skipped) does. With white noise E[z²] ≲ 0.7 (the bound's confidence margin), and a
+      tile's mean over at least 32 pixels exceeds 10 with a probability below 1e-45 even
+      if the channels' noise were one (a χ² with 32 degrees of freedom beyond 320): the
+      margin is for what the bound assumes, not for chance. Noise whose neighbours correlate by ρ leaks through the
+      high-pass kernel at only g(ρ) = ((6 − 8ρ + 2ρ²)/6)² of its variance; a threshold of
+      10 tolerates ρ up to about 0.6.
+    - **structure**: over the pairs (i, j) of horizontally or vertically neighbouring used
+      pixels, p_ij = (1/C) Σ_c z_ic z_jc. For noise independent between pixels
+      E[p_ij] = 0, and the p_ij are uncorrelated (E[z_i z_j z_j z_k] = 0), so
+      C₁ = mean p_ij has the standard error √(Σ p²)/n_pairs, whatever the noise's level
+      or its correlation between channels, and t = Σ p/√(Σ p²) is about N(0, 1). A smooth
+      residual m (the model's misfit) gives C₁ ≈ mean (m/σ_b)²: the power of its smooth
+      part in units of the bound, whatever the noise. The test fires when
+      C₁ > ``structure_power`` (2) **and** t > ``structure_z`` (8): the smooth part alone
+      exceeds twice the largest noise variance, and is no accident (8 standard errors;
+      a self-normalised sum of symmetric terms exceeds x with probability below
+      exp(−x²/2) ≈ 1e-14). Noise whose neighbours correlate by ρ gives C₁ ≈ ρ/g(ρ) in
+      bound units (0.36 at ρ = 0.2, 0.9 at 0.35, 2.9 at 0.5), so the test tolerates
+      neighbour correlations up to about 0.45.
+
+    ``lag1_correlation`` ρ₁ = Σ p / Σ (z_i² + z_j²)/2 (channel means) is reported, not
+    tested: 0 for white noise, near 1 for a smooth residual."""
+    res = np.asarray(residual, dtype=np.float64)
+    if res.ndim == 2:
+        res = res[..., None]
+    used = bound.used
+    C = res.shape[-1]
+    z = np.where(used[..., None], res / np.sqrt(np.where(used[..., None], bound.variance, 1.0)), 0.0)
+    values = z[used]
+    n_used = values.shape[0]
+    dof = max(values.size - n_params, 1)
+    chi2 = float(np.sum(values**2) / dof)
+    per_channel = [float(np.sum(values[:, c] ** 2) / max(n_used - n_params / C, 1.0)) for c in range(C)]
+    worst_tile = _worst_tile(np.sum(z * z, axis=-1) / C, used, tile)
+    products, squares = [], []
+    for a, b, both in (
+        (z[:, :-1], z[:, 1:], used[:, :-1] & used[:, 1:]),
+        (z[:-1, :], z[1:, :], used[:-1, :] & used[1:, :]),
+    ):
+        products.append(np.mean(a * b, axis=-1)[both])
+        squares.append(np.mean(a * a + b * b, axis=-1)[both] / 2.0)
+    p, q = np.concatenate(products), np.concatenate(squares)
+    pairs = int(p.size)
+    total, spread, power = float(np.sum(p)), float(np.sqrt(np.sum(p * p))), float(np.sum(q))
+    c1 = total / pairs if pairs else 0.0
+    t = total / spread if spread > 0 else 0.0
+    rho = total / power if power > 0 else 0.0
+    return OneSidedVerdict(
+        chi2_dof=chi2,
+        per_channel=per_channel,
+        worst_tile=worst_tile,
+        lag1_correlation=rho,
+        structured_power=c1,
+        structure_z=t,
+        pairs=pairs,
+        too_large=bool(
+            chi2 > chi2_threshold or (worst_tile is not None and worst_tile["chi2_per_dof"] > chi2_threshold)
+        ),
+        too_structured=bool(c1 > structure_power and t > structure_z),
+    )
+
+
+def _worst_tile(z2: np.ndarray, used: np.ndarray, tile: int) -> dict | None:
+    """The ``tile`` × ``tile`` square of a fixed grid (from the image's corner) with the
+    largest mean of ``z2`` (H, W: the mean over channels of z²) over its used pixels,
+    among the squares with at least tile²/2 of them; None when there is none."""
+    H, W = used.shape
+    rows, cols = -(-H // tile), -(-W // tile)
+    padded_z = np.zeros((rows * tile, cols * tile))
+    padded_u = np.zeros((rows * tile, cols * tile))
+    padded_z[:H, :W] = np.where(used, z2, 0.0)
+    padded_u[:H, :W] = used
+    sums = padded_z.reshape(rows, tile, cols, tile).sum(axis=(1, 3))
+    counts = padded_u.reshape(rows, tile, cols, tile).sum(axis=(1, 3))
+    enough = counts >= tile * tile / 2
+    if not enough.any():
+        return None
+    means = np.where(enough, sums / np.maximum(counts, 1.0), -np.inf)
+    row, col = np.unravel_index(int(np.argmax(means)), means.shape)
+    return {
+        "chi2_per_dof": float(means[row, col]),
+        "pixels": int(counts[row, col]),
+        "row": int(row * tile),
+        "column": int(col * tile),
+        "size": int(tile),
+    }
 
 
 # --------------------------------------------------------------------------------------
