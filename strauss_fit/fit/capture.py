@@ -42,7 +42,7 @@ from ..inference.laplace import sandwich
 from ..models.strauss import angular_terms, combine_rgb, weights_of
 from ..numerics import dot, safe_normalize
 from ..precision import float64
-from .solvers import levenberg_marquardt
+from .solvers import _result_code, levenberg_marquardt, status_name
 
 #: The reflectance models a capture can be fitted with.
 MODELS = ("strauss", "lambert", "phong", "blinn-phong")
@@ -201,8 +201,18 @@ class _Problem:
     observed: jax.Array
     weight: jax.Array
 
+    @property
+    def data(self) -> tuple[dict[str, jax.Array], jax.Array, jax.Array]:
+        return self.terms, self.observed, self.weight
+
     def residual(self, physical: jax.Array) -> jax.Array:
-        return ((_predict(self.model, self.params, physical, self.terms) - self.observed) * self.weight).ravel()
+        return _weighted_residual(self.model, self.params, physical, self.data)
+
+
+def _weighted_residual(model: str, params: tuple[_Param, ...], physical: jax.Array, data: tuple) -> jax.Array:
+    """The one home of the residual: (Î − I) at the usable values (weight 1), 0 elsewhere."""
+    terms, observed, weight = data
+    return ((_predict(model, params, physical, terms) - observed) * weight).ravel()
 
 
 def _problem(samples: CaptureSamples, options: CaptureFitOptions) -> _Problem:
@@ -221,9 +231,7 @@ def _residual_function(model: str, params: tuple[_Param, ...]) -> Callable:
     that optimistix compiles it once per data shape."""
 
     def residuals(theta, data):
-        terms, observed, weight = data
-        physical = _to_physical(params, theta)
-        return ((_predict(model, params, physical, terms) - observed) * weight).ravel()
+        return _weighted_residual(model, params, _to_physical(params, theta), data)
 
     return residuals
 
@@ -236,21 +244,11 @@ def _solve(
 
     residuals = _residual_function(problem.model, problem.params)
     solver = levenberg_marquardt(rtol, atol, normal_equations=True)
-    solution = _least_squares(
-        residuals, solver, jnp.asarray(theta0), (problem.terms, problem.observed, problem.weight), max_steps
+    solution = optx.least_squares(
+        residuals, solver, jnp.asarray(theta0), args=problem.data, max_steps=max_steps, throw=False
     )
-    theta = np.asarray(solution.value)
-    steps = int(solution.stats["num_steps"])
-    status = (
-        "successful" if solution.result == optx.RESULTS.successful else str(solution.result).split(".")[-1].strip("'>")
-    )
-    return theta, steps, status
-
-
-def _least_squares(residuals, solver, theta0, data, max_steps):
-    import optimistix as optx
-
-    return optx.least_squares(residuals, solver, theta0, args=data, max_steps=max_steps, throw=False)
+    status = status_name(int(_result_code(solution.result)))
+    return np.asarray(solution.value), int(solution.stats["num_steps"]), status
 
 
 def _subsample(samples: CaptureSamples, values: int, seed: int) -> CaptureSamples:
@@ -269,6 +267,21 @@ def _least_squares_linear(design: np.ndarray, target: np.ndarray) -> tuple[np.nd
     return solution, float(np.sum((design @ solution - target) ** 2))
 
 
+def _channel_design(
+    per_channel: np.ndarray, shared: np.ndarray, observed: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The linear system Î_c = X_c · per_channel_c + Y · shared_c over the usable values of
+    all three channels (unknowns X_r, X_g, X_b, Y), as (design, target)."""
+    rows, target = [], []
+    for c in range(3):
+        design = np.zeros(per_channel.shape[:2] + (4,))
+        design[..., c] = per_channel[..., c]
+        design[..., 3] = shared[..., c]
+        rows.append((design * weight[..., c : c + 1]).reshape(-1, 4))
+        target.append((observed[..., c] * weight[..., c]).ravel())
+    return np.concatenate(rows), np.concatenate(target)
+
+
 def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
     """Grid over (s, m); for each, :math:`\\hat I_c = X_c\\,a_c + Y\\,b_c` with X = E·C and
     Y = E solved by linear least squares (a = Σ I (d + w), b = Σ I (r_s − w))."""
@@ -284,14 +297,7 @@ def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarr
             w = weights_of(jnp.asarray(s), jnp.asarray(m), jnp.asarray(0.0), angular)
             a = np.sum(np.asarray(w.diffuse + w.tint)[..., None] * rgb, axis=1)  # (L, P, 3)
             b = np.sum(np.asarray(w.specular - w.tint)[..., None] * rgb, axis=1)
-            rows, target = [], []
-            for c in range(3):
-                design = np.zeros(a.shape[:2] + (4,))
-                design[..., c] = a[..., c]
-                design[..., 3] = b[..., c]
-                rows.append((design * weight[..., c : c + 1]).reshape(-1, 4))
-                target.append((observed[..., c] * weight[..., c]).ravel())
-            design, target_v = np.concatenate(rows), np.concatenate(target)
+            design, target_v = _channel_design(a, b, observed, weight)
             solution, _ = _least_squares_linear(design, target_v)
             exposure = max(float(solution[3]), 1e-6)
             color = np.clip(solution[:3] / exposure, 0.01, 0.99)
@@ -323,14 +329,7 @@ def _phong_starts(problem: _Problem, keep: int = 2) -> list[dict[str, np.ndarray
     found = []
     for exponent in np.geomspace(2.0, 5000.0, 14):
         lobe = np.sum((np.where(cos > 0, cos, 0.0) ** exponent)[..., None] * rgb, axis=1)
-        rows, target = [], []
-        for c in range(3):
-            design = np.zeros(diffuse.shape[:2] + (4,))
-            design[..., c] = diffuse[..., c]
-            design[..., 3] = lobe[..., c]
-            rows.append((design * weight[..., c : c + 1]).reshape(-1, 4))
-            target.append((observed[..., c] * weight[..., c]).ravel())
-        solution, cost = _least_squares_linear(np.concatenate(rows), np.concatenate(target))
+        solution, cost = _least_squares_linear(*_channel_design(diffuse, lobe, observed, weight))
         solution = np.maximum(solution, 1e-6)
         found.append((cost, {"diffuse": solution[:3], "specular": solution[3:4], "exponent": np.array([exponent])}))
     found.sort(key=lambda item: item[0])
@@ -462,8 +461,7 @@ def _compiled(model: str, params: tuple[_Param, ...]) -> tuple[Callable, Callabl
     parameter set and data shape."""
 
     def residual(physical, data):
-        terms, observed, weight = data
-        return ((_predict(model, params, physical, terms) - observed) * weight).ravel()
+        return _weighted_residual(model, params, physical, data)
 
     return jax.jit(residual), jax.jit(jax.jacfwd(residual))
 
@@ -519,7 +517,7 @@ def _polish(
     10× the damping. Returns the values, the Jacobian and the residual at them, and
     the steps taken."""
     residual_fn, jacobian_fn = _compiled(problem.model, problem.params)
-    data = (problem.terms, problem.observed, problem.weight)
+    data = problem.data
     low, high = _bounds(problem.params)
     x = np.clip(physical, low, high)
     r = np.asarray(residual_fn(jnp.asarray(x), data))

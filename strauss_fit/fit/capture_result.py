@@ -37,6 +37,7 @@ from .capture import (
     MODELS,
     CaptureFit,
     CaptureFitOptions,
+    _offsets,
     _predict,
     _terms,
     delta_e_mean,
@@ -252,7 +253,7 @@ def predict(samples: CaptureSamples, fit: CaptureFit) -> tuple[np.ndarray, list[
     physical = np.concatenate(
         [
             fit.physical[start : start + p.size]
-            for p, start in zip(fit.params, _starts(fit.params))
+            for p, start in zip(fit.params, _offsets(fit.params))
             if p.name != "image_exposure"
         ]
     )
@@ -266,10 +267,6 @@ def predict(samples: CaptureSamples, fit: CaptureFit) -> tuple[np.ndarray, list[
             scales[i] = float(np.sum(predicted[i] * samples.values[i] * use) / den) if den > 0 else 1.0
             predicted[i] = predicted[i] * scales[i]
     return predicted, scales
-
-
-def _starts(params) -> list[int]:
-    return [int(v) for v in np.cumsum([0] + [p.size for p in params])][:-1]
 
 
 def _material(fit: CaptureFit) -> dict[str, Any]:
@@ -428,9 +425,9 @@ def fit_capture(
         "images_fitted": train.count,
         "pixels": int(len(samples.rows)),
         "values_used": int(train.usable.sum()),
-        "saturated_values": int(train.count * 0 + (~train.usable).sum()),
+        "saturated_values": int((~train.usable).sum()),
         "background": [[float(v) for v in row] for row in samples.background],
-        "solver": {"name": "lm", "steps": fit.steps, "status": fit.status or "max_steps_reached"},
+        "solver": {"name": "lm", "steps": fit.steps, "status": fit.status},
         "starts": fit.starts,
         "warnings": warnings,
         "notes": [],
