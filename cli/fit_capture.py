@@ -7,7 +7,6 @@ to ``fit`` by :func:`add_capture_options` (see docs/captures.md).
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from .common import escape, progress_printer
 
@@ -43,7 +42,7 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    from strauss_fit.capture._manifest import capture_from_images, read_capture
+    from strauss_fit.capture import capture_inputs, open_capture
     from strauss_fit.errors import StraussFitError
     from strauss_fit.fit.capture import CaptureFitOptions
     from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
@@ -58,16 +57,7 @@ def run_capture(args: argparse.Namespace) -> int:
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --capture")
     paths = args.capture
-    if len(paths) == 1 and args.lights is None:
-        capture = read_capture(paths[0])
-    else:
-        if args.lights is None:
-            raise StraussFitError("several --capture images need --lights LIGHTS.toml (their lights, in order)")
-        capture = capture_from_images(paths, args.lights, mask=args.mask)
-    if args.mask is not None and capture.mask is None:
-        from dataclasses import replace
-
-        capture = replace(capture, mask=Path(args.mask))
+    capture = open_capture(paths, args.lights, args.mask)
     inputs = {f"--capture image {i + 1}": image.path for i, image in enumerate(capture.images)}
     inputs.update({"--capture": paths[0], "--lights": args.lights, "--mask": capture.mask})
     check_distinct({"-o": args.output}, inputs)
@@ -79,8 +69,9 @@ def run_capture(args: argparse.Namespace) -> int:
         ambient=args.ambient,
     )
     log = progress_printer(args.quiet, "... ")
-    result = fit_capture_api(capture, options, holdout=args.holdout, progress=log)
-    result["capture"] = [str(p) for p in paths]
+    result = fit_capture_api(
+        capture, options, holdout=args.holdout, progress=log, inputs=capture_inputs(paths, args.lights, args.mask)
+    )
     with Outputs(force=args.force) as out:
         out.add_json(args.output, result)
         written = out.commit(final=True)

@@ -1,1 +1,42 @@
-"""Captures: many photographs of one sample sphere (being assembled)."""
+"""Captures: many photographs of one sample sphere under several lights.
+
+The flow: a capture is described (:func:`read_capture`: a manifest, a DiLiGenT folder, or
+image files with a lights file), its sphere found in the frame and its pixels read
+(:func:`load_samples`), and then fitted (:func:`strauss_fit.fit.capture_result.fit_capture`).
+Lights can be estimated from photographs of a mirror ball (:func:`estimate_lights`).
+See docs/captures.md.
+"""
+
+from ._manifest import (
+    CameraSpec,
+    Capture,
+    CaptureImage,
+    CaptureLight,
+    capture_from_images,
+    capture_inputs,
+    open_capture,
+    read_capture,
+    read_lights_file,
+)
+from ._mirror import LightEstimate, estimate_lights, lights_toml
+from ._samples import CaptureSamples, load_samples
+from ._sphere import Camera, Circle
+
+__all__ = [
+    "Camera",
+    "CameraSpec",
+    "Capture",
+    "CaptureImage",
+    "CaptureLight",
+    "CaptureSamples",
+    "Circle",
+    "LightEstimate",
+    "capture_from_images",
+    "capture_inputs",
+    "estimate_lights",
+    "lights_toml",
+    "load_samples",
+    "open_capture",
+    "read_capture",
+    "read_lights_file",
+]

@@ -410,3 +410,33 @@ def capture_from_images(
         source=Path(lights),
         layout="images",
     )
+
+
+def open_capture(
+    paths: Sequence[str | Path], lights: str | Path | None = None, mask: str | Path | None = None
+) -> Capture:
+    """The capture the command line names: one manifest or folder (:func:`read_capture`), or
+    image files with a lights file (:func:`capture_from_images`); ``mask`` replaces none
+    given. The one rule of ``fit --capture``, ``sample`` and ``report``."""
+    paths = [str(p) for p in paths]
+    if not paths:
+        raise CaptureError("no capture given")
+    if len(paths) == 1 and lights is None:
+        capture = read_capture(paths[0])
+    else:
+        if lights is None:
+            raise CaptureError("several --capture images need --lights LIGHTS.toml (their lights, in order)")
+        capture = capture_from_images(paths, lights, mask=mask)
+    if mask is not None and capture.mask is None:
+        capture = replace(capture, mask=Path(mask))
+    return capture
+
+
+def capture_inputs(paths: Sequence[str | Path], lights: str | Path | None, mask: str | Path | None) -> dict[str, Any]:
+    """The inputs a capture's result records, so that ``sample`` and ``report`` can read the
+    capture again (:func:`open_capture`)."""
+    return {
+        "capture": [str(p) for p in paths],
+        "lights": None if lights is None else str(lights),
+        "mask": None if mask is None else str(mask),
+    }

@@ -22,12 +22,13 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
-from ..capture._manifest import Capture
+from ..capture._manifest import Capture, open_capture
 from ..capture._samples import CaptureSamples, load_samples
 from ..color import delta_e_2000
 from ..errors import CaptureError
@@ -37,7 +38,9 @@ from .capture import (
     MODELS,
     CaptureFit,
     CaptureFitOptions,
+    _labels,
     _offsets,
+    _parameters,
     _predict,
     _terms,
     delta_e_mean,
@@ -258,7 +261,8 @@ def predict(samples: CaptureSamples, fit: CaptureFit) -> tuple[np.ndarray, list[
         ]
     )
     with float64():
-        predicted = np.asarray(_predict(fit.model, params, jnp.asarray(physical), _terms(samples)))
+        # a writable copy: each image is scaled in place below
+        predicted = np.array(_predict(fit.model, params, jnp.asarray(physical), _terms(samples)))
     scales = [1.0] * samples.count
     if "image_exposure" in names:
         for i in range(samples.count):
@@ -340,9 +344,13 @@ def fit_capture(
     holdout: str | int | Sequence[int] | None = None,
     compare: Sequence[str] | None = None,
     progress: Callable[[str], Any] | None = None,
+    inputs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Fit one material to a whole capture and describe the fit (the result of
     ``strauss-fit fit --capture``, see docs/formats.md).
+
+    ``inputs`` (:func:`strauss_fit.capture.capture_inputs`) are recorded in the result, so
+    that :func:`reload_capture_fit` (``sample``, ``report``) can read the capture again.
 
     With ``holdout``, the images it names are left out of the fit and predicted by it; the
     models in ``compare`` (default: Lambert, Phong and Blinn–Phong) are fitted to the same
@@ -399,6 +407,7 @@ def fit_capture(
         "model": fit.model,
         **_material(fit),
         "free": [p.name for p in fit.params],
+        "values": fit.values(),
         "held": _held(fit.model),
         "uncertainty": fit.deviations("clustered"),
         "uncertainty_method": {
@@ -464,9 +473,98 @@ def fit_capture(
             entry["fit"] = _fit_summary(train, other_fit)
             validation["models"][other] = entry
         result["holdout"] = validation
+    if inputs:
+        result.update(inputs)
     result["timing"] = {"read_s": t_read, **fit.timing}
     result["wall_time_s"] = time.perf_counter() - t0
     return result
+
+
+def _recorded(path: str, base: Path | None) -> str:
+    """A recorded path as written, else relative to the result's folder ``base``."""
+    if Path(path).exists() or base is None or Path(path).is_absolute():
+        return path
+    beside = base / path
+    return str(beside) if beside.exists() else path
+
+
+def is_capture_result(data: Any) -> bool:
+    """Whether ``data`` (a parsed result JSON) is a capture's fit result."""
+    return isinstance(data, dict) and "images_fitted" in data and "circle" in data and "settings" in data
+
+
+def capture_options(result: dict[str, Any]) -> CaptureFitOptions:
+    """The options a capture's result was fitted with (its ``settings``)."""
+    settings = result.get("settings") or {}
+    fields = ("model", "exposure", "white_balance", "ambient", "max_steps")
+    return CaptureFitOptions(**{k: settings[k] for k in fields if k in settings})
+
+
+def reload_capture_fit(
+    result: dict[str, Any], *, base: str | Path | None = None, capture: Capture | None = None
+) -> tuple[CaptureSamples, CaptureFit]:
+    """A capture's fit again from its result: the images it was fitted to (the held-out ones
+    left out again) and a :class:`strauss_fit.fit.capture.CaptureFit` with its values, its
+    prediction of them and the covariances the result states (the image-cluster sandwich
+    from the ± and correlations, the Laplace one diagonal).
+
+    The capture is read from the inputs the result records (paths as written, else relative
+    to ``base``, the result's folder), unless ``capture`` is given."""
+    if not is_capture_result(result):
+        raise CaptureError("not a capture's fit result (no images_fitted, circle and settings)")
+    options = capture_options(result)
+    if capture is None:
+        paths = result.get("capture")
+        if not paths:
+            raise CaptureError("the capture's result records no capture paths: give the capture")
+        folder = None if base is None else Path(base)
+        paths = [paths] if isinstance(paths, str) else paths
+        lights, mask = result.get("lights"), result.get("mask")
+        capture = open_capture(
+            [_recorded(p, folder) for p in paths],
+            None if lights is None else _recorded(lights, folder),
+            None if mask is None else _recorded(mask, folder),
+        )
+    samples = load_samples(capture)
+    if samples.count != result.get("images"):
+        raise CaptureError(
+            f"the capture now has {samples.count} images, the result was fitted to a capture of {result.get('images')}"
+        )
+    holdout = (result.get("settings") or {}).get("holdout")
+    if holdout is not None:
+        held = set(holdout_indices(holdout, samples.count))
+        samples = samples.select([i for i in range(samples.count) if i not in held])
+    params = _parameters(options, samples.count)
+    values = result.get("values") or {name: result[name] for name in result["free"] if name in result}
+    try:
+        physical = np.concatenate([np.atleast_1d(np.asarray(values[p.name], dtype=np.float64)) for p in params])
+    except KeyError as missing:
+        raise CaptureError(f"the capture's result has no value for {missing.args[0]}") from None
+    if physical.size != _offsets(params)[-1]:
+        raise CaptureError("the capture's result does not match its settings (parameter sizes differ)")
+    sd_clustered = np.concatenate(
+        [np.atleast_1d(np.asarray(result["uncertainty"][p.name], dtype=np.float64)) for p in params]
+    )
+    sd_laplace = np.concatenate(
+        [np.atleast_1d(np.asarray(result["uncertainty_laplace"][p.name], dtype=np.float64)) for p in params]
+    )
+    corr = np.asarray((result.get("correlation") or {}).get("matrix", np.eye(physical.size)), dtype=np.float64)
+    if corr.shape != (physical.size, physical.size):
+        corr = np.eye(physical.size)
+    with float64():
+        predicted = np.asarray(_predict(options.model, params, jnp.asarray(physical), _terms(samples)))
+    fit = CaptureFit(
+        model=options.model,
+        params=params,
+        physical=physical,
+        labels=_labels(params),
+        laplace=np.diag(sd_laplace**2),
+        clustered=corr * np.outer(sd_clustered, sd_clustered),
+        predicted=predicted,
+        steps=int((result.get("solver") or {}).get("steps", 0)),
+        status=str((result.get("solver") or {}).get("status", "")),
+    )
+    return samples, fit
 
 
 def format_capture_table(result: dict[str, Any]) -> str:
