@@ -34,6 +34,12 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--white-balance", action="store_true", help="also fit a white balance (red and blue gains)")
     group.add_argument(
+        "--stability",
+        action="store_true",
+        help="also fit two disjoint halves of the images (are their materials within each other's equivalence "
+        "ranges?) and each image alone (where and why does it disagree with the joint fit?)",
+    )
+    group.add_argument(
         "--holdout",
         metavar="K|LIST",
         help="leave out every K-th image (or the 1-based images in LIST, e.g. 2,5,9), predict them, and compare "
@@ -48,6 +54,8 @@ def run_capture(args: argparse.Namespace) -> int:
     from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
     from strauss_fit.fit.capture_result import format_capture_table
     from strauss_fit.io.files import Outputs, check_distinct, check_writable
+
+    from .fit_cmd import equivalence_asked
 
     if args.target:
         raise StraussFitError("give either TARGET images (one image each) or --capture, not both")
@@ -70,7 +78,14 @@ def run_capture(args: argparse.Namespace) -> int:
     )
     log = progress_printer(args.quiet, "... ")
     result = fit_capture_api(
-        capture, options, holdout=args.holdout, progress=log, inputs=capture_inputs(paths, args.lights, args.mask)
+        capture,
+        options,
+        holdout=args.holdout,
+        progress=log,
+        inputs=capture_inputs(paths, args.lights, args.mask),
+        equivalence=bool(equivalence_asked(args)),
+        equivalence_de=args.equivalence_de,
+        stability=args.stability,
     )
     with Outputs(force=args.force) as out:
         out.add_json(args.output, result)

@@ -475,21 +475,31 @@ def _bounds(params: Sequence[_Param]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _projected_step(
-    x: np.ndarray, low: np.ndarray, high: np.ndarray, gradient: np.ndarray, bread: np.ndarray, damping: float
+    x: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    gradient: np.ndarray,
+    bread: np.ndarray,
+    damping: float,
+    fixed: np.ndarray | None = None,
 ) -> np.ndarray:
     """A damped Gauss–Newton (Marquardt) step, (JᵀJ + λ diag JᵀJ) δ = −Jᵀr, with the values
     that would cross a bound held on it: the step is solved for the free values, any value it
     would carry across its bound is put on the bound and held, and the step is solved again
-    for the rest (at most one pass per value)."""
+    for the rest (at most one pass per value). ``fixed`` values never move."""
     span = np.where(np.isfinite(high - low), high - low, 1.0)
     on_low = x <= low + 1e-9 * span
     on_high = x >= high - 1e-9 * span
     held = (on_low & (gradient > 0)) | (on_high & (gradient < 0))
+    if fixed is not None:
+        held = held | fixed
     step = np.zeros_like(x)
     for _ in range(len(x) + 1):
         free = ~held
         step = np.where(on_low & held, low - x, np.where(on_high & held, high - x, 0.0))
         step = np.where(held & ~on_low & ~on_high, np.clip(step, low - x, high - x), step)
+        if fixed is not None:
+            step = np.where(fixed, 0.0, step)
         if free.any():
             sub = bread[np.ix_(free, free)]
             sub = sub + np.diag(damping * np.diag(sub) + 1e-12 * np.trace(sub) / max(int(free.sum()), 1))
@@ -504,10 +514,19 @@ def _projected_step(
     return step
 
 
-def _polish(
-    problem: _Problem, physical: np.ndarray, max_steps: int = 8
+def projected_lm(
+    residual_fn: Callable,
+    jacobian_fn: Callable,
+    data: Any,
+    physical: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    *,
+    fixed: np.ndarray | None = None,
+    max_steps: int = 8,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Projected Levenberg–Marquardt steps in the physical values (:func:`_projected_step`).
+    """Projected Levenberg–Marquardt steps (:func:`_projected_step`) on ``residual_fn(x,
+    data)`` within [low, high], the ``fixed`` values held where they are.
 
     Why not optimistix's solver here: on every value each step is dominated by the
     Jacobian, which these steps compute once per accepted step and which then also serves
@@ -516,9 +535,6 @@ def _polish(
     transform only creeps toward it. A step that does not lower the cost is retried with
     10× the damping. Returns the values, the Jacobian and the residual at them, and
     the steps taken."""
-    residual_fn, jacobian_fn = _compiled(problem.model, problem.params)
-    data = problem.data
-    low, high = _bounds(problem.params)
     x = np.clip(physical, low, high)
     r = np.asarray(residual_fn(jnp.asarray(x), data))
     cost = float(r @ r)
@@ -530,7 +546,8 @@ def _polish(
         bread = jac.T @ jac
         improved = False
         for _ in range(12):
-            trial = np.clip(x + _projected_step(x, low, high, gradient, bread, damping), low, high)
+            step = _projected_step(x, low, high, gradient, bread, damping, fixed)
+            trial = np.clip(x + step, low, high)
             r_trial = np.asarray(residual_fn(jnp.asarray(trial), data))
             cost_trial = float(r_trial @ r_trial)
             if cost_trial <= cost:
@@ -546,6 +563,15 @@ def _polish(
         if change <= 1e-9 * max(cost, 1e-300):
             break
     return x, jac, r, steps
+
+
+def _polish(
+    problem: _Problem, physical: np.ndarray, max_steps: int = 8
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`projected_lm` on a capture's residual, within the parameters' bounds."""
+    residual_fn, jacobian_fn = _compiled(problem.model, problem.params)
+    low, high = _bounds(problem.params)
+    return projected_lm(residual_fn, jacobian_fn, problem.data, physical, low, high, max_steps=max_steps)
 
 
 def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:

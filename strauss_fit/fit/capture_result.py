@@ -33,6 +33,7 @@ from ..capture._samples import CaptureSamples, load_samples
 from ..color import delta_e_2000
 from ..errors import CaptureError
 from ..precision import float64
+from . import capture_stability
 from .capture import (
     BOUND_FACTOR,
     MODELS,
@@ -47,6 +48,7 @@ from .capture import (
     fit_capture_samples,
     relative_rms,
 )
+from .capture_equivalence import DEFAULT_DELTA_E, capture_equivalence
 
 #: Median of χ²₁: the median of z² for Gaussian z (turns a median of squares into a variance).
 MEDIAN_CHI2_1 = 0.454936423119572
@@ -345,12 +347,21 @@ def fit_capture(
     compare: Sequence[str] | None = None,
     progress: Callable[[str], Any] | None = None,
     inputs: dict[str, Any] | None = None,
+    equivalence: bool = False,
+    equivalence_de: float | None = None,
+    stability: bool = False,
 ) -> dict[str, Any]:
     """Fit one material to a whole capture and describe the fit (the result of
     ``strauss-fit fit --capture``, see docs/formats.md).
 
     ``inputs`` (:func:`strauss_fit.capture.capture_inputs`) are recorded in the result, so
     that :func:`reload_capture_fit` (``sample``, ``report``) can read the capture again.
+
+    ``equivalence`` adds each material parameter's perceptual equivalence range (within
+    ``equivalence_de``, default one JND of mean CIEDE2000;
+    :mod:`strauss_fit.fit.capture_equivalence`); ``stability`` fits two disjoint halves of
+    the images and each image alone and says where and why they disagree
+    (:mod:`strauss_fit.fit.capture_stability`).
 
     With ``holdout``, the images it names are left out of the fit and predicted by it; the
     models in ``compare`` (default: Lambert, Phong and Blinn–Phong) are fitted to the same
@@ -428,7 +439,7 @@ def fit_capture(
             "regions": regions,
         },
         "per_image": _per_image(train, fit.predicted, [False] * train.count),
-        "circle": samples.circle.to_dict(),
+        "circle": {**samples.circle.to_dict(), "description": samples.circle.describe()},
         "camera": samples.camera.to_dict(),
         "images": samples.count,
         "images_fitted": train.count,
@@ -456,6 +467,27 @@ def fit_capture(
             f"{int(samples.saturated.sum())} saturated pixels in {int((samples.saturated > 0).sum())} images "
             "were left out"
         )
+    delta_e = DEFAULT_DELTA_E if equivalence_de is None else float(equivalence_de)
+    if equivalence or equivalence_de is not None:
+        log("equivalence ranges")
+        result["equivalence"] = capture_equivalence(train, fit, delta_e=delta_e)
+        result["equivalence_delta_e"] = delta_e
+    if stability:
+        result["stability"] = {
+            **capture_stability.halves(train, options, delta_e=delta_e, progress=log),
+            "single_images": capture_stability.single_images(
+                train, fit, options, verdict=lambda one, f: _verdict(one, f)[0]["verdict"], progress=log
+            ),
+        }
+        if not result["stability"]["stable"]:
+            differ = [name for name, ok in result["stability"]["agree"].items() if not ok]
+            result["warnings"].append(
+                {
+                    "code": "unstable",
+                    "message": "two disjoint halves of the images give materials that do not look the same "
+                    f"({', '.join(differ)} outside each other's equivalence ranges)",
+                }
+            )
     if held:
         test = samples.select(held)
         log(f"predicting {test.count} held-out images")
@@ -575,17 +607,27 @@ def format_capture_table(result: dict[str, Any]) -> str:
     ]
     lines.append(f"sphere: {result['circle'].get('description', '')}".rstrip())
     unc, lap = result["uncertainty"], result["uncertainty_laplace"]
-    lines.append(f"{'parameter':<16}{'value':>10}{'± cluster':>12}{'± Laplace':>12}")
+    ranges = result.get("equivalence") or {}
+    header = f"{'parameter':<16}{'value':>10}{'± cluster':>12}{'± Laplace':>12}"
+    if ranges:
+        header += f"  looks the same (ΔE ≤ {result.get('equivalence_delta_e', 1):g})"
+    lines.append(header)
+    values_of = result.get("values", {})
     for name in result["free"]:
-        value = result.get(name, result.get("values", {}).get(name))
+        value = values_of.get(name, result.get(name))
         if value is None:
             continue
         values = value if isinstance(value, list) else [value]
         sds = unc[name] if isinstance(unc[name], list) else [unc[name]]
         lsd = lap[name] if isinstance(lap[name], list) else [lap[name]]
-        for k, (v, sd, ls) in enumerate(zip(values, sds, lsd)):
+        band = ranges.get(name)
+        bands = (band if len(values) > 1 else [band]) if band is not None else [None] * len(values)
+        for k, (v, sd, ls, b) in enumerate(zip(values, sds, lsd, bands)):
             label = f"{name}[{'rgb'[k]}]" if len(values) == 3 else (f"{name}[{k + 2}]" if len(values) > 1 else name)
-            lines.append(f"{label:<16}{v:>10.4f}{sd:>12.4f}{ls:>12.4f}")
+            line = f"{label:<16}{v:>10.4f}{sd:>12.4f}{ls:>12.4f}"
+            if b is not None:
+                line += f"  [{b[0]:.3f}, {b[1]:.3f}]"
+            lines.append(line)
     res = result["residual"]
     lines.append(
         f"residual: relative RMS {100 * res['relative_rms']:.1f} %, mean CIEDE2000 {res['delta_e2000_mean']:.2f}, "
@@ -596,9 +638,43 @@ def format_capture_table(result: dict[str, Any]) -> str:
         lines.append(f"{'model':<14}{'held-out rel. RMS':>18}{'mean CIEDE2000':>16}")
         for name, entry in result["holdout"]["models"].items():
             lines.append(f"{name:<14}{100 * entry['relative_rms']:>17.1f}%{entry['delta_e2000_mean']:>16.2f}")
+    stability = result.get("stability")
+    if stability:
+        verdicts = ", ".join(f"{name} {'agrees' if ok else 'differs'}" for name, ok in stability["agree"].items())
+        lines.append(f"stability, two halves of the images: {verdicts or 'nothing compared'}")
+        for half in stability["halves"]:
+            shown = ", ".join(
+                f"{name} {value:.3f}" for name, value in half["values"].items() if not isinstance(value, list)
+            )
+            lines.append(f"  {half['half']} half ({len(half['images'])} images): {shown}")
+        single = stability["single_images"]
+        lines.append(
+            f"single images disagreeing with the joint fit: {single['disagreeing']} of {len(single['fits'])}"
+            + (": " + "; ".join(f"{k} ({n})" for k, n in single["reasons"].items()) if single["reasons"] else "")
+        )
     for warning in result["warnings"]:
         lines.append(f"warning [{warning['code']}]: {warning['message']}")
     for note in result["notes"]:
         lines.append(f"note: {note}")
     lines.append(f"wall time {result['wall_time_s']:.2f} s")
     return "\n".join(lines)
+
+
+def reload_held_out(
+    result: dict[str, Any], fit: CaptureFit, capture: Capture
+) -> tuple[CaptureSamples, np.ndarray] | None:
+    """The images a capture's result held out (``settings.holdout``) read again from
+    ``capture``, and the fit's prediction of them (:func:`predict`, as the result's
+    ``holdout`` was computed); None when the result holds none out. ``fit`` is the fit
+    :func:`reload_capture_fit` gives back."""
+    holdout = (result.get("settings") or {}).get("holdout")
+    if holdout is None:
+        return None
+    samples = load_samples(capture)
+    if samples.count != result.get("images"):
+        raise CaptureError(
+            f"the capture now has {samples.count} images, the result was fitted to a capture of {result.get('images')}"
+        )
+    held = samples.select(holdout_indices(holdout, samples.count))
+    predicted, _ = predict(held, fit)
+    return held, predicted
