@@ -65,7 +65,8 @@ def run_capture(args: argparse.Namespace) -> int:
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --capture")
     paths = args.capture
-    capture = open_capture(paths, args.lights, args.mask)
+    encoding = None if args.encoding == "auto" else args.encoding
+    capture = open_capture(paths, args.lights, args.mask, encoding)
     inputs = {f"--capture image {i + 1}": image.path for i, image in enumerate(capture.images)}
     inputs.update({"--capture": paths[0], "--lights": args.lights, "--mask": capture.mask})
     check_distinct({"-o": args.output}, inputs)
@@ -82,7 +83,7 @@ def run_capture(args: argparse.Namespace) -> int:
         options,
         holdout=args.holdout,
         progress=log,
-        inputs=capture_inputs(paths, args.lights, args.mask),
+        inputs=capture_inputs(paths, args.lights, args.mask, encoding),
         equivalence=bool(equivalence_asked(args)),
         equivalence_de=args.equivalence_de,
         stability=args.stability,

@@ -413,11 +413,15 @@ def capture_from_images(
 
 
 def open_capture(
-    paths: Sequence[str | Path], lights: str | Path | None = None, mask: str | Path | None = None
+    paths: Sequence[str | Path],
+    lights: str | Path | None = None,
+    mask: str | Path | None = None,
+    encoding: str | None = None,
 ) -> Capture:
     """The capture the command line names: one manifest or folder (:func:`read_capture`), or
     image files with a lights file (:func:`capture_from_images`); ``mask`` replaces none
-    given. The one rule of ``fit --capture``, ``sample`` and ``report``."""
+    given, ``encoding`` ("linear" or "srgb") replaces the capture's. The one rule of
+    ``fit --capture``, ``sample`` and ``report``."""
     paths = [str(p) for p in paths]
     if not paths:
         raise CaptureError("no capture given")
@@ -429,14 +433,21 @@ def open_capture(
         capture = capture_from_images(paths, lights, mask=mask)
     if mask is not None and capture.mask is None:
         capture = replace(capture, mask=Path(mask))
+    if encoding is not None:
+        if encoding not in ENCODINGS:
+            raise CaptureError(f"unknown encoding {encoding!r}; expected one of {', '.join(ENCODINGS)}")
+        capture = replace(capture, encoding=encoding)
     return capture
 
 
-def capture_inputs(paths: Sequence[str | Path], lights: str | Path | None, mask: str | Path | None) -> dict[str, Any]:
+def capture_inputs(
+    paths: Sequence[str | Path], lights: str | Path | None, mask: str | Path | None, encoding: str | None = None
+) -> dict[str, Any]:
     """The inputs a capture's result records, so that ``sample`` and ``report`` can read the
     capture again (:func:`open_capture`)."""
     return {
         "capture": [str(p) for p in paths],
         "lights": None if lights is None else str(lights),
         "mask": None if mask is None else str(mask),
+        "encoding": encoding,
     }

@@ -556,6 +556,7 @@ def reload_capture_fit(
             [_recorded(p, folder) for p in paths],
             None if lights is None else _recorded(lights, folder),
             None if mask is None else _recorded(mask, folder),
+            result.get("encoding"),
         )
     samples = load_samples(capture)
     if samples.count != result.get("images"):

@@ -541,10 +541,18 @@ def _verdict_text(fit: FitResult) -> str:
     verdict = fit.verdict
     chi2 = residual.get("chi2_per_dof")
     against = f" (χ²/dof {chi2:.4g} against the noise, from: {residual.get('noise_source', '?')})" if chi2 else ""
+    at_bound = residual.get("chi2_per_dof_at_bound")
+    one_sided = not chi2 and at_bound is not None
+    if one_sided:
+        against = f" (χ²/dof {at_bound:.4g} at the largest noise the image can hold; its own noise unknown)"
     meaning = {
         "consistent": "the Strauss model reproduces the target within its noise",
-        "mismatch": "the Strauss model cannot reproduce the target: the residual is larger than the noise explains",
-        "undetermined": "the target's noise is unknown, so whether the model reproduces it cannot be said",
+        "mismatch": "the Strauss model cannot reproduce the target: the residual is larger than the largest noise the "
+        "image can hold, or spatially structured (a one-sided verdict: the noise itself is unknown)"
+        if one_sided
+        else "the Strauss model cannot reproduce the target: the residual is larger than the noise explains",
+        "undetermined": "the target's noise is unknown and the residual is within the largest noise the image can "
+        "hold, so whether the model reproduces it cannot be said",
     }.get(str(verdict), "")
     return f"Verdict: {verdict}{against}" + (f": {meaning}." if meaning else ".")
 
