@@ -10,7 +10,9 @@ Prints and records:
   cold process;
 - the held-out validation (``--holdout``, default every 2nd image: fit on the odd images,
   predict the even ones): per model (Strauss, Lambert, Phong, Blinn–Phong) the held-out
-  relative RMS and mean CIEDE2000, and its wall time.
+  relative RMS and mean CIEDE2000, and its wall time: the first call in the process (it
+  compiles the half-size problem and the three other models) and the second (warm, to set
+  against the warm joint fit: the issue's "at most twice" compares like with like).
 
 The data stays where it is: the real photographs are for research use and never enter the
 repository.
@@ -62,6 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     whole = fit_capture(capture)
     warm_s = time.perf_counter() - t
     t = time.perf_counter()
+    fit_capture(capture, holdout=args.holdout)  # compiles the half-size problem and the other models
+    holdout_first_s = time.perf_counter() - t
+    t = time.perf_counter()
     held = fit_capture(capture, holdout=args.holdout)
     holdout_s = time.perf_counter() - t
 
@@ -85,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
             "spec": args.holdout,
             "held_out_images": len(held["holdout"]["held_out"]),
             "wall_s": holdout_s,
+            "first_call_s": holdout_first_s,
+            "warm_ratio_to_warm_fit": holdout_s / warm_s,
             "models": {
                 name: {"relative_rms": entry["relative_rms"], "delta_e2000_mean": entry["delta_e2000_mean"]}
                 for name, entry in held["holdout"]["models"].items()
@@ -100,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"joint fit: cold {jf['cold_s']:.1f} s (peak {jf['cold_peak_rss_gb']:.2f} GB), warm {jf['warm_s']:.1f} s")
     print(
         f"held-out validation (--holdout {args.holdout}, {figures['holdout']['held_out_images']} images): "
-        f"{holdout_s:.1f} s"
+        f"warm {holdout_s:.1f} s = {holdout_s / warm_s:.2f}x the warm joint fit (first call {holdout_first_s:.1f} s)"
     )
     print(f"{'model':<14}{'held-out rel. RMS':>18}{'mean CIEDE2000':>16}")
     for name, entry in figures["holdout"]["models"].items():
