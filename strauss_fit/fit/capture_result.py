@@ -9,7 +9,7 @@ both sides:
   stored values;
 - from above, by the images' five-point Laplacian on the sphere, binned by level: noise of
   level σ gives it a spread of √20 σ, and the picture's own curvature only adds to it
-  (:func:`noise_bound`).
+  (:func:`strauss_fit.inference.noise.binned_laplacian_bound`).
 
 ``consistent`` when the residual is within even the lower bound; ``mismatch`` when its RMS
 exceeds :data:`strauss_fit.fit.capture.BOUND_FACTOR` times the upper bound (whatever the
@@ -32,6 +32,7 @@ from ..capture._manifest import Capture, open_capture
 from ..capture._samples import CaptureSamples, load_samples
 from ..color import delta_e_2000
 from ..errors import CaptureError
+from ..inference.noise import binned_laplacian_bound
 from ..precision import float64
 from . import capture_stability
 from .capture import (
@@ -50,10 +51,6 @@ from .capture import (
 )
 from .capture_equivalence import DEFAULT_DELTA_E, capture_equivalence
 
-#: Median of χ²₁: the median of z² for Gaussian z (turns a median of squares into a variance).
-MEDIAN_CHI2_1 = 0.454936423119572
-#: Level bins of the noise bound (quantiles of the observed values).
-BOUND_BINS = 8
 #: The models a held-out validation compares with the one fitted.
 COMPARED = ("lambert", "phong", "blinn-phong")
 
@@ -95,39 +92,10 @@ def holdout_indices(spec: str | int | Sequence[int], count: int) -> list[int]:
 
 
 def noise_bound(samples: CaptureSamples, residual_levels: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
-    """Per value (L, P, 3): an upper bound on the noise σ at the observed level.
-
-    The Laplacians of all images are binned by the observed value's level (quantiles), and
-    in each bin and channel σ² ≤ median(Δ²)/(20 · median χ²₁). Why the median: a few pixels
-    of strong curvature (a highlight's edge) would dominate a mean; the median still only
-    grows with curvature. Returns the per-value bound and the bins (for the result)."""
-    lap = samples.laplacian
-    levels = samples.values
-    bound = np.full(levels.shape, np.nan)
-    bins: list[dict[str, Any]] = []
-    for c in range(3):
-        ok = np.isfinite(lap[..., c]) & samples.usable[..., c]
-        if ok.sum() < 50:
-            continue
-        edges = np.quantile(levels[..., c][ok], np.linspace(0, 1, BOUND_BINS + 1))
-        edges[0], edges[-1] = -np.inf, np.inf
-        which = np.clip(np.searchsorted(edges, residual_levels[..., c], side="right") - 1, 0, BOUND_BINS - 1)
-        own = np.clip(np.searchsorted(edges, levels[..., c][ok], side="right") - 1, 0, BOUND_BINS - 1)
-        squares = lap[..., c][ok] ** 2
-        sigma = np.zeros(BOUND_BINS)
-        for b in range(BOUND_BINS):
-            values = squares[own == b]
-            sigma[b] = math.sqrt(float(np.median(values)) / (20 * MEDIAN_CHI2_1)) if values.size >= 20 else np.nan
-        # an empty bin borrows its neighbour's (larger-level bins have larger noise)
-        for b in range(BOUND_BINS):
-            if not np.isfinite(sigma[b]):
-                finite = np.where(np.isfinite(sigma))[0]
-                sigma[b] = sigma[finite[np.argmin(np.abs(finite - b))]] if finite.size else np.nan
-        bound[..., c] = sigma[which]
-        bins.append(
-            {"channel": "rgb"[c], "level_edges": [float(e) for e in edges[1:-1]], "sigma": [float(v) for v in sigma]}
-        )
-    return bound, bins
+    """Per value (L, P, 3): an upper bound on the noise σ at the observed level, from the
+    images' five-point Laplacians (:func:`strauss_fit.inference.noise.binned_laplacian_bound`);
+    and its level bins (for the result)."""
+    return binned_laplacian_bound(samples.laplacian, samples.values, samples.usable, residual_levels)
 
 
 def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], list[dict[str, str]]]:

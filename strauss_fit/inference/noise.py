@@ -85,7 +85,7 @@ import functools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from scipy import ndimage, special
@@ -1190,6 +1190,57 @@ def noise_bound(
         "an upper bound on noise independent between neighbouring pixels"
     )
     return NoiseBound(variance, mask, sigma, positions, method)
+
+
+#: Median of χ²₁: the median of z² for Gaussian z (turns a median of squares into a variance).
+MEDIAN_CHI2_1 = 0.454936423119572
+#: Level bins of :func:`binned_laplacian_bound` (quantiles of the observed values).
+LAPLACIAN_BOUND_BINS = 8
+
+
+def binned_laplacian_bound(
+    laplacian: np.ndarray,
+    levels: np.ndarray,
+    usable: np.ndarray,
+    query_levels: np.ndarray,
+    bins: int = LAPLACIAN_BOUND_BINS,
+) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """An upper bound on the noise σ of many images of one scene (a capture), per level.
+
+    ``laplacian`` (..., 3) holds the five-point Laplacian 4 I(p) − Σ I(neighbours) of each
+    image at each pixel (NaN where it is not defined), ``levels`` the observed values and
+    ``usable`` which enter. Noise of level σ, independent between pixels, gives the
+    Laplacian a spread of √20 σ, and the picture's own curvature only adds to it (as for
+    :func:`noise_bound`, with the plain Laplacian instead of Immerkær's kernel). The values
+    are binned by level (quantiles, per channel), and in each bin
+    σ² ≤ median(Δ²)/(20 · median χ²₁). Why the median: a few pixels of strong curvature (a
+    highlight's edge) would dominate a mean; the median still only grows with curvature.
+    An empty bin borrows its nearest neighbour's. Returns the bound at ``query_levels``
+    (same shape) and the bins per channel (``level_edges``, ``sigma``)."""
+    bound = np.full(np.shape(query_levels), np.nan)
+    out: list[dict[str, Any]] = []
+    for c in range(3):
+        ok = np.isfinite(laplacian[..., c]) & usable[..., c]
+        if ok.sum() < 50:
+            continue
+        edges = np.quantile(levels[..., c][ok], np.linspace(0, 1, bins + 1))
+        edges[0], edges[-1] = -np.inf, np.inf
+        which = np.clip(np.searchsorted(edges, query_levels[..., c], side="right") - 1, 0, bins - 1)
+        own = np.clip(np.searchsorted(edges, levels[..., c][ok], side="right") - 1, 0, bins - 1)
+        squares = laplacian[..., c][ok] ** 2
+        sigma = np.zeros(bins)
+        for b in range(bins):
+            values = squares[own == b]
+            sigma[b] = math.sqrt(float(np.median(values)) / (20 * MEDIAN_CHI2_1)) if values.size >= 20 else np.nan
+        for b in range(bins):
+            if not np.isfinite(sigma[b]):
+                finite = np.where(np.isfinite(sigma))[0]
+                sigma[b] = sigma[finite[np.argmin(np.abs(finite - b))]] if finite.size else np.nan
+        bound[..., c] = sigma[which]
+        out.append(
+            {"channel": "rgb"[c], "level_edges": [float(e) for e in edges[1:-1]], "sigma": [float(v) for v in sigma]}
+        )
+    return bound, out
 
 
 @dataclass
