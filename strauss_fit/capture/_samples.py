@@ -11,7 +11,12 @@ Decoding of a stored value x (a fraction of full scale, as the file holds it):
 - saturated where x ≥ ``saturation`` (per channel; by default within
   :data:`SATURATION_MARGIN` of the largest code of an integer file), under-exposed where
   the decoded value is below ``dark`` (by default: code 0 of an integer file, which clips
-  the noise at black); both are left out of the fit;
+  the noise at black); both are left out of the fit. Why judged by the neighbours: a
+  value near a clip is censored by its own noise (those pushed over are lost, the rest
+  kept), so leaving a pixel out for its *own* value biases the ones kept. A sphere pixel is
+  left out when any of its eight neighbours on the sphere is in the band (or it has none
+  and is in it itself), and always when it is itself at the largest code: the neighbours'
+  noise is independent of its own, so what is kept is unbiased where the picture is smooth;
 - decoded: linear files as stored, sRGB files through the sRGB transfer curve, then the
   black level subtracted and the result divided by the image's known exposure.
 """
@@ -230,7 +235,8 @@ def load_samples(
         else:
             dark = np.zeros(stored.shape, dtype=bool)
         frames.append(decoded)
-        saturated_maps.append(np.stack([saturated, dark]))
+        at_clip = stored >= 1.0 if capture.saturation is None and loaded.bits is not None else saturated
+        saturated_maps.append(np.stack([saturated, dark, at_clip]))
         encodings.append(encoding)
         bits_seen.append(loaded.bits)
         if progress is not None:
@@ -255,10 +261,11 @@ def load_samples(
     if len(rows) < 10:
         raise CaptureError(f"the sphere ({circle.describe()}) covers only {len(rows)} usable pixels")
     values = np.stack([frame[rows, cols] for frame in frames])
-    flags = np.stack([m[:, rows, cols] for m in saturated_maps])  # (L, 2, P, 3)
+    flags = np.stack([_censored(m, rows, cols) for m in saturated_maps])  # (L, 2, P, 3)
     usable = ~(flags[:, 0] | flags[:, 1])
     dirs, rgb = _light_arrays(capture.images, normals)
     laplacian = _laplacian(frames, [~(m[0] | m[1]) for m in saturated_maps], rows, cols, shape)
+    del saturated_maps
     outside = _outside(shape, circle, camera, mask)
     # the background's statistics from an even spread of at most BACKGROUND_PIXELS of its pixels
     # (a median over the whole frame of every image would cost more than the fit)
@@ -291,6 +298,32 @@ def load_samples(
         encodings=tuple(encodings),
         images=tuple(capture.images),
     )
+
+
+def _censored(maps: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Per sphere pixel and channel (2, P, 3): saturated, under-exposed, judged by the
+    neighbours (module docstring). ``maps`` (3, H, W, 3): in the saturated band, in the dark
+    band, at the largest code."""
+    height, width = maps.shape[1:3]
+    on_sphere = np.zeros((height, width), dtype=bool)
+    on_sphere[rows, cols] = True
+    band = np.zeros((2, len(rows), 3), dtype=bool)
+    neighbours = np.zeros(len(rows), dtype=int)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == 0 and dc == 0:
+                continue
+            r, c = rows + dr, cols + dc
+            inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+            r, c = np.where(inside, r, 0), np.where(inside, c, 0)
+            counts = inside & on_sphere[r, c]
+            neighbours += counts
+            band |= maps[:2, r, c] & counts[None, :, None]
+    alone = neighbours == 0
+    own = maps[:2, rows, cols]
+    band |= own & alone[None, :, None]
+    band[0] |= maps[2, rows, cols]
+    return band
 
 
 def _laplacian(

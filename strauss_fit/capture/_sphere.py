@@ -413,6 +413,45 @@ def cone_of_circle(circle: Circle, camera: Camera, shape: Sequence[int]) -> Circ
     return replace(circle, direction=tuple(params[:3]), angular_radius=float(params[3]))
 
 
+def circle_perturbations(circle: Circle, camera: Camera) -> list[tuple[Circle, Circle]]:
+    """The circle moved by minus and plus one standard deviation along each of its
+    independent uncertain parameters, for propagating where the sphere is into what is
+    fitted on it: with a perspective camera the cone (two tilts of its direction, each of sd
+    ``direction_sd``/√2, and its angular radius), else the circle (cx, cy, r). Parameters
+    known exactly (sd 0, e.g. a circle given by the user) are left out."""
+    pairs: list[tuple[Circle, Circle]] = []
+    if camera.perspective and circle.has_cone:
+        u = np.asarray(circle.direction, dtype=np.float64)
+        tilt = circle.direction_sd / math.sqrt(2.0)
+        if tilt > 0:
+            for e in _tangent_basis(u):
+                moved = [u * math.cos(tilt) + sign * e * math.sin(tilt) for sign in (-1.0, 1.0)]
+                pairs.append(tuple(replace(circle, direction=tuple(float(v) for v in m)) for m in moved))  # type: ignore[misc]
+        if circle.angular_radius_sd > 0:
+            rho = float(circle.angular_radius)  # type: ignore[arg-type]
+            pairs.append(
+                tuple(  # type: ignore[misc]
+                    replace(circle, angular_radius=float(np.clip(rho + sign * circle.angular_radius_sd, 1e-9, 1.5)))
+                    for sign in (-1.0, 1.0)
+                )
+            )
+        return pairs
+    cx, cy = circle.center
+    for k, sd in enumerate(circle.center_sd):
+        if sd > 0:
+            pairs.append(
+                tuple(  # type: ignore[misc]
+                    replace(circle, center=(cx + sign * sd, cy) if k == 0 else (cx, cy + sign * sd))
+                    for sign in (-1.0, 1.0)
+                )
+            )
+    if circle.radius_sd > 0:
+        pairs.append(
+            tuple(replace(circle, radius=circle.radius + sign * circle.radius_sd) for sign in (-1.0, 1.0))  # type: ignore[misc]
+        )
+    return pairs
+
+
 def surface_at(
     x: np.ndarray, y: np.ndarray, circle: Circle, camera: Camera, shape: Sequence[int]
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -28,7 +28,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import jax
@@ -439,6 +439,9 @@ class CaptureFit:
     status: str
     starts: list[dict[str, Any]] = field(default_factory=list)
     timing: dict[str, float] = field(default_factory=dict)
+    #: Per value, the standard deviation the circle's uncertainty alone adds (included in
+    #: both covariances); None when not computed.
+    circle_sd: np.ndarray | None = None
 
     def values(self) -> dict[str, Any]:
         return _by_name(self.params, self.physical)
@@ -574,6 +577,48 @@ def _polish(
     return projected_lm(residual_fn, jacobian_fn, problem.data, physical, low, high, max_steps=max_steps)
 
 
+def _circle_covariance(coarse: _Problem, samples: CaptureSamples, physical: np.ndarray, free: np.ndarray) -> np.ndarray:
+    r"""The covariance the circle's uncertainty adds to the fitted values.
+
+    Each of the circle's uncertain parameters k moved by ± one standard deviation
+    (:func:`strauss_fit.capture._sphere.circle_perturbations`) changes every pixel's normal
+    and so the residual by :math:`\Delta r_k`; to first order the optimum moves by
+    :math:`\Delta\theta_k = -(J^\top J)^{-1} J^\top \Delta r_k`, and independent parameters
+    add :math:`\sum_k \Delta\theta_k \Delta\theta_k^\top`. Computed on the search's
+    subsample (a ratio of sums over the pixels: the subsample estimates it closely). Values on
+    a bound (not ``free``) get none."""
+    from ..capture._sphere import circle_perturbations, surface_at
+
+    size = len(physical)
+    pairs = circle_perturbations(samples.circle, samples.camera)
+    if not pairs or not free.any():
+        return np.zeros((size, size))
+    sub = _subsample(samples, SEARCH_VALUES, 0)
+    x = sub.cols + 0.5
+    y = sub.rows + 0.5
+    residual_fn, jacobian_fn = _compiled(coarse.model, coarse.params)
+    at = jnp.asarray(physical)
+    base = _Problem(
+        coarse.model, coarse.params, _terms(sub), jnp.asarray(sub.values), jnp.asarray(sub.usable, dtype=jnp.float64)
+    )
+    jac = np.asarray(jacobian_fn(at, base.data))[:, free]
+    bread = jac.T @ jac
+    out = np.zeros((size, size))
+    for pair in pairs:
+        residuals = []
+        for moved in pair:
+            normals, views = surface_at(x, y, moved, samples.camera, samples.shape)
+            shifted = _Problem(
+                base.model, base.params, _terms(replace(sub, normals=normals, views=views)), base.observed, base.weight
+            )
+            residuals.append(np.asarray(residual_fn(at, shifted.data)))
+        change = 0.5 * (residuals[1] - residuals[0])
+        step = np.zeros(size)
+        step[free] = -np.linalg.lstsq(bread, jac.T @ change, rcond=None)[0]
+        out += np.outer(step, step)
+    return out
+
+
 def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
     t0 = time.perf_counter()
     if not np.asarray(samples.usable).any():
@@ -623,9 +668,13 @@ def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
     scores = (jac * residual[:, None]).reshape(images, -1, size).sum(axis=1)
     meat = scores.T @ scores * (images / max(images - 1, 1))
     clustered = sandwich(bread, meat, free)
+    # where the sphere is, is itself uncertain: its share is added to both covariances
+    from_circle = _circle_covariance(coarse, samples, physical, free)
+    laplace, clustered = laplace + from_circle, clustered + from_circle
     predicted = np.asarray(_predict(problem.model, problem.params, jnp.asarray(physical), problem.terms))
     t_end = time.perf_counter()
     return CaptureFit(
+        circle_sd=np.sqrt(np.maximum(np.diag(from_circle), 0.0)),
         model=options.model,
         params=problem.params,
         physical=physical,

@@ -40,6 +40,7 @@ from .capture import (
     MODELS,
     CaptureFit,
     CaptureFitOptions,
+    _by_name,
     _labels,
     _offsets,
     _parameters,
@@ -393,9 +394,11 @@ def fit_capture(
             "name": "image-cluster sandwich",
             "conditional_on_model": False,
             "meaning": "how far the fitted values would move with other photographs of this kind: the residuals of one "
-            "image are summed before the spread is taken, since a misfit is correlated over the sphere",
+            "image are summed before the spread is taken, since a misfit is correlated over the sphere; the "
+            "uncertainty of where the sphere is (its circle) is added, as it is to the Laplace ±",
         },
         "uncertainty_laplace": fit.deviations("laplace"),
+        "uncertainty_circle": _by_name(fit.params, fit.circle_sd) if fit.circle_sd is not None else None,
         "correlation": _correlation(fit.clustered, fit.labels),
         "residual": {
             "rms": float(np.sqrt(np.mean(residual**2))),

@@ -36,9 +36,9 @@ def test_recovers_the_material_within_two_sigma(noisy_plastic):
     values, sd = fit.values(), fit.deviations("clustered")  # the reported ±
     material = truth["material"]
     for name in ("smoothness",):
-        # 4σ, not the 2σ the issue asks: s sits about 3σ (3e-4) off on this spec, a bias not
-        # yet explained (censoring at the clip and at code 0 is the suspect)
-        assert abs(values[name] - material[name]) <= 4 * sd[name] + 1e-9, (name, values[name], sd[name])
+        # within 2σ: the ± includes the circle's uncertainty (without it s sat 3σ off: the
+        # circle found from the mask is 0.02 px small, and s follows the normals)
+        assert abs(values[name] - material[name]) <= 2 * sd[name] + 1e-9, (name, values[name], sd[name])
     # C and the exposure trade off (E·C is what the images show): the product is recovered
     product = np.asarray(values["color"]) * values["exposure"]
     assert np.allclose(product, np.asarray(material["color"]) * truth["exposure"][0], rtol=0.01)
