@@ -1,5 +1,6 @@
 """``strauss-fit report``: a self-contained HTML (and Markdown) uncertainty report
-(:func:`strauss_fit.reporting.fit_report.report_from_files`)."""
+(:func:`strauss_fit.reporting.fit_report.report_from_files`; for a capture's fit result,
+:func:`strauss_fit.reporting.capture_report.capture_report_from_files`)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,9 @@ def add_parser(subparsers) -> None:
         "kind, noise sandwich or Laplace, posterior median and 16/84, 2.5/97.5 percentiles), "
         "the correlation matrix, a corner plot, trace plots, the sampler's diagnostics, the fit's ± against the "
         "posterior and plain-language warnings about degeneracies. Give a fit result (--fit), a chain (--chain), "
-        "or both; without a chain the intervals are the fit's Gaussian ones (x +/- sd, x +/- 1.96 sd).",
+        "or both; without a chain the intervals are the fit's Gaussian ones (x +/- sd, x +/- 1.96 sd). "
+        "For a capture's fit result (fit --capture) the report reads the capture again and shows, per light, the "
+        "target, the fit and the residual, the held-out images with their prediction last.",
     )
     parser.add_argument(
         "--fit", metavar="RESULT.json", help="fit result of 'strauss-fit fit' (default: the fit stored in --chain)"
@@ -43,6 +46,18 @@ def add_parser(subparsers) -> None:
         required=True,
         metavar="REPORT.html",
         help="the HTML page; REPORT.md and the folder REPORT_files/ are written beside it",
+    )
+    parser.add_argument(
+        "--capture",
+        nargs="+",
+        metavar="PATH",
+        help="for a capture's fit result: read the capture from here (a manifest, a folder or image files) instead "
+        "of the paths the result records",
+    )
+    parser.add_argument(
+        "--lights",
+        metavar="LIGHTS.toml",
+        help="for a capture's fit result: the lights file instead of the recorded one",
     )
     parser.add_argument("--title", help="the report's title")
     parser.add_argument("--force", action="store_true", help="overwrite an existing report")
@@ -90,11 +105,79 @@ def recorded_inputs(fit: str, given: dict[str, str | None], spelled: dict[str, s
     return inputs
 
 
+def _print_report(report, written) -> int:
+    if report.data.get("verdict"):
+        print(f"fit verdict: {report.data['verdict']}", file=sys.stderr)
+    for warning in report.data.get("warnings", []):
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    return 0
+
+
+def _is_capture_result(fit: str | None) -> bool:
+    from strauss_fit.fit.capture_result import is_capture_result
+    from strauss_fit.io.files import read_json
+
+    return bool(fit) and is_capture_result(read_json(fit, "fit result"))
+
+
+def _is_capture_chain(chain: str) -> bool:
+    """Whether ``chain`` is a capture's chain (``sample --fit`` of a capture's result); a file
+    that cannot be read says no here: the report's own checks then say why."""
+    from strauss_fit.errors import StraussFitError
+
+    try:
+        from strauss_fit.inference.sampler import read_metadata
+
+        return read_metadata(chain, required=False).get("kind") == "capture"
+    except (StraussFitError, OSError):
+        return False
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    """The report of a capture's fit result
+    (:func:`strauss_fit.reporting.capture_report.capture_report_from_files`)."""
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import check_distinct
+    from strauss_fit.reporting.capture_report import capture_report_from_files
+    from strauss_fit.reporting.fit_report import report_paths
+
+    if args.chain:
+        raise StraussFitError("a capture's chain is not supported by report yet: give its fit result (--fit) alone")
+    for option in ("target", "scene", "encoding"):
+        if getattr(args, option) is not None:
+            raise StraussFitError(
+                f"--{option} is for the fit of one image; a capture's fit result records its capture "
+                "(give --capture to read it from elsewhere)"
+            )
+    page, markdown, _ = report_paths(args.output)
+    inputs = {"--fit": args.fit, "--lights": args.lights, "--mask": args.mask}
+    inputs.update({f"--capture {path}": path for path in args.capture or []})
+    check_distinct({"-o": page, "-o's Markdown": markdown}, inputs)
+    report, written = capture_report_from_files(
+        args.fit,
+        args.output,
+        capture=args.capture,
+        lights=args.lights,
+        mask=args.mask,
+        title=args.title,
+        force=args.force,
+    )
+    return _print_report(report, written)
+
+
 def run(args: argparse.Namespace) -> int:
     from strauss_fit import report_from_files
+    from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import check_distinct
     from strauss_fit.reporting.fit_report import report_paths
 
+    if _is_capture_result(args.fit):
+        return run_capture(args)
+    if args.chain and _is_capture_chain(args.chain):
+        raise StraussFitError("a capture's chain is not supported by report yet: give its fit result (--fit) alone")
+    if args.capture or args.lights:
+        raise StraussFitError("--capture and --lights are for a capture's fit result (--fit of 'fit --capture')")
     if args.fit and not args.chain:  # with a chain, its recorded inputs come first (report_from_files)
         inputs = recorded_inputs(
             args.fit,
@@ -119,9 +202,4 @@ def run(args: argparse.Namespace) -> int:
         title=args.title,
         force=args.force,
     )
-    if report.data.get("verdict"):
-        print(f"fit verdict: {report.data['verdict']}", file=sys.stderr)
-    for warning in report.data.get("warnings", []):
-        print(f"warning: {warning}", file=sys.stderr)
-    print(f"wrote {', '.join(str(p) for p in written)}")
-    return 0
+    return _print_report(report, written)

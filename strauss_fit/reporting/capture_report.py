@@ -1,0 +1,772 @@
+"""The report of a capture's fit (``strauss-fit report --fit`` of a result of ``fit --capture``):
+one self-contained HTML page and the same content as Markdown with the PNGs beside it, like
+the report of one image (:mod:`strauss_fit.reporting.fit_report`, whose document, figures and
+atomic writing it shares).
+
+Contents, in order: the verdict and the warnings (codes and messages, then the fit's notes);
+the capture (images fitted and held out, sphere pixels, the circle, the camera); the parameter
+table (value, ± image-cluster sandwich, ± Laplace, and the perceptual equivalence range when
+the result has one) with one sentence per kind of interval; the residual (relative RMS, mean
+CIEDE2000, against the noise floor and the noise bound, by region); the per-light grid, one row
+of target, fit and residual per image (:func:`light_panels`, :func:`grid_figure`), the
+held-out images last with the fit's prediction of them; the per-image table; the held-out
+comparison with other models; the correlation matrix.
+
+:func:`capture_report_from_files` is the whole workflow: it reads the capture the result
+records again (:func:`strauss_fit.fit.capture_result.reload_capture_fit` and
+:func:`strauss_fit.fit.capture_result.reload_held_out`), builds the report and writes it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import warnings as _warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..capture import Capture, CaptureSamples, Circle, open_capture
+from ..errors import StraussFitError
+from ..fit.capture import BOUND_FACTOR, CaptureFit, delta_e_mean, relative_rms
+from ..fit.capture_result import holdout_indices, is_capture_result, reload_capture_fit, reload_held_out
+from ..io.files import read_json
+from .document import Document
+from .figures import new_figure, png_bytes
+from .fit_report import (
+    _STYLE,
+    Report,
+    ReportError,
+    _display,
+    _fmt,
+    check_report_outputs,
+    correlation_figure,
+    intervals_figure,
+    recorded_path,
+    write_report,
+)
+
+#: At most this many images per figure of the per-light grid.
+GRID_IMAGES = 16
+#: Images side by side in one row of a grid figure (each: target, fit, residual).
+GRID_COLUMNS = 2
+#: The longest side of a thumbnail, in pixels (larger crops are averaged down in blocks).
+THUMBNAIL_PX = 96
+#: Pixels of margin around the sphere's bounding box in the thumbnails.
+CROP_MARGIN_PX = 3
+#: The correlation figure leaves out the per-image exposures beyond this many labels.
+MAX_CORRELATION_LABELS = 16
+#: The residuals read again may differ from the recorded ones by this much (relative) before
+#: the report warns that the capture changed.
+RELOAD_TOLERANCE = 1e-6
+
+_VERDICTS = {
+    "consistent": "the {model} model reproduces the photographs within their noise",
+    "mismatch": "the {model} model does not reproduce this capture, whatever its noise: the residual's RMS is "
+    "more than {factor:g} times the largest noise the photographs allow",
+    "undetermined": "the residual lies between the noise floor (background, quantisation) and the largest noise "
+    "the photographs allow, so whether the {model} model reproduces them cannot be said",
+}
+
+
+# --- the per-light grid ----------------------------------------------------------------------
+
+
+@dataclass
+class LightPanels:
+    """The thumbnails of the per-light grid, N images, each cropped to the sphere's bounding
+    box (``crop``: first row, end row, first column, end column of the frame) and averaged
+    down in blocks of ``factor`` × ``factor`` pixels.
+
+    ``target`` and ``fitted`` (N, h, w, 3) are linear, 0 off the sphere; ``residual`` (N, h, w)
+    is fit − target, the mean over R, G and B, at the pixels whose three channels are usable
+    (NaN at the others and off the sphere); ``sphere`` (h, w) marks the thumbnail pixels on
+    the sphere. ``exposure`` is the one display exposure of every row, ``limit`` the one
+    symmetric limit of the residual's colour scale."""
+
+    files: list[str]
+    numbers: list[int]
+    held_out: list[bool]
+    target: np.ndarray
+    fitted: np.ndarray
+    residual: np.ndarray
+    sphere: np.ndarray
+    relative_rms: list[float]
+    delta_e2000_mean: list[float]
+    saturated: list[int]
+    exposure: float
+    limit: float
+    crop: tuple[int, int, int, int]
+    factor: int
+
+    @property
+    def count(self) -> int:
+        return len(self.files)
+
+
+def _blocks(values: np.ndarray, factor: int, *, nan: bool = False) -> np.ndarray:
+    """Mean over blocks of ``factor`` × ``factor`` pixels of (h, w, ...) (h, w multiples of it)."""
+    if factor == 1:
+        return values
+    h, w = values.shape[:2]
+    shaped = values.reshape((h // factor, factor, w // factor, factor) + values.shape[2:])
+    if not nan:
+        return shaped.mean(axis=(1, 3))
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", RuntimeWarning)  # a block without a usable pixel: NaN
+        return np.nanmean(shaped, axis=(1, 3))
+
+
+def light_panels(
+    parts: Sequence[tuple[CaptureSamples, np.ndarray, Sequence[int], bool]],
+    *,
+    thumbnail: int = THUMBNAIL_PX,
+    margin: int = CROP_MARGIN_PX,
+) -> LightPanels:
+    """The grid's thumbnails of ``parts``: per part the images (:class:`CaptureSamples`),
+    their prediction (L, P, 3), their 1-based numbers in the capture and whether they were
+    held out. The rows come in the order of the parts and their images."""
+    parts = [part for part in parts if part[0].count]
+    if not parts:
+        raise ReportError("the capture's result has no image to show")
+    height, width = parts[0][0].shape
+    rows = np.concatenate([samples.rows for samples, *_ in parts])
+    cols = np.concatenate([samples.cols for samples, *_ in parts])
+    r0, c0 = max(int(rows.min()) - margin, 0), max(int(cols.min()) - margin, 0)
+    r1, c1 = min(int(rows.max()) + margin + 1, height), min(int(cols.max()) + margin + 1, width)
+    factor = max(1, math.ceil(max(r1 - r0, c1 - c0) / max(int(thumbnail), 1)))
+    # padded to whole blocks (below and right of the frame, if need be)
+    ph, pw = math.ceil((r1 - r0) / factor) * factor, math.ceil((c1 - c0) / factor) * factor
+    observed_all = np.concatenate([samples.values[samples.usable] for samples, *_ in parts])
+    top = float(np.percentile(observed_all, 99)) if observed_all.size else 1.0
+    exposure = 1.0 / max(top, 1e-12)
+
+    files: list[str] = []
+    numbers: list[int] = []
+    held_out: list[bool] = []
+    targets, fits, residuals, rms, de, saturated = [], [], [], [], [], []
+    sphere = np.zeros((ph, pw), dtype=bool)
+    for samples, predicted, part_numbers, held in parts:
+        rr, cc = samples.rows - r0, samples.cols - c0
+        sphere[rr, cc] = True
+        for i in range(samples.count):
+            observed, fitted = np.zeros((ph, pw, 3)), np.zeros((ph, pw, 3))
+            observed[rr, cc] = samples.values[i]
+            fitted[rr, cc] = predicted[i]
+            keep = samples.usable[i].all(axis=-1)
+            residual = np.full((ph, pw), np.nan)
+            residual[rr[keep], cc[keep]] = (predicted[i] - samples.values[i])[keep].mean(axis=-1)
+            targets.append(_blocks(observed, factor))
+            fits.append(_blocks(fitted, factor))
+            residuals.append(_blocks(residual, factor, nan=True))
+            one = slice(i, i + 1)
+            rms.append(relative_rms(predicted[one], samples.values[one], samples.usable[one]))
+            de.append(delta_e_mean(predicted[one], samples.values[one], samples.usable[one]))
+            saturated.append(int(samples.saturated[i]))
+            files.append(samples.files[i])
+            numbers.append(int(part_numbers[i]))
+            held_out.append(bool(held))
+    residual_stack = np.stack(residuals)
+    finite = np.abs(residual_stack[np.isfinite(residual_stack)])
+    limit = max(float(np.percentile(finite, 99.5)) if finite.size else 0.0, 1e-12)
+    return LightPanels(
+        files=files,
+        numbers=numbers,
+        held_out=held_out,
+        target=np.stack(targets),
+        fitted=np.stack(fits),
+        residual=residual_stack,
+        sphere=_blocks(sphere.astype(np.float64), factor) > 0,
+        relative_rms=rms,
+        delta_e2000_mean=de,
+        saturated=saturated,
+        exposure=exposure,
+        limit=limit,
+        crop=(r0, r0 + ph, c0, c0 + pw),
+        factor=factor,
+    )
+
+
+def _short(name: str, length: int = 22) -> str:
+    name = Path(name).name
+    return name if len(name) <= length else name[: length - 1] + "…"
+
+
+def grid_figure(panels: LightPanels, indices: Sequence[int]) -> bytes:
+    """One figure of the per-light grid: for each image of ``indices`` (rows of ``panels``)
+    its target, fit and residual (fit − target, mean over RGB; white: off the sphere; grey:
+    values not used), labelled with its number, file name and relative RMS, two images side
+    by side; one colour scale and one display exposure for all."""
+    import matplotlib
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    indices = list(indices)
+    columns = min(GRID_COLUMNS, len(indices))
+    lines = math.ceil(len(indices) / columns)
+    h, w = panels.sphere.shape
+    # the layout in inches: panels of about 100 pixels at the figures' 100 dpi
+    panel, tall, gap, between, label, side = 1.0, 1.0 * h / w, 0.04, 0.3, 0.2, 0.1
+    top, bottom = 0.35, 0.75
+    width = 2 * side + columns * (3 * panel + 2 * gap) + (columns - 1) * between
+    height = top + lines * (label + tall + 0.06) + bottom
+    fig = new_figure(figsize=(width, height))
+    cmap = matplotlib.colormaps["RdBu_r"]
+    norm = Normalize(-panels.limit, panels.limit)
+    for slot, index in enumerate(indices):
+        line, column = divmod(slot, columns)
+        left = side + column * (3 * panel + 2 * gap + between)
+        lower = height - top - (line + 1) * (label + tall + 0.06) + 0.06
+        target_ax, fit_ax, residual_ax = (
+            fig.add_axes(((left + k * (panel + gap)) / width, lower / height, panel / width, tall / height))
+            for k in range(3)
+        )
+        target_ax.imshow(_display(panels.target[index], panels.exposure), interpolation="nearest")
+        fit_ax.imshow(_display(panels.fitted[index], panels.exposure), interpolation="nearest")
+        rgba = cmap(norm(np.nan_to_num(panels.residual[index])))
+        rgba[~panels.sphere] = (1.0, 1.0, 1.0, 1.0)
+        rgba[panels.sphere & ~np.isfinite(panels.residual[index])] = (0.72, 0.72, 0.72, 1.0)
+        residual_ax.imshow(rgba, interpolation="nearest")
+        held = panels.held_out[index]
+        text = (
+            f"{panels.numbers[index]}. {_short(panels.files[index])}  rel. RMS {100 * panels.relative_rms[index]:.2f} %"
+        )
+        target_ax.text(
+            0.0,
+            1.05,
+            text + ("  held out" if held else ""),
+            transform=target_ax.transAxes,
+            ha="left",
+            va="bottom",
+            fontsize=7,
+            color="#a00000" if held else "black",
+            fontweight="bold" if held else "normal",
+        )
+        for ax in (target_ax, fit_ax, residual_ax):
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if held:
+                for spine in ax.spines.values():
+                    spine.set_color("#a00000")
+                    spine.set_linewidth(1.5)
+    fig.text(
+        0.5,
+        1 - 0.12 / height,
+        "each image: target | fit | fit − target (mean over R, G, B)",
+        ha="center",
+        va="top",
+        fontsize=9,
+    )
+    cax = fig.add_axes((0.25, 0.42 / height, 0.5, 0.1 / height))
+    bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), cax=cax, orientation="horizontal")
+    bar.ax.tick_params(labelsize=7)
+    bar.set_label("fit − target (linear; grey: saturated or under-exposed, not used)", fontsize=7)
+    return png_bytes(fig)
+
+
+# --- the report ------------------------------------------------------------------------------
+
+
+def _kinds(fit: CaptureFit) -> list[str]:
+    return [p.kind for p in fit.params for _ in range(p.size)]
+
+
+def equivalence_bands(ranges: Any, labels: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """A capture's equivalence ranges (``{name: [low, high]}``, a colour or another RGB
+    parameter: three pairs) by parameter label (``color_r``), or {} without any."""
+    out: dict[str, tuple[float, float]] = {}
+    if not isinstance(ranges, dict):
+        return out
+    for name, value in ranges.items():
+        try:
+            pairs = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            continue
+        if pairs.shape == (2,):
+            out[str(name)] = (float(pairs[0]), float(pairs[1]))
+        elif pairs.shape == (3, 2):
+            for channel, pair in zip("rgb", pairs):
+                out[f"{name}_{channel}"] = (float(pair[0]), float(pair[1]))
+    return {label: out[label] for label in labels if label in out and all(map(math.isfinite, out[label]))}
+
+
+def _camera_text(camera: Any) -> str:
+    if not isinstance(camera, dict):
+        return "?"
+    text = str(camera.get("type", "?"))
+    if camera.get("focal_px") is not None:
+        text += f", focal length {float(camera['focal_px']):.4g} px"
+    if camera.get("principal_point") is not None:
+        x, y = camera["principal_point"]
+        text += f", principal point ({float(x):.1f}, {float(y):.1f})"
+    return text
+
+
+def _circle_text(recorded: Any, samples: CaptureSamples) -> str:
+    try:
+        circle = Circle.from_dict(recorded)
+    except (StraussFitError, TypeError, ValueError, KeyError):
+        circle = samples.circle
+    return f"{circle.describe()} (from the {circle.source})"
+
+
+def _sd_text(value: float) -> str:
+    return _fmt(value, 2) if value > 0 else "0 (on its bound)"
+
+
+def _numbers(result: dict[str, Any]) -> tuple[list[int], list[int]]:
+    """1-based numbers of the fitted and the held-out images."""
+    count = int(result.get("images") or 0)
+    holdout = (result.get("settings") or {}).get("holdout")
+    held = holdout_indices(holdout, count) if holdout is not None else []
+    fitted = [i + 1 for i in range(count) if i not in set(held)]
+    return fitted, [i + 1 for i in held]
+
+
+def build_capture_report(
+    result: dict[str, Any],
+    samples: CaptureSamples,
+    fit: CaptureFit,
+    *,
+    held: tuple[CaptureSamples, np.ndarray] | None = None,
+    title: str | None = None,
+    equivalence: dict[str, Any] | None = None,
+    assets: str = "report_files",
+) -> Report:
+    """Assemble the report of a capture's fit from its result (the JSON of ``fit
+    --capture``), the images it was fitted to and the fit read back
+    (:func:`strauss_fit.fit.capture_result.reload_capture_fit`), and optionally the held-out
+    images with the fit's prediction of them (:func:`strauss_fit.fit.capture_result.reload_held_out`).
+    ``equivalence`` replaces the result's equivalence ranges."""
+    if not is_capture_result(result):
+        raise ReportError("not a capture's fit result (no images_fitted, circle and settings)")
+    doc = Document(assets)
+    model = str(result.get("model", fit.model))
+    labels = list(fit.labels)
+    residual = result.get("residual") or {}
+    settings = result.get("settings") or {}
+    data: dict[str, Any] = {"labels": labels, "model": model}
+    capture_paths = result.get("capture") or []
+    capture_paths = [capture_paths] if isinstance(capture_paths, str) else [str(p) for p in capture_paths]
+    heading = title or f"strauss-fit capture report: {', '.join(capture_paths) or 'capture'}"
+    doc.heading(heading, 1)
+    from .._version import __version__
+
+    stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    doc.para(
+        f"One {model} material fitted to every photograph of the capture at once. "
+        f"Generated by strauss-fit {__version__} on {stamp}."
+    )
+
+    # the grid's numbers first: the warnings say when they differ from the recorded ones
+    fitted_numbers, held_numbers = _numbers(result)
+    if len(fitted_numbers) != samples.count:
+        fitted_numbers = list(range(1, samples.count + 1))
+    parts: list[tuple[CaptureSamples, np.ndarray, Sequence[int], bool]] = [
+        (samples, fit.predicted, fitted_numbers, False)
+    ]
+    if held is not None:
+        held_samples, held_predicted = held
+        if len(held_numbers) != held_samples.count:
+            held_numbers = list(range(samples.count + 1, samples.count + held_samples.count + 1))
+        parts.append((held_samples, held_predicted, held_numbers, True))
+    panels = light_panels(parts)
+
+    # --- verdict and warnings
+    fit_warnings = [w for w in result.get("warnings") or [] if isinstance(w, dict)]
+    warnings = [f"[{w.get('code', '?')}] {w.get('message', '')}" for w in fit_warnings]
+    recorded_rms = residual.get("relative_rms")
+    now_rms = relative_rms(fit.predicted, samples.values, samples.usable)
+    if isinstance(recorded_rms, (int, float)) and not math.isclose(
+        now_rms, recorded_rms, rel_tol=RELOAD_TOLERANCE, abs_tol=1e-12
+    ):
+        warnings.append(
+            f"[capture-changed] the images read now give a relative RMS of {100 * now_rms:.4g} %, the result "
+            f"records {100 * recorded_rms:.4g} %: the capture changed since the fit, and the grid shows it as it "
+            "is now"
+        )
+    warnings += [f"fit: {note}" for note in result.get("notes") or []]
+    verdict = residual.get("verdict")
+    data.update(verdict=verdict, warnings=warnings, fit_warnings=fit_warnings)
+    doc.heading("Verdict and warnings")
+    if verdict:
+        doc.para(
+            _verdict_text(str(verdict), model, residual),
+            "ok" if verdict == "consistent" else "bad" if verdict == "mismatch" else None,
+        )
+    if warnings:
+        doc.bullets(warnings, "warn")
+    else:
+        doc.para("No warnings.", "ok")
+
+    # --- the capture
+    doc.heading("The capture")
+    images = int(result.get("images", samples.count + (0 if held is None else held[0].count)))
+    facts = [
+        ["capture", ", ".join(capture_paths) or "?"],
+        ["images", f"{images} ({samples.count} fitted" + (f", {len(held_numbers)} held out)" if held_numbers else ")")],
+        [
+            "sphere pixels",
+            f"{result.get('pixels', len(samples.rows))} ({_fmt(result.get('values_used'), 8)} values "
+            f"used, {_fmt(result.get('saturated_values'), 8)} saturated or under-exposed values left out)",
+        ],
+        ["sphere", _circle_text(result.get("circle"), samples)],
+        ["camera", _camera_text(result.get("camera"))],
+        ["model", f"{model}; fitted: {', '.join(result.get('free') or [])}"],
+        [
+            "exposure",
+            str(settings.get("exposure", "?"))
+            + ("; white balance fitted" if settings.get("white_balance") else "")
+            + ("; ambient light fitted" if settings.get("ambient") else ""),
+        ],
+    ]
+    if held_numbers:
+        facts.append(
+            [
+                "held out",
+                ", ".join(f"{n} ({_short(f)})" for n, f in zip(held_numbers, panels.files[samples.count :]))
+                or ", ".join(str(n) for n in held_numbers),
+            ]
+        )
+    doc.bullets([f"{name}: {text}" for name, text in facts])
+
+    # --- parameters
+    doc.heading("Parameters")
+    values = np.asarray(fit.physical, dtype=np.float64)
+    sd_cluster = np.sqrt(np.maximum(np.diag(fit.clustered), 0.0))
+    sd_laplace = np.sqrt(np.maximum(np.diag(fit.laplace), 0.0))
+    bands = equivalence_bands(result.get("equivalence") if equivalence is None else equivalence, labels)
+    threshold = float(result.get("equivalence_delta_e") or settings.get("equivalence_delta_e") or 1.0)
+    header = ["parameter", "value", "± (image-cluster sandwich)", "± (Laplace)"]
+    if bands:
+        header.append(f"looks the same (ΔE ≤ {threshold:g})")
+    rows = []
+    for k, label in enumerate(labels):
+        row = [label, _fmt(values[k]), _sd_text(sd_cluster[k]), _sd_text(sd_laplace[k])]
+        if bands:
+            row.append(f"{_fmt(bands[label][0], 3)} – {_fmt(bands[label][1], 3)}" if label in bands else "–")
+        rows.append(row)
+    doc.table(header, rows)
+    method = result.get("uncertainty_method") or {}
+    meaning = str(method.get("meaning") or "how far the fitted values would move with other photographs of this kind")
+    meanings = [
+        f"± (image-cluster sandwich): {meaning} — valid whether or not the model reproduces the photographs, but "
+        "then an interval for the model's best approximation of this capture, not for the material.",
+        "± (Laplace): σ̂·sqrt((JᵀJ)⁻¹) with σ̂² = RSS/(N − P), every value's residual taken as independent noise — "
+        "valid only if the model reproduces the photographs; a misfit correlated over the sphere makes it too "
+        "narrow.",
+    ]
+    if bands:
+        meanings.append(
+            "Looks the same (perceptual equivalence): every value in the range, the other values (exposures, white "
+            f"balance and ambient light included) re-fitted, predicts the capture within a mean CIEDE2000 of "
+            f"{threshold:g} of the fit — a difference nobody sees. It says what the photographs can show, not how "
+            "precisely they pin the value."
+        )
+    meanings.append("A value on its bound has 0 in both ± columns.")
+    data["intervals"] = {"bands": bands, "threshold": threshold, "meanings": meanings}
+    doc.bullets(meanings)
+    if bands:
+        shown = [k for k, label in enumerate(labels) if label in bands]
+        kinds = _kinds(fit)
+        lower, upper = [], []
+        for k in shown:
+            low, high = bands[labels[k]]
+            if kinds[k] == "unit":
+                lower.append(0.0)
+                upper.append(1.0)
+            else:
+                lo = min(low, values[k] - 1.96 * sd_cluster[k])
+                hi = max(high, values[k] + 1.96 * sd_cluster[k])
+                pad = 0.05 * max(hi - lo, 1e-6 * max(abs(values[k]), 1.0))
+                lower.append(lo - pad)
+                upper.append(hi + pad)
+        doc.image(
+            "intervals.png",
+            intervals_figure(
+                [labels[k] for k in shown],
+                values[shown],
+                sd_cluster[shown],
+                {labels[k]: bands[labels[k]] for k in shown},
+                np.array(lower),
+                np.array(upper),
+                "image-cluster sandwich",
+                threshold,
+            ),
+            "per parameter: the range that looks the same (light), the image-cluster sandwich ±1.96σ (dark), the fit",
+        )
+    held_parameters = result.get("held") or {}
+    if isinstance(held_parameters, dict) and held_parameters:
+        doc.heading("Held parameters", 3)
+        doc.table(
+            ["parameter", "value", "why"],
+            [
+                [str(name), _fmt((info or {}).get("value")), str((info or {}).get("reason", ""))]
+                for name, info in held_parameters.items()
+            ],
+        )
+
+    # --- residual
+    doc.heading("Residual")
+    doc.table(["quantity", "value"], _residual_rows(residual))
+    regions = residual.get("regions") or {}
+    if isinstance(regions, dict) and regions:
+        doc.table(
+            ["region", "values", "relative RMS", "mean (photograph − fit)", "median photograph", "median fit"],
+            [
+                [
+                    str(name),
+                    str(entry.get("values", "–")),
+                    _percent(entry.get("relative_rms")),
+                    _fmt(entry.get("mean_residual"), 3),
+                    _fmt(entry.get("observed_median"), 3),
+                    _fmt(entry.get("predicted_median"), 3),
+                ]
+                for name, entry in regions.items()
+                if isinstance(entry, dict)
+            ],
+        )
+        doc.para(
+            "Regions: highlight, within about 25° of a light's mirror direction; body, the rest of the lit side; "
+            "unlit, where no stated light reaches."
+        )
+
+    # --- the per-light grid
+    doc.heading("Target, fit and residual per light")
+    figures = []
+    for page, start in enumerate(range(0, panels.count, GRID_IMAGES)):
+        indices = list(range(start, min(start + GRID_IMAGES, panels.count)))
+        name = f"lights-{page + 1}.png"
+        figures.append(name)
+        first, last = indices[0] + 1, indices[-1] + 1
+        doc.image(
+            name,
+            grid_figure(panels, indices),
+            f"rows {first}–{last} of {panels.count}: target | fit | fit − target (mean over R, G, B; one colour "
+            f"scale ±{panels.limit:.3g} and one display exposure for every row; grey: values not used)"
+            + (
+                "; framed in red and marked held out: images the fit did not see, predicted"
+                if any(panels.held_out[i] for i in indices)
+                else ""
+            ),
+        )
+    doc.para(
+        f"Each row is one photograph, cropped to the sphere ({panels.crop[1] - panels.crop[0]} × "
+        f"{panels.crop[3] - panels.crop[2]} px"
+        + (f", averaged over blocks of {panels.factor} × {panels.factor} px" if panels.factor > 1 else "")
+        + "), labelled with its number in the capture, its file and its relative RMS √(Σ(Î − I)²/ΣI²)."
+        + (" The held-out images come last: the fit never saw them, and its prediction is shown." if held else "")
+    )
+    grid_rows = [
+        {
+            "number": panels.numbers[i],
+            "file": panels.files[i],
+            "held_out": panels.held_out[i],
+            "relative_rms": panels.relative_rms[i],
+            "delta_e2000_mean": panels.delta_e2000_mean[i],
+            "saturated_pixels": panels.saturated[i],
+        }
+        for i in range(panels.count)
+    ]
+    data["grid"] = {
+        "rows": grid_rows,
+        "figures": figures,
+        "exposure": panels.exposure,
+        "limit": panels.limit,
+        "crop": panels.crop,
+        "factor": panels.factor,
+        "residual": panels.residual,
+    }
+
+    # --- per image
+    doc.heading("Per image")
+    doc.table(
+        ["#", "file", "relative RMS", "mean CIEDE2000", "saturated pixels", "held out"],
+        [
+            [
+                str(row["number"]),
+                Path(row["file"]).name,
+                _percent(row["relative_rms"]),
+                _fmt(row["delta_e2000_mean"], 3),
+                str(row["saturated_pixels"]),
+                "held out" if row["held_out"] else "",
+            ]
+            for row in grid_rows
+        ],
+    )
+
+    # --- held-out comparison
+    holdout = result.get("holdout")
+    if isinstance(holdout, dict) and isinstance(holdout.get("models"), dict):
+        doc.heading("Held-out images: the models compared")
+        comparison = []
+        for name, entry in holdout["models"].items():
+            if not isinstance(entry, dict):
+                continue
+            on_fitted = residual.get("relative_rms") if name == model else (entry.get("fit") or {}).get("relative_rms")
+            comparison.append(
+                [
+                    str(name),
+                    _percent(on_fitted),
+                    _percent(entry.get("relative_rms")),
+                    _fmt(entry.get("delta_e2000_mean"), 3),
+                ]
+            )
+        doc.table(
+            ["model", "relative RMS, fitted images", "relative RMS, held out", "mean CIEDE2000, held out"], comparison
+        )
+        doc.para(
+            f"Each model is fitted to the same {samples.count} images and predicts the "
+            f"{len(holdout.get('held_out') or [])} held out: a model that predicts unseen lights better describes "
+            "the material better, whatever its fit to the images it saw."
+        )
+        data["holdout"] = {"rows": comparison}
+
+    # --- correlations
+    doc.heading("Correlations")
+    corr = np.asarray((result.get("correlation") or {}).get("matrix", np.eye(len(labels))), dtype=np.float64)
+    if corr.shape != (len(labels), len(labels)):
+        corr = np.eye(len(labels))
+    keep = list(range(len(labels)))
+    if len(labels) > MAX_CORRELATION_LABELS:
+        keep = [k for k, label in enumerate(labels) if not label.startswith("image_exposure_")]
+    shown_labels = [labels[k] for k in keep]
+    small = corr[np.ix_(keep, keep)]
+    left_out = len(labels) - len(keep)
+    doc.image(
+        "correlation.png",
+        correlation_figure(shown_labels, small, "correlation (image-cluster sandwich)"),
+        "correlation matrix of the image-cluster sandwich"
+        + (f" (the {left_out} per-image exposures left out)" if left_out else ""),
+    )
+    if len(shown_labels) <= 12:
+        doc.table(
+            [""] + shown_labels,
+            [[label] + [f"{v:+.2f}" for v in small[i]] for i, label in enumerate(shown_labels)],
+        )
+    doc.para("Correlation near ±1: the two values trade off, and the photographs constrain only a combination of them.")
+    return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
+
+
+def _percent(value: Any) -> str:
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        return "–"
+    return f"{100 * value:.3g} %"
+
+
+def _verdict_text(verdict: str, model: str, residual: dict[str, Any]) -> str:
+    meaning = _VERDICTS.get(verdict, "").format(model=model, factor=BOUND_FACTOR)
+    against = []
+    up, low = residual.get("chi2_per_dof_at_bound"), residual.get("chi2_per_dof_at_floor")
+    if isinstance(up, (int, float)):
+        against.append(f"the residual's RMS is {math.sqrt(max(up, 0.0)):.3g} times the noise bound")
+    if isinstance(low, (int, float)):
+        against.append(f"{math.sqrt(max(low, 0.0)):.3g} times the noise floor")
+    return (
+        f"Verdict: {verdict}" + (f" ({', '.join(against)})" if against else "") + (f": {meaning}." if meaning else ".")
+    )
+
+
+def _residual_rows(residual: dict[str, Any]) -> list[list[str]]:
+    rows = [
+        ["relative RMS √(Σ(Î − I)²/ΣI²)", _percent(residual.get("relative_rms"))],
+        ["RMS (linear)", _fmt(residual.get("rms"), 3)],
+        ["largest |residual|", _fmt(residual.get("max_abs"), 3)],
+        ["mean CIEDE2000", _fmt(residual.get("delta_e2000_mean"), 3)],
+    ]
+    floor = residual.get("noise_floor")
+    if isinstance(floor, list) and floor:
+        rows.append(
+            [
+                "noise floor (R, G, B)",
+                ", ".join(_fmt(v, 3) for v in floor) + f" (from {residual.get('noise_floor_source', '?')})",
+            ]
+        )
+    up, low = residual.get("chi2_per_dof_at_bound"), residual.get("chi2_per_dof_at_floor")
+    if isinstance(up, (int, float)):
+        rows.append(
+            [
+                "RMS / noise bound",
+                f"{math.sqrt(max(up, 0.0)):.3g} (the bound: the largest noise the photographs allow; a mismatch above "
+                f"{BOUND_FACTOR:g})",
+            ]
+        )
+    if isinstance(low, (int, float)):
+        rows.append(["RMS / noise floor", f"{math.sqrt(max(low, 0.0)):.3g}"])
+    rows.append(["verdict", str(residual.get("verdict", "–"))])
+    return rows
+
+
+# --- from files -------------------------------------------------------------------------------
+
+
+def _existing(path: str | None, base: Path, fit_path: str | Path, what: str, option: str) -> str | None:
+    found = recorded_path(path, base)
+    if found is not None and not Path(found).exists():
+        raise ReportError(
+            f"the fit result {fit_path} records the {what} {path}, which no longer exists (tried from here and from "
+            f"the result's folder): give {option} explicitly"
+        )
+    return found
+
+
+def open_recorded_capture(
+    result: dict[str, Any],
+    fit_path: str | Path,
+    *,
+    capture: Sequence[str | Path] | None = None,
+    lights: str | Path | None = None,
+    mask: str | Path | None = None,
+) -> Capture:
+    """The capture a capture's result records (its paths as written, else relative to the
+    folder of ``fit_path``, the result's JSON), each of ``capture`` (paths), ``lights`` and
+    ``mask`` replacing the recorded one when given. A recorded path found nowhere is a
+    one-line error naming it and the option to give instead."""
+    base = Path(fit_path).parent
+    if capture:
+        paths = [str(p) for p in capture]
+    else:
+        recorded = result.get("capture")
+        if not recorded:
+            raise ReportError(f"the fit result {fit_path} records no capture: give --capture")
+        recorded = [recorded] if isinstance(recorded, str) else list(recorded)
+        paths = [str(_existing(str(p), base, fit_path, "capture", "--capture")) for p in recorded]
+    lights_path = str(lights) if lights else _existing(result.get("lights"), base, fit_path, "lights file", "--lights")
+    mask_path = str(mask) if mask else _existing(result.get("mask"), base, fit_path, "mask", "--mask")
+    return open_capture(paths, lights_path, mask_path)
+
+
+def capture_report_from_files(
+    fit_json_path: str | Path,
+    output_html: str | Path,
+    *,
+    capture: Capture | Sequence[str | Path] | None = None,
+    lights: str | Path | None = None,
+    mask: str | Path | None = None,
+    title: str | None = None,
+    force: bool = False,
+) -> tuple[Report, list[Path]]:
+    """Build the report of a capture's fit result (the path of its JSON) and write it to
+    ``output_html`` (.html; the Markdown and the PNG folder beside it, all or none). The
+    capture is read again from the paths the result records (:func:`open_recorded_capture`)
+    unless ``capture`` (a :class:`strauss_fit.capture.Capture` or paths) is given. Returns
+    the report and the files written."""
+    out = Path(output_html)
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise StraussFitError(f"the report is HTML: give -o a .html name, got {output_html}")
+    result = read_json(fit_json_path, "fit result")
+    if not is_capture_result(result):
+        raise ReportError(f"{fit_json_path} is not a capture's fit result (no images_fitted, circle and settings)")
+    pages = max(1, math.ceil(int(result.get("images") or 0) / GRID_IMAGES))
+    check_report_outputs(
+        out, force, [f"lights-{k + 1}.png" for k in range(pages)] + ["intervals.png", "correlation.png"]
+    )
+    if not isinstance(capture, Capture):
+        capture = open_recorded_capture(result, fit_json_path, capture=capture, lights=lights, mask=mask)
+    samples, fit = reload_capture_fit(result, capture=capture)
+    held = reload_held_out(result, fit, capture)
+    report = build_capture_report(result, samples, fit, held=held, title=title, assets=f"{out.stem}_files")
+    return report, write_report(report, out, force=force)
