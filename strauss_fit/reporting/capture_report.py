@@ -59,6 +59,8 @@ THUMBNAIL_PX = 96
 CROP_MARGIN_PX = 3
 #: The correlation figure leaves out the per-image exposures beyond this many labels.
 MAX_CORRELATION_LABELS = 16
+#: At most this many disagreeing single images are listed (the rest are in the JSON).
+MAX_DISAGREEING_ROWS = 24
 #: The residuals read again may differ from the recorded ones by this much (relative) before
 #: the report warns that the capture changed.
 RELOAD_TOLERANCE = 1e-6
@@ -625,6 +627,11 @@ def build_capture_report(
         )
         data["holdout"] = {"rows": comparison}
 
+    # --- stability
+    stability = result.get("stability")
+    if isinstance(stability, dict) and isinstance(stability.get("halves"), list):
+        _stability_section(doc, stability, data)
+
     # --- correlations
     doc.heading("Correlations")
     corr = np.asarray((result.get("correlation") or {}).get("matrix", np.eye(len(labels))), dtype=np.float64)
@@ -649,6 +656,59 @@ def build_capture_report(
         )
     doc.para("Correlation near ±1: the two values trade off, and the photographs constrain only a combination of them.")
     return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
+
+
+def _stability_section(doc: Document, stability: dict[str, Any], data: dict[str, Any]) -> None:
+    """Two halves of the images against each other's equivalence ranges, and the single
+    images that disagree with the joint fit, with the reasons the fit gave."""
+    doc.heading("Stability")
+    agree = stability.get("agree") or {}
+    rows = []
+    for half in stability["halves"]:
+        if not isinstance(half, dict):
+            continue
+        values, ranges = half.get("values") or {}, half.get("equivalence") or {}
+        for name in agree:
+            band = ranges.get(name)
+            rows.append(
+                [
+                    f"{half.get('half', '?')} ({len(half.get('images') or [])} images)",
+                    str(name),
+                    _fmt(values.get(name)),
+                    f"{_fmt(band[0], 3)} – {_fmt(band[1], 3)}" if isinstance(band, list) and len(band) == 2 else "–",
+                ]
+            )
+    doc.table(["half", "parameter", "value", "looks the same"], rows)
+    verdicts = ", ".join(f"{name} {'agrees' if ok else 'differs'}" for name, ok in agree.items())
+    doc.para(
+        f"Two disjoint halves of the images (odd and even), each fitted alone: {verdicts or 'nothing compared'}. "
+        "A parameter agrees when each half's value lies within the other half's range of values that look the same "
+        f"(mean CIEDE2000 ≤ {_fmt(stability.get('delta_e'), 3)}).",
+        css="ok" if stability.get("stable") else "bad",
+    )
+    single = stability.get("single_images")
+    if isinstance(single, dict) and isinstance(single.get("fits"), list):
+        fits = single["fits"]
+        disagreeing = [row for row in fits if isinstance(row, dict) and row.get("disagrees")]
+        doc.para(
+            f"Each image fitted alone: {len(disagreeing)} of {len(fits)} disagree with the joint fit "
+            f"({single.get('rule', '')})."
+        )
+        if disagreeing:
+            doc.table(
+                ["image", "disagrees on", "why"],
+                [
+                    [
+                        Path(str(row.get("file", "?"))).name,
+                        ", ".join(str(v) for v in row.get("disagrees") or []),
+                        "; ".join(str(v) for v in row.get("reasons") or []),
+                    ]
+                    for row in disagreeing[:MAX_DISAGREEING_ROWS]
+                ],
+            )
+            if len(disagreeing) > MAX_DISAGREEING_ROWS:
+                doc.para(f"… and {len(disagreeing) - MAX_DISAGREEING_ROWS} more (all in the result's JSON).")
+    data["stability"] = {"rows": rows, "stable": bool(stability.get("stable"))}
 
 
 def _percent(value: Any) -> str:

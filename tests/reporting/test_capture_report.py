@@ -173,3 +173,44 @@ def test_cli_one_line_error_when_the_recorded_capture_is_gone(fitted, tmp_path, 
     code = main(["report", "--fit", str(tmp_path / "fit.json"), "--chain", "c.h5", "-o", str(tmp_path / "r.html")])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "chain is not supported" in err, err
+
+
+def test_stability_section_lists_halves_and_disagreeing_images(fitted, reloaded):
+    _, result = fitted
+    samples, fit, _ = reloaded
+    stable = copy.deepcopy(result)
+    stable["stability"] = {
+        "halves": [
+            {
+                "half": "odd",
+                "images": ["a", "b"],
+                "values": {"smoothness": 0.61},
+                "equivalence": {"smoothness": [0.5, 0.7]},
+            },
+            {
+                "half": "even",
+                "images": ["c"],
+                "values": {"smoothness": 0.64},
+                "equivalence": {"smoothness": [0.55, 0.72]},
+            },
+        ],
+        "agree": {"smoothness": True},
+        "stable": True,
+        "delta_e": 1.0,
+        "single_images": {
+            "fits": [
+                {"file": "/x/001.png", "disagrees": ["smoothness"], "reasons": ["<script>x</script> grazes"]},
+                {"file": "/x/002.png", "disagrees": []},
+            ],
+            "rule": "the rule",
+        },
+    }
+    report = build_capture_report(stable, samples, fit)
+    assert report.data["stability"]["rows"] == [
+        ["odd (2 images)", "smoothness", "0.61", "0.5 – 0.7"],
+        ["even (1 images)", "smoothness", "0.64", "0.55 – 0.72"],
+    ]
+    assert "1 of 2 disagree" in report.markdown and "001.png" in report.markdown
+    assert "<script>x</script>" not in report.html and "&lt;script&gt;x&lt;/script&gt; grazes" in report.html
+    # no stability in the result: no section
+    assert "stability" not in build_capture_report(result, samples, fit).data
