@@ -13,10 +13,14 @@ Decoding of a stored value x (a fraction of full scale, as the file holds it):
   the decoded value is below ``dark`` (by default: code 0 of an integer file, which clips
   the noise at black); both are left out of the fit. Why judged by the neighbours: a
   value near a clip is censored by its own noise (those pushed over are lost, the rest
-  kept), so leaving a pixel out for its *own* value biases the ones kept. A sphere pixel is
-  left out when any of its eight neighbours on the sphere is in the band (or it has none
-  and is in it itself), and always when it is itself at the largest code: the neighbours'
-  noise is independent of its own, so what is kept is unbiased where the picture is smooth;
+  kept), so leaving a pixel out for its *own* value biases the ones kept. The neighbours'
+  noise is independent of its own, so a rule on them keeps what is kept unbiased. A sphere
+  pixel is saturated when it is itself at the largest code (its value is unknown) or most
+  of its eight neighbours on the sphere lie in the saturated band (most, not any one: at a
+  highlight's steep edge one neighbour in the band says little about this pixel);
+  under-exposed when any neighbour is at code 0 (how far from black clipping starts grows
+  with the noise, and so does the ring this leaves out). A pixel without sphere neighbours
+  is judged by its own value;
 - decoded: linear files as stored, sRGB files through the sRGB transfer curve, then the
   black level subtracted and the result divided by the image's known exposure.
 """
@@ -308,6 +312,7 @@ def _censored(maps: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarra
     on_sphere = np.zeros((height, width), dtype=bool)
     on_sphere[rows, cols] = True
     band = np.zeros((2, len(rows), 3), dtype=bool)
+    in_band = np.zeros((len(rows), 3))
     neighbours = np.zeros(len(rows), dtype=int)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
@@ -318,8 +323,10 @@ def _censored(maps: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarra
             r, c = np.where(inside, r, 0), np.where(inside, c, 0)
             counts = inside & on_sphere[r, c]
             neighbours += counts
-            band |= maps[:2, r, c] & counts[None, :, None]
+            in_band += maps[0, r, c] & counts[:, None]
+            band[1] |= maps[1, r, c] & counts[:, None]
     alone = neighbours == 0
+    band[0] = in_band > 0.5 * np.maximum(neighbours, 1)[:, None]
     own = maps[:2, rows, cols]
     band |= own & alone[None, :, None]
     band[0] |= maps[2, rows, cols]
