@@ -38,7 +38,20 @@ _FIT_ONLY = {
 #: Largest --walkers (each walker holds a parameter vector in every stored step).
 MAX_WALKERS = 100_000
 #: Options fixed by an existing chain, which --resume refuses to change.
-_CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed", "adjust")
+_CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed", "adjust", "values")
+#: A capture's likelihood: values evaluated by default
+#: (:data:`strauss_fit.inference.capture_posterior.DEFAULT_VALUES`, not imported here: the
+#: command line starts without JAX).
+_DEFAULT_VALUES = 100_000
+#: The single image's inputs, which a capture's fit result does not take.
+_IMAGE_INPUTS = (("target", "TARGET"), ("scene", "--scene"), ("mask", "--mask"), ("encoding", "--encoding"))
+
+
+def _values_option(text: str) -> int | str:
+    """``--values``: a positive number of values, or ``all``."""
+    if text.strip().lower() == "all":
+        return "all"
+    return positive_int(text)
 
 
 def add_parser(subparsers) -> None:
@@ -51,7 +64,9 @@ def add_parser(subparsers) -> None:
         "target's noise as the fit found it when the fit knew it; else estimated from the fit's residual), "
         "uniform priors over the parameters' ranges. Runs until the chain is --min-tau-multiple autocorrelation "
         "times long and its estimate has settled (or --max-steps). Writes CHAIN.h5 (emcee's HDF5 format) and a "
-        "summary CHAIN.json beside it. Ctrl-C keeps every step sampled; continue with --resume.",
+        "summary CHAIN.json beside it. Ctrl-C keeps every step sampled; continue with --resume. With --fit "
+        "CAPTURE_RESULT.json (strauss-fit fit --capture), samples the capture's material instead: the capture it "
+        "records is read again, and TARGET, --scene, --mask and --encoding do not apply.",
     )
     parser.add_argument(
         "target",
@@ -151,6 +166,14 @@ def add_parser(subparsers) -> None:
         metavar="N",
         help="random seed of the walkers, 0 to 2^32 - 1 (default 0)",
     )
+    parser.add_argument(
+        "--values",
+        type=_values_option,
+        metavar="N|all",
+        help="a capture's fit result only: the values (image x pixel x channel) the likelihood evaluates, a fixed "
+        f"random subsample of sphere pixels through the difference estimator (default {_DEFAULT_VALUES}; all: "
+        "every value, exact)",
+    )
     parser.add_argument("--resume", action="store_true", help="continue the chain in CHAIN.h5 up to --max-steps")
     parser.add_argument("--force", action="store_true", help="replace an existing CHAIN.h5 and CHAIN.json")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
@@ -226,18 +249,12 @@ class ProgressBar:
             self.drawn = False
 
 
-def _check_options(args: argparse.Namespace):
-    """Validate the options; returns the sampling settings (``--quality`` with the options
-    given explicitly), the prior ranges and, when sample fits first, the fit options."""
-    from pathlib import Path
-
+def _sampling_settings(args: argparse.Namespace):
+    """The checks a single image and a capture share; returns the sampling settings
+    (``--quality`` with the options given explicitly)."""
     from strauss_fit import SampleSettings
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.inference.posterior import check_sigma, parse_priors
-    from strauss_fit.io.files import check_distinct
-
-    from .fit_cmd import check_fixed_ranges, fit_options, parse_fixed
-    from .report_cmd import RECORDED_INPUTS, recorded_inputs
+    from strauss_fit.inference.posterior import check_sigma
 
     check_evaluator_options(args)
     if args.sigma is not None:
@@ -270,6 +287,34 @@ def _check_options(args: argparse.Namespace):
                 f"--{changed[0]} cannot change when resuming: the chain keeps the value it was "
                 "started with (start a new chain with --force)"
             )
+    return settings
+
+
+def _check_priors(args: argparse.Namespace) -> dict[str, tuple[float, float]]:
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.inference.posterior import parse_priors
+
+    priors = parse_priors(args.prior)
+    for name, (low, high) in priors.items():  # checked here, before any work
+        if not (math.isfinite(low) and math.isfinite(high)) or not low < high:
+            raise StraussFitError(f"--prior {name}={low:g},{high:g}: expected finite LOW < HIGH")
+    return priors
+
+
+def _check_options(args: argparse.Namespace):
+    """Validate the options; returns the sampling settings (``--quality`` with the options
+    given explicitly), the prior ranges and, when sample fits first, the fit options."""
+    from pathlib import Path
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import check_distinct
+
+    from .fit_cmd import check_fixed_ranges, fit_options, parse_fixed
+    from .report_cmd import RECORDED_INPUTS, recorded_inputs
+
+    settings = _sampling_settings(args)
+    if args.values is not None:
+        raise StraussFitError("--values applies only to a capture's fit result (--fit from strauss-fit fit --capture)")
     if args.fit and not args.resume:  # the inputs the fit records, as report reads them
         inputs = recorded_inputs(
             args.fit,
@@ -291,10 +336,7 @@ def _check_options(args: argparse.Namespace):
         {"-o": args.output, "-o's summary": Path(args.output).with_suffix(".json")},
         {"TARGET": args.target, "--scene": args.scene, "--mask": args.mask, "--fit": args.fit},
     )
-    priors = parse_priors(args.prior)
-    for name, (low, high) in priors.items():  # checked here, before any work
-        if not (math.isfinite(low) and math.isfinite(high)) or not low < high:
-            raise StraussFitError(f"--prior {name}={low:g},{high:g}: expected finite LOW < HIGH")
+    priors = _check_priors(args)
     options = None
     if not (args.fit or args.resume):
         fixed = parse_fixed(args.fix)
@@ -303,15 +345,84 @@ def _check_options(args: argparse.Namespace):
     return settings, priors, options
 
 
+def _is_capture(args: argparse.Namespace) -> bool:
+    """Whether the run samples a capture: ``--fit`` is a capture's fit result, or
+    ``--resume`` continues a capture's chain. A file that cannot be read says no here: the
+    single image's checks then report it."""
+    from strauss_fit.errors import StraussFitError
+
+    try:
+        if args.fit and not args.resume:
+            from strauss_fit.fit.capture_result import is_capture_result
+            from strauss_fit.io.files import read_json
+
+            return is_capture_result(read_json(args.fit, "fit result"))
+        if args.resume and not args.fit:
+            from strauss_fit.inference.sampler import read_metadata
+
+            return read_metadata(args.output, required=False).get("kind") == "capture"
+    except (StraussFitError, OSError):
+        return False
+    return False
+
+
+def _check_capture_options(args: argparse.Namespace):
+    """The options of a capture's chain: the single image's inputs refused; returns the
+    sampling settings and the prior ranges."""
+    from pathlib import Path
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import check_distinct
+
+    settings = _sampling_settings(args)
+    given = [spelled for name, spelled in _IMAGE_INPUTS if getattr(args, name) is not None]
+    if given:
+        what = f"the capture's fit result {args.fit}" if args.fit else f"the capture's chain {args.output}"
+        only = "--fit and -o" if args.fit else "-o and --resume"
+        raise StraussFitError(
+            f"{given[0]} does not apply to {what}: the capture it records is read again (give only {only})"
+        )
+    check_distinct({"-o": args.output, "-o's summary": Path(args.output).with_suffix(".json")}, {"--fit": args.fit})
+    return settings, _check_priors(args)
+
+
+def _run_capture(args: argparse.Namespace) -> int:
+    settings, priors = _check_capture_options(args)
+    from strauss_fit.inference.capture_posterior import DEFAULT_VALUES, sample_capture
+
+    values = None if args.values == "all" else (args.values or DEFAULT_VALUES)
+    log = progress_printer(args.quiet, "... ")
+    bar = ProgressBar(args.quiet)
+    return _sample_and_print(
+        bar,
+        lambda: sample_capture(
+            args.fit,
+            args.output,
+            sigma=args.sigma,
+            priors=priors,
+            settings=settings,
+            values=values,
+            adjust=args.adjust or "auto",
+            quality=args.quality,
+            force=args.force,
+            resume=args.resume,
+            log=log,
+            progress=bar,
+        ),
+    )
+
+
 def run(args: argparse.Namespace) -> int:
+    if _is_capture(args):
+        return _run_capture(args)
     settings, priors, options = _check_options(args)
     from strauss_fit import sample
-    from strauss_fit.inference.sampler import SamplingInterrupted
 
     log = progress_printer(args.quiet, "... ")
     bar = ProgressBar(args.quiet)
-    try:
-        result = sample(
+    return _sample_and_print(
+        bar,
+        lambda: sample(
             args.target,
             args.scene,
             args.output,
@@ -328,7 +439,17 @@ def run(args: argparse.Namespace) -> int:
             force=args.force,
             log=log,
             progress=bar,
-        )
+        ),
+    )
+
+
+def _sample_and_print(bar: ProgressBar, sampling) -> int:
+    """Run ``sampling`` (a call of ``sample`` or ``sample_capture``), then print its
+    summary; Ctrl-C says what the chain keeps."""
+    from strauss_fit.inference.sampler import SamplingInterrupted
+
+    try:
+        result = sampling()
     except SamplingInterrupted as interrupted:
         bar.close()
         print(
@@ -369,7 +490,7 @@ def format_summary(payload: dict[str, Any]) -> str:
         (
             "parameter",
             "fit",
-            "sandwich ±" if method == "noise sandwich" else "Laplace ±",
+            {"noise sandwich": "sandwich ±", "image-cluster sandwich": "cluster ±"}.get(method, "Laplace ±"),
             "median",
             "16 %",
             "84 %",
@@ -408,10 +529,14 @@ def format_summary(payload: dict[str, Any]) -> str:
         f"sigma {payload['sigma']:.3g}; {verdict}"
     )
     lines += [f"not trustworthy: {r}" for r in d["reasons"]]
+    likelihood = payload.get("likelihood") or {}
+    if likelihood.get("method"):  # a capture's chain
+        lines.append(f"likelihood: {likelihood['method']}")
     adjustment = payload.get("adjustment") or {}
     if adjustment.get("method") == "affine":
+        target = "image-cluster sandwich" if payload.get("kind") == "capture" else "noise sandwich"
         lines.append(
-            "adjusted (affine) to the fit's noise sandwich: the percentiles above are of the mapped draws "
+            f"adjusted (affine) to the fit's {target}: the percentiles above are of the mapped draws "
             f"(theta' = theta_hat + A (theta - theta_hat)); {adjustment.get('dropped', 0)} of "
             f"{adjustment.get('dropped', 0) + adjustment.get('kept', 0)} fell outside the prior and were dropped"
         )
