@@ -94,3 +94,49 @@ def run_capture(args: argparse.Namespace) -> int:
     print(escape(format_capture_table(result)))
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def run_scene_model(args: argparse.Namespace) -> int:
+    """``fit TARGET --scene SCENE --model NAME``: another reflectance model than Strauss on one
+    target (:func:`strauss_fit.fit.scene_samples.samples_from_scene`, then the capture
+    fitter, which fits every model)."""
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.fit.capture import CaptureFitOptions
+    from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
+    from strauss_fit.fit.capture_result import format_capture_table
+    from strauss_fit.fit.scene_samples import samples_from_scene
+    from strauss_fit.io.files import Outputs, check_distinct, check_writable
+    from strauss_fit.io.targets import load_target
+    from strauss_fit.scene.loading import load_scene
+
+    from .fit_cmd import equivalence_asked
+
+    if len(args.target) != 1:
+        raise StraussFitError(f"--model {args.model} fits one target at a time (got {len(args.target)})")
+    if args.scene is None:
+        raise StraussFitError(f"--model {args.model} needs the target's scene (--scene SCENE.toml)")
+    for option in ("compare", "resume", "workers", "scheduler", "render_fit", "manifest", "fix", "free"):
+        if getattr(args, option, None):
+            raise StraussFitError(f"--{option.replace('_', '-')} is not available with --model {args.model}")
+    target_path = args.target[0]
+    check_distinct({"-o": args.output}, {"TARGET": target_path, "--scene": args.scene, "--mask": args.mask})
+    check_writable(args.output, args.force)
+    samples = samples_from_scene(load_scene(args.scene), load_target(target_path, args.mask, args.encoding))
+    options = CaptureFitOptions(
+        model=args.model, exposure="global" if args.fit_exposure else "fixed", ambient=args.ambient
+    )
+    log = progress_printer(args.quiet, "... ")
+    result = fit_capture_api(
+        samples,
+        options,
+        progress=log,
+        inputs={"target": str(target_path), "scene": str(args.scene), "mask": args.mask, "encoding": args.encoding},
+        equivalence=bool(equivalence_asked(args)),
+        equivalence_de=args.equivalence_de,
+    )
+    with Outputs(force=args.force) as out:
+        out.add_json(args.output, result)
+        written = out.commit(final=True)
+    print(escape(format_capture_table(result)))
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    return 0

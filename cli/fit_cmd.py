@@ -335,9 +335,9 @@ def run(args: argparse.Namespace) -> int:
 
             raise StraussFitError(f"--{option.replace('_', '-')} is for captures (--capture)")
     if args.model != "strauss":
-        from strauss_fit.errors import StraussFitError
+        from .fit_capture import run_scene_model
 
-        raise StraussFitError("--model is for captures (--capture) for now; single targets are fitted with Strauss")
+        return run_scene_model(args)
     if is_batch(args):
         return run_batch(args)
     compare_path = check_outputs(args)

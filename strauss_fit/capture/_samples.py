@@ -90,6 +90,9 @@ class CaptureSamples:
     encodings: tuple[str, ...]
     #: How each image's lights were given (per image, the CaptureImage).
     images: tuple[CaptureImage, ...]
+    #: Per image and channel, a known ambient light reaching every point (a scene's ambient
+    #: light, :mod:`strauss_fit.fit.scene_samples`); None when the images state none.
+    ambient_light: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -111,6 +114,7 @@ class CaptureSamples:
             background=self.background[idx],
             encodings=tuple(self.encodings[i] for i in idx),
             images=tuple(self.images[i] for i in idx),
+            ambient_light=None if self.ambient_light is None else self.ambient_light[idx],
         )
 
     def pixels(self, index: np.ndarray) -> CaptureSamples:
@@ -268,7 +272,7 @@ def load_samples(
     flags = np.stack([_censored(m, rows, cols) for m in saturated_maps])  # (L, 2, P, 3)
     usable = ~(flags[:, 0] | flags[:, 1])
     dirs, rgb = _light_arrays(capture.images, normals)
-    laplacian = _laplacian(frames, [~(m[0] | m[1]) for m in saturated_maps], rows, cols, shape)
+    laplacian = five_point_laplacian(frames, [~(m[0] | m[1]) for m in saturated_maps], rows, cols, shape)
     del saturated_maps
     outside = _outside(shape, circle, camera, mask)
     # the background's statistics from an even spread of at most BACKGROUND_PIXELS of its pixels
@@ -333,7 +337,7 @@ def _censored(maps: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarra
     return band
 
 
-def _laplacian(
+def five_point_laplacian(
     frames: list[np.ndarray], usable_maps: list[np.ndarray], rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
 ) -> np.ndarray:
     """Per image, the five-point Laplacian at the sphere pixels whose four neighbours are

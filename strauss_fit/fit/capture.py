@@ -54,6 +54,11 @@ SEARCH_VALUES = 60_000
 #: which lowers the bound: demosaicing correlates them).
 BOUND_FACTOR = 2.0
 
+#: With fewer images than this, the cluster sandwich sums over tiles of each image instead.
+MIN_IMAGE_CLUSTERS = 8
+#: The tiles' side, in pixels (a misfit is correlated over a few pixels at least).
+TILE_PX = 8
+
 #: Levenberg–Marquardt steps per start on the subsample, before the projected steps.
 START_STEPS = 40
 
@@ -144,7 +149,8 @@ def _terms(samples: CaptureSamples) -> dict[str, jax.Array]:
     terms = angular_terms(normal, to_light, view)
     half = safe_normalize(to_light + view)
     cos_nh = jnp.where(terms.lit, jnp.clip(dot(normal, half), 0.0, 1.0), 0.0)
-    return {
+    out = {} if samples.ambient_light is None else {"ambient_light": jnp.asarray(samples.ambient_light)}
+    return out | {
         "lit": terms.lit,
         "cos_alpha": terms.cos_alpha,
         "cos_beta": terms.cos_beta,
@@ -182,6 +188,8 @@ def _predict(model: str, params: tuple[_Param, ...], physical: jax.Array, terms:
     reflected, ambient_reflectance = _reflected(model, x, terms)
     if "ambient" in x:
         reflected = reflected + x["ambient"] * ambient_reflectance
+    if "ambient_light" in terms:  # a known ambient light, per image (a scene's)
+        reflected = reflected + terms["ambient_light"][:, None, :] * ambient_reflectance
     images = reflected.shape[0]
     scale = x["exposure"][0] if "exposure" in x else jnp.ones((), reflected.dtype)
     per_image = jnp.full((images,), scale)
@@ -282,6 +290,11 @@ def _channel_design(
     return np.concatenate(rows), np.concatenate(target)
 
 
+def _known_ambient(terms: dict[str, jax.Array]) -> np.ndarray | float:
+    """A known ambient light (L, 1, 3), broadcast over the pixels, or 0."""
+    return np.asarray(terms["ambient_light"])[:, None, :] if "ambient_light" in terms else 0.0
+
+
 def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
     """Grid over (s, m); for each, :math:`\\hat I_c = X_c\\,a_c + Y\\,b_c` with X = E·C and
     Y = E solved by linear least squares (a = Σ I (d + w), b = Σ I (r_s − w))."""
@@ -295,7 +308,7 @@ def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarr
     for s in (0.05, 0.3, 0.5, 0.65, 0.75, 0.85, 0.92):
         for m in (0.0, 0.25, 0.5, 0.75, 1.0):
             w = weights_of(jnp.asarray(s), jnp.asarray(m), jnp.asarray(0.0), angular)
-            a = np.sum(np.asarray(w.diffuse + w.tint)[..., None] * rgb, axis=1)  # (L, P, 3)
+            a = np.sum(np.asarray(w.diffuse + w.tint)[..., None] * rgb, axis=1) + _known_ambient(t) * (1 - s**3)
             b = np.sum(np.asarray(w.specular - w.tint)[..., None] * rgb, axis=1)
             design, target_v = _channel_design(a, b, observed, weight)
             solution, _ = _least_squares_linear(design, target_v)
@@ -325,7 +338,7 @@ def _phong_starts(problem: _Problem, keep: int = 2) -> list[dict[str, np.ndarray
     observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
     rgb = np.asarray(t["light_rgb"])
     cos = np.asarray(t["cos_nh"] if problem.model == "blinn-phong" else t["cos_beta"])
-    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * rgb, axis=1)
+    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * rgb, axis=1) + _known_ambient(t)
     found = []
     for exponent in np.geomspace(2.0, 5000.0, 14):
         lobe = np.sum((np.where(cos > 0, cos, 0.0) ** exponent)[..., None] * rgb, axis=1)
@@ -339,7 +352,7 @@ def _phong_starts(problem: _Problem, keep: int = 2) -> list[dict[str, np.ndarray
 def _lambert_starts(problem: _Problem) -> list[dict[str, np.ndarray]]:
     t = problem.terms
     observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
-    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * np.asarray(t["light_rgb"]), axis=1)
+    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * np.asarray(t["light_rgb"]), axis=1) + _known_ambient(t)
     albedo = np.array(
         [
             max(
@@ -442,6 +455,8 @@ class CaptureFit:
     #: Per value, the standard deviation the circle's uncertainty alone adds (included in
     #: both covariances); None when not computed.
     circle_sd: np.ndarray | None = None
+    #: What the cluster sandwich summed over: "image" or "tile" (see :func:`_clusters`).
+    cluster_kind: str = "image"
 
     def values(self) -> dict[str, Any]:
         return _by_name(self.params, self.physical)
@@ -577,6 +592,20 @@ def _polish(
     return projected_lm(residual_fn, jacobian_fn, problem.data, physical, low, high, max_steps=max_steps)
 
 
+def _clusters(samples: CaptureSamples) -> tuple[np.ndarray, str]:
+    """Per residual value (image, pixel, channel, raveled), its cluster: its image when the
+    capture has at least :data:`MIN_IMAGE_CLUSTERS` images, else its image's tile of
+    :data:`TILE_PX` × :data:`TILE_PX` pixels."""
+    images, pixels = samples.count, len(samples.rows)
+    if images >= MIN_IMAGE_CLUSTERS:
+        return np.repeat(np.arange(images), pixels * 3), "image"
+    rows, cols = np.asarray(samples.rows) // TILE_PX, np.asarray(samples.cols) // TILE_PX
+    _, tile = np.unique(rows * (int(cols.max()) + 1) + cols, return_inverse=True)
+    tiles = int(tile.max()) + 1
+    per_value = (np.arange(images)[:, None] * tiles + tile[None, :])[..., None]
+    return np.broadcast_to(per_value, (images, pixels, 3)).ravel(), "tile"
+
+
 def _circle_covariance(coarse: _Problem, samples: CaptureSamples, physical: np.ndarray, free: np.ndarray) -> np.ndarray:
     r"""The covariance the circle's uncertainty adds to the fitted values.
 
@@ -662,11 +691,15 @@ def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
     free = (physical > low) & (physical < high)
     sigma2 = float(residual @ residual) / max(count - int(free.sum()), 1)
     laplace = sandwich(bread, sigma2 * bread, free)
-    # The image-cluster sandwich: residuals of one image are correlated (a misfit is smooth
-    # over the sphere), so their scores are summed per image before the outer product.
-    images = samples.count
-    scores = (jac * residual[:, None]).reshape(images, -1, size).sum(axis=1)
-    meat = scores.T @ scores * (images / max(images - 1, 1))
+    # The cluster sandwich: residuals of one image are correlated (a misfit is smooth over
+    # the sphere), so their scores are summed per cluster before the outer product: per
+    # image when there are enough images, else per tile of TILE_PX × TILE_PX pixels of each
+    # image (one image is one cluster, whose scores sum to zero at the optimum).
+    clusters, cluster_kind = _clusters(samples)
+    scores = np.zeros((int(clusters.max()) + 1, size))
+    np.add.at(scores, clusters, jac * residual[:, None])
+    count_clusters = int(np.count_nonzero(np.any(scores != 0, axis=1)))
+    meat = scores.T @ scores * (count_clusters / max(count_clusters - 1, 1))
     clustered = sandwich(bread, meat, free)
     # where the sphere is, is itself uncertain: its share is added to both covariances
     from_circle = _circle_covariance(coarse, samples, physical, free)
@@ -674,6 +707,7 @@ def _fit(samples: CaptureSamples, options: CaptureFitOptions) -> CaptureFit:
     predicted = np.asarray(_predict(problem.model, problem.params, jnp.asarray(physical), problem.terms))
     t_end = time.perf_counter()
     return CaptureFit(
+        cluster_kind=cluster_kind,
         circle_sd=np.sqrt(np.maximum(np.diag(from_circle), 0.0)),
         model=options.model,
         params=problem.params,

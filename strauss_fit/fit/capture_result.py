@@ -37,7 +37,9 @@ from ..precision import float64
 from . import capture_stability
 from .capture import (
     BOUND_FACTOR,
+    MIN_IMAGE_CLUSTERS,
     MODELS,
+    TILE_PX,
     CaptureFit,
     CaptureFitOptions,
     _by_name,
@@ -273,6 +275,24 @@ def _held(model: str) -> dict[str, Any]:
     }
 
 
+def _uncertainty_method(fit: CaptureFit) -> dict[str, Any]:
+    circle = "; the uncertainty of where the sphere is (its circle) is added, as it is to the Laplace ±"
+    if fit.cluster_kind == "image":
+        return {
+            "name": "image-cluster sandwich",
+            "conditional_on_model": False,
+            "meaning": "how far the fitted values would move with other photographs of this kind: the residuals of one "
+            "image are summed before the spread is taken, since a misfit is correlated over the sphere" + circle,
+        }
+    return {
+        "name": "tile-cluster sandwich",
+        "conditional_on_model": False,
+        "meaning": f"how far the fitted values would move with other images of this kind: the residuals of each "
+        f"{TILE_PX}×{TILE_PX}-pixel tile are summed before the spread is taken, since a misfit is correlated over "
+        f"neighbouring pixels (too few images, under {MIN_IMAGE_CLUSTERS}, to sum per image)" + circle,
+    }
+
+
 def _correlation(cov: np.ndarray, labels: list[str]) -> dict[str, Any]:
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -390,13 +410,7 @@ def fit_capture(
         "values": fit.values(),
         "held": _held(fit.model),
         "uncertainty": fit.deviations("clustered"),
-        "uncertainty_method": {
-            "name": "image-cluster sandwich",
-            "conditional_on_model": False,
-            "meaning": "how far the fitted values would move with other photographs of this kind: the residuals of one "
-            "image are summed before the spread is taken, since a misfit is correlated over the sphere; the "
-            "uncertainty of where the sphere is (its circle) is added, as it is to the Laplace ±",
-        },
+        "uncertainty_method": _uncertainty_method(fit),
         "uncertainty_laplace": fit.deviations("laplace"),
         "uncertainty_circle": _by_name(fit.params, fit.circle_sd) if fit.circle_sd is not None else None,
         "correlation": _correlation(fit.clustered, fit.labels),
@@ -516,20 +530,36 @@ def reload_capture_fit(
     if not is_capture_result(result):
         raise CaptureError("not a capture's fit result (no images_fitted, circle and settings)")
     options = capture_options(result)
-    if capture is None:
-        paths = result.get("capture")
-        if not paths:
-            raise CaptureError("the capture's result records no capture paths: give the capture")
-        folder = None if base is None else Path(base)
-        paths = [paths] if isinstance(paths, str) else paths
-        lights, mask = result.get("lights"), result.get("mask")
-        capture = open_capture(
-            [_recorded(p, folder) for p in paths],
-            None if lights is None else _recorded(lights, folder),
-            None if mask is None else _recorded(mask, folder),
-            result.get("encoding"),
+    folder = None if base is None else Path(base)
+    if capture is None and result.get("scene") and result.get("target") and not result.get("capture"):
+        # one target and its scene (``fit --model``): the scene states the sphere and lights
+        from ..io.targets import load_target
+        from ..scene.loading import load_scene
+        from .scene_samples import samples_from_scene
+
+        mask = result.get("mask")
+        samples = samples_from_scene(
+            load_scene(_recorded(result["scene"], folder)),
+            load_target(
+                _recorded(result["target"], folder),
+                None if mask is None else _recorded(mask, folder),
+                result.get("encoding") or "auto",
+            ),
         )
-    samples = load_samples(capture)
+    else:
+        if capture is None:
+            paths = result.get("capture")
+            if not paths:
+                raise CaptureError("the capture's result records no capture paths: give the capture")
+            paths = [paths] if isinstance(paths, str) else paths
+            lights, mask = result.get("lights"), result.get("mask")
+            capture = open_capture(
+                [_recorded(p, folder) for p in paths],
+                None if lights is None else _recorded(lights, folder),
+                None if mask is None else _recorded(mask, folder),
+                result.get("encoding"),
+            )
+        samples = load_samples(capture)
     if samples.count != result.get("images"):
         raise CaptureError(
             f"the capture now has {samples.count} images, the result was fitted to a capture of {result.get('images')}"
@@ -573,10 +603,13 @@ def reload_capture_fit(
 
 def format_capture_table(result: dict[str, Any]) -> str:
     """The printed summary of a capture's fit."""
-    lines = [
-        f"capture: {result['images_fitted']} of {result['images']} images, {result['pixels']} sphere pixels, "
-        f"model {result['model']}"
-    ]
+    if result.get("scene") and not result.get("capture"):
+        lines = [f"target {result.get('target')}: {result['pixels']} sphere pixels, model {result['model']}"]
+    else:
+        lines = [
+            f"capture: {result['images_fitted']} of {result['images']} images, {result['pixels']} sphere pixels, "
+            f"model {result['model']}"
+        ]
     lines.append(f"sphere: {result['circle'].get('description', '')}".rstrip())
     unc, lap = result["uncertainty"], result["uncertainty_laplace"]
     ranges = result.get("equivalence") or {}
