@@ -19,7 +19,9 @@ def add_parser(subparsers) -> None:
         "posterior and plain-language warnings about degeneracies. Give a fit result (--fit), a chain (--chain), "
         "or both; without a chain the intervals are the fit's Gaussian ones (x +/- sd, x +/- 1.96 sd). "
         "For a capture's fit result (fit --capture) the report reads the capture again and shows, per light, the "
-        "target, the fit and the residual, the held-out images with their prediction last.",
+        "target, the fit and the residual, the held-out images with their prediction last; with a capture's chain "
+        "(sample --fit of such a result; alone, it uses the fit stored in it) also its posterior, corner plot and "
+        "diagnostics.",
     )
     parser.add_argument(
         "--fit", metavar="RESULT.json", help="fit result of 'strauss-fit fit' (default: the fit stored in --chain)"
@@ -135,15 +137,14 @@ def _is_capture_chain(chain: str) -> bool:
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    """The report of a capture's fit result
-    (:func:`strauss_fit.reporting.capture_report.capture_report_from_files`)."""
+    """The report of a capture's fit result, its chain, or both
+    (:func:`strauss_fit.reporting.capture_report.capture_report_from_files`; with --chain
+    alone, the fit its metadata holds)."""
     from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import check_distinct
     from strauss_fit.reporting.capture_report import capture_report_from_files
     from strauss_fit.reporting.fit_report import report_paths
 
-    if args.chain:
-        raise StraussFitError("a capture's chain is not supported by report yet: give its fit result (--fit) alone")
     for option in ("target", "scene", "encoding"):
         if getattr(args, option) is not None:
             raise StraussFitError(
@@ -151,12 +152,13 @@ def run_capture(args: argparse.Namespace) -> int:
                 "(give --capture to read it from elsewhere)"
             )
     page, markdown, _ = report_paths(args.output)
-    inputs = {"--fit": args.fit, "--lights": args.lights, "--mask": args.mask}
+    inputs = {"--fit": args.fit, "--chain": args.chain, "--lights": args.lights, "--mask": args.mask}
     inputs.update({f"--capture {path}": path for path in args.capture or []})
     check_distinct({"-o": page, "-o's Markdown": markdown}, inputs)
     report, written = capture_report_from_files(
         args.fit,
         args.output,
+        chain=args.chain,
         capture=args.capture,
         lights=args.lights,
         mask=args.mask,
@@ -175,7 +177,12 @@ def run(args: argparse.Namespace) -> int:
     if _is_capture_result(args.fit):
         return run_capture(args)
     if args.chain and _is_capture_chain(args.chain):
-        raise StraussFitError("a capture's chain is not supported by report yet: give its fit result (--fit) alone")
+        if args.fit:
+            raise StraussFitError(
+                f"the chain {args.chain} is a capture's but {args.fit} is the fit result of one image: they belong "
+                "to different fits (give the capture's fit result the chain was sampled from, or --chain alone)"
+            )
+        return run_capture(args)
     if args.capture or args.lights:
         raise StraussFitError("--capture and --lights are for a capture's fit result (--fit of 'fit --capture')")
     if args.fit and not args.chain:  # with a chain, its recorded inputs come first (report_from_files)

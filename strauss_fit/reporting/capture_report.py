@@ -10,11 +10,15 @@ the result has one) with one sentence per kind of interval; the residual (relati
 CIEDE2000, against the noise floor and the noise bound, by region); the per-light grid, one row
 of target, fit and residual per image (:func:`light_panels`, :func:`grid_figure`), the
 held-out images last with the fit's prediction of them; the per-image table; the held-out
-comparison with other models; the correlation matrix.
+comparison with other models; the correlation matrix; with a chain of ``strauss-fit sample``
+(:mod:`strauss_fit.inference.capture_posterior`), the posterior: its percentiles against the
+fit, the corner plot and the sampler's diagnostics (an untrustworthy chain is the first warning).
 
 :func:`capture_report_from_files` is the whole workflow: it reads the capture the result
 records again (:func:`strauss_fit.fit.capture_result.reload_capture_fit` and
-:func:`strauss_fit.fit.capture_result.reload_held_out`), builds the report and writes it.
+:func:`strauss_fit.fit.capture_result.reload_held_out`; a chain's from the fit its metadata
+holds, :func:`strauss_fit.inference.capture_posterior.reload_chain_capture`), builds the
+report and writes it.
 """
 
 from __future__ import annotations
@@ -33,19 +37,31 @@ from ..capture import Capture, CaptureSamples, Circle, open_capture
 from ..errors import StraussFitError
 from ..fit.capture import BOUND_FACTOR, CaptureFit, delta_e_mean, relative_rms
 from ..fit.capture_result import holdout_indices, is_capture_result, reload_capture_fit, reload_held_out
+from ..inference.capture_posterior import (
+    _circle_warning,
+    _fit_laplace,
+    capture_chain_summary,
+    data_digest,
+    is_capture_chain,
+    reload_chain_capture,
+)
+from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..io.files import read_json
 from .document import Document
 from .figures import new_figure, png_bytes
 from .fit_report import (
     _STYLE,
+    MAX_PLOT_SAMPLES,
     Report,
     ReportError,
     _display,
     _fmt,
     check_report_outputs,
+    corner_figure,
     correlation_figure,
     intervals_figure,
     recorded_path,
+    sampler_diagnostics,
     write_report,
 )
 
@@ -64,6 +80,9 @@ MAX_DISAGREEING_ROWS = 24
 #: The residuals read again may differ from the recorded ones by this much (relative) before
 #: the report warns that the capture changed.
 RELOAD_TOLERANCE = 1e-6
+#: A chain belongs to a fit result when the values of the fit it was sampled from are the
+#: result's within this (relative) tolerance.
+CHAIN_TOLERANCE = 1e-6
 
 _VERDICTS = {
     "consistent": "the {model} model reproduces the photographs within their noise",
@@ -337,14 +356,18 @@ def build_capture_report(
     title: str | None = None,
     equivalence: dict[str, Any] | None = None,
     assets: str = "report_files",
+    chain: Chain | None = None,
 ) -> Report:
     """Assemble the report of a capture's fit from its result (the JSON of ``fit
     --capture``), the images it was fitted to and the fit read back
     (:func:`strauss_fit.fit.capture_result.reload_capture_fit`), and optionally the held-out
     images with the fit's prediction of them (:func:`strauss_fit.fit.capture_result.reload_held_out`).
-    ``equivalence`` replaces the result's equivalence ranges."""
+    ``equivalence`` replaces the result's equivalence ranges. ``chain``: a capture's chain
+    sampled from this fit (:func:`check_chain_fit`), whose posterior gets a section of its own
+    (:func:`_posterior_section`)."""
     if not is_capture_result(result):
         raise ReportError("not a capture's fit result (no images_fitted, circle and settings)")
+    posterior = _chain_part(chain, result, fit, samples) if chain is not None else None
     doc = Document(assets)
     model = str(result.get("model", fit.model))
     labels = list(fit.labels)
@@ -390,6 +413,8 @@ def build_capture_report(
             f"records {100 * recorded_rms:.4g} %: the capture changed since the fit, and the grid shows it as it "
             "is now"
         )
+    if posterior is not None:
+        warnings = posterior.first + warnings + posterior.later  # an untrustworthy chain first
     warnings += [f"fit: {note}" for note in result.get("notes") or []]
     verdict = residual.get("verdict")
     data.update(verdict=verdict, warnings=warnings, fit_warnings=fit_warnings)
@@ -433,6 +458,10 @@ def build_capture_report(
                 or ", ".join(str(n) for n in held_numbers),
             ]
         )
+    if chain is not None:
+        facts.append(
+            ["chain", f"{chain.path} ({chain.chain.shape[0]} steps × {chain.chain.shape[1]} walkers; see Posterior)"]
+        )
     doc.bullets([f"{name}: {text}" for name, text in facts])
 
     # --- parameters
@@ -471,6 +500,8 @@ def build_capture_report(
     meanings.append("A value on its bound has 0 in both ± columns.")
     data["intervals"] = {"bands": bands, "threshold": threshold, "meanings": meanings}
     doc.bullets(meanings)
+    if chain is not None:
+        doc.para("The chain's posterior of these values, against the fit and its ±, is in the section Posterior below.")
     if bands:
         shown = [k for k, label in enumerate(labels) if label in bands]
         kinds = _kinds(fit)
@@ -637,9 +668,7 @@ def build_capture_report(
     corr = np.asarray((result.get("correlation") or {}).get("matrix", np.eye(len(labels))), dtype=np.float64)
     if corr.shape != (len(labels), len(labels)):
         corr = np.eye(len(labels))
-    keep = list(range(len(labels)))
-    if len(labels) > MAX_CORRELATION_LABELS:
-        keep = [k for k, label in enumerate(labels) if not label.startswith("image_exposure_")]
+    keep = _shown(labels)
     shown_labels = [labels[k] for k in keep]
     small = corr[np.ix_(keep, keep)]
     left_out = len(labels) - len(keep)
@@ -655,7 +684,235 @@ def build_capture_report(
             [[label] + [f"{v:+.2f}" for v in small[i]] for i, label in enumerate(shown_labels)],
         )
     doc.para("Correlation near ±1: the two values trade off, and the photographs constrain only a combination of them.")
+    if chain is not None and posterior is not None:
+        _posterior_section(doc, posterior, chain, fit, data)
     return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
+
+
+def _shown(labels: Sequence[str]) -> list[int]:
+    """The parameters a figure shows: all, or without the per-image exposures beyond
+    :data:`MAX_CORRELATION_LABELS` labels."""
+    if len(labels) <= MAX_CORRELATION_LABELS:
+        return list(range(len(labels)))
+    return [k for k, label in enumerate(labels) if not label.startswith("image_exposure_")]
+
+
+# --- the posterior -----------------------------------------------------------------------------
+
+
+def _result_values(result: dict[str, Any]) -> dict[str, np.ndarray] | None:
+    """A capture's result's values by name (each a vector), or None if they are not numbers."""
+    values = result.get("values") or {name: result[name] for name in result.get("free") or [] if name in result}
+    try:
+        return {str(name): np.atleast_1d(np.asarray(v, dtype=np.float64)) for name, v in dict(values).items()}
+    except (TypeError, ValueError):
+        return None
+
+
+def check_chain_fit(
+    chain: Chain, result: dict[str, Any], fit: CaptureFit | None = None, *, source: str = "the fit result"
+) -> None:
+    """Refuse, in one line, a chain that was not sampled from the capture's fit ``result``
+    (called ``source`` in the message): it must be a capture's chain whose recorded fit has
+    the result's model, free parameters (and, with ``fit``, its labels) and values within
+    :data:`CHAIN_TOLERANCE`."""
+    if not is_capture_chain(chain.meta):
+        raise ReportError(
+            f"{chain.path} is the chain of a single image's fit, not of a capture's: give a capture's chain "
+            "('strauss-fit sample --fit' of a capture's result)"
+        )
+    own = chain.meta.get("fit") if isinstance(chain.meta.get("fit"), dict) else {}
+    advice = "give the fit result it was sampled from, or the chain alone (it holds its fit)"
+    if own.get("model") != result.get("model"):
+        raise ReportError(
+            f"the chain {chain.path} was sampled from a fit of the {own.get('model')} model, {source} is of the "
+            f"{result.get('model')} model: {advice}"
+        )
+    free, own_free = list(result.get("free") or []), list(own.get("free") or [])
+    labels = list(fit.labels) if fit is not None else None
+    if own_free != free or (labels is not None and chain.labels != labels):
+        raise ReportError(
+            f"the chain {chain.path} samples {', '.join(chain.labels)} but {source} frees "
+            f"{', '.join(labels or free)}: they belong to different fits ({advice})"
+        )
+    values, own_values = _result_values(result), _result_values(own)
+    if values is None or own_values is None:
+        raise ReportError(f"the chain {chain.path} or {source} records values that are not numbers")
+    for name in sorted(set(values) | set(own_values)):
+        a, b = own_values.get(name), values.get(name)
+        if a is None or b is None or a.shape != b.shape or not np.allclose(a, b, rtol=CHAIN_TOLERANCE, atol=1e-12):
+
+            def text(v: np.ndarray | None) -> str:
+                return "absent" if v is None else ", ".join(f"{x:.6g}" for x in v)
+
+            raise ReportError(
+                f"the chain {chain.path} was sampled from another fit than {source}: its fit's {name} is "
+                f"{text(a)}, not {text(b)} ({advice})"
+            )
+
+
+@dataclass
+class _ChainPart:
+    """What the report says about a chain: its diagnostics, :func:`capture_chain_summary`,
+    the draws after burn-in (as adjusted, at most :data:`MAX_PLOT_SAMPLES`) and how many the
+    adjustment dropped, and the warnings that go first and those after the fit's."""
+
+    diagnostics: Diagnostics
+    summary: dict[str, Any]
+    draws: np.ndarray
+    dropped: int
+    first: list[str]
+    later: list[str]
+
+
+def _chain_part(chain: Chain, result: dict[str, Any], fit: CaptureFit, samples: CaptureSamples) -> _ChainPart:
+    check_chain_fit(chain, result, fit)
+    diagnostics = chain.diagnostics()
+    summary = capture_chain_summary(chain)
+    draws, dropped = chain.adjusted(diagnostics.burn_in)
+    if draws.shape[0] > MAX_PLOT_SAMPLES:
+        draws = draws[np.random.default_rng(0).choice(draws.shape[0], MAX_PLOT_SAMPLES, replace=False)]
+    first = []
+    if not diagnostics.trustworthy:
+        first.append("The chain is not trustworthy yet: " + "; ".join(diagnostics.reasons) + ".")
+    later = []
+    digest = chain.meta.get("data_sha256")
+    if isinstance(digest, str) and digest != data_digest(samples):
+        later.append(
+            "The chain was sampled from other photographs than those read now (their usable values differ): its "
+            "posterior is of the capture as it was then."
+        )
+    circle = _circle_warning(chain.meta, _fit_laplace(chain.meta, chain.labels))
+    if circle:
+        later.append(circle[0].upper() + circle[1:] + ".")
+    return _ChainPart(diagnostics, summary, draws, int(dropped), first, later)
+
+
+def _adjustment_text(chain: Chain, dropped: int) -> str:
+    info = chain.adjustment
+    method = info.get("method", "none")
+    reason = str(info.get("reason") or "").rstrip(".")
+    why = f" Why: {reason}." if reason else ""
+    if method == "affine":
+        return (
+            "The draws are adjusted (affine): mapped to the fit's image-cluster sandwich, θ' = θ̂ + A(θ − θ̂) with A "
+            "chosen so that their covariance is the sandwich's, keeping the posterior's shape; "
+            f"{dropped} draws that left the prior were dropped.{why}"
+        )
+    if method == "temperature":
+        factor = info.get("temperature")
+        t = f", T = {factor:.3g}" if isinstance(factor, (int, float)) else ""
+        return (
+            f"The draws are tempered: sampled with the noise σ widened by √T{t}, so that the posterior is about as "
+            f"wide as the fit's image-cluster sandwich.{why}"
+        )
+    return (
+        "The draws are not adjusted: they are the Gaussian likelihood's posterior, every usable value's noise "
+        "independent and the sphere's circle taken as detected, set against the fit's Laplace ± without the "
+        "circle's share. When the model does not reproduce the photographs the misfit is correlated over each "
+        f"image, and this posterior is narrower than the image-cluster sandwich, the ± to quote then.{why}"
+    )
+
+
+def _posterior_section(doc: Document, part: _ChainPart, chain: Chain, fit: CaptureFit, data: dict[str, Any]) -> None:
+    """The posterior of a capture's chain: per parameter the fit, its image-cluster ±, the
+    posterior's median and 16/84 % and 2.5/97.5 % percentiles and the prior; what the draws
+    are (adjusted or not, σ and the likelihood); the corner plot; the sampler's diagnostics."""
+    labels = list(fit.labels)
+    summary, diagnostics = part.summary, part.diagnostics
+    method = summary.get("adjustment", "none")
+    name = {"affine": "posterior, adjusted", "temperature": "posterior, tempered"}.get(method, "posterior")
+    values = np.asarray(fit.physical, dtype=np.float64)
+    sd_cluster = np.sqrt(np.maximum(np.diag(fit.clustered), 0.0))
+    prior = chain.meta.get("prior") or {}
+    doc.heading("Posterior")
+    rows, cells = [], []
+    for k, label in enumerate(labels):
+        p = summary["parameters"][label]
+        box = prior.get(label)
+        rows.append(
+            {
+                "label": label,
+                "value": float(values[k]),
+                "sd_cluster": float(sd_cluster[k]),
+                **{key: float(p[key]) for key in ("median", "p16", "p84", "p2.5", "p97.5", "mean", "sd")},
+                "prior": [float(v) for v in box] if isinstance(box, list) else None,
+            }
+        )
+        cells.append(
+            [
+                label,
+                _fmt(values[k]),
+                _sd_text(sd_cluster[k]),
+                _fmt(p["median"]),
+                _fmt(p["p16"]),
+                _fmt(p["p84"]),
+                _fmt(p["p2.5"]),
+                _fmt(p["p97.5"]),
+                f"[{_fmt(box[0], 3)}, {_fmt(box[1], 3)}]" if isinstance(box, list) else "–",
+            ]
+        )
+    doc.table(
+        [
+            "parameter",
+            "fit",
+            "± (image-cluster sandwich)",
+            f"median ({name})",
+            "16 %",
+            "84 %",
+            "2.5 %",
+            "97.5 %",
+            "prior",
+        ],
+        cells,
+    )
+    sigma = summary.get("sigma")
+    sigma_text = f"σ = {sigma:.3g}" if isinstance(sigma, (int, float)) else "σ = ?"
+    source = chain.meta.get("sigma_source")
+    kept = diagnostics.steps - diagnostics.burn_in
+    verdict = "trustworthy" if diagnostics.trustworthy else "NOT trustworthy (see the warnings)"
+    meanings = [
+        f"Median and percentiles: of the {summary['count']} draws of the emcee chain after its burn-in "
+        f"({diagnostics.walkers} walkers × {kept} steps, the first {diagnostics.burn_in} discarded); 16–84 % is the "
+        f"central 68 % interval, 2.5–97.5 % the central 95 %. The chain is {verdict}.",
+        f"Likelihood: Gaussian noise of {sigma_text} on every usable value"
+        + (f" ({source})" if source else "")
+        + f"; evaluated over {summary.get('likelihood') or '?'}. Prior: uniform over the box of the last column.",
+        _adjustment_text(chain, part.dropped),
+    ]
+    doc.bullets(meanings)
+    keep = _shown(labels)
+    left_out = len(labels) - len(keep)
+    note = f" (the {left_out} per-image exposures left out)" if left_out else ""
+    doc.image(
+        "corner.png",
+        corner_figure(
+            part.draws[:, keep], [labels[k] for k in keep], values[keep], f"{name} (orange: least-squares fit)"
+        ),
+        f"{name}: the draws after burn-in; dashed: 16, 50 and 84 % quantiles; orange: the least-squares fit" + note,
+    )
+    doc.heading("Sampler diagnostics", 3)
+    sampler_diagnostics(
+        doc,
+        chain,
+        diagnostics,
+        shown=keep,
+        note=note + ("; the draws as sampled, before the adjustment" if method == "affine" else ""),
+    )
+    data["posterior"] = rows
+    data["diagnostics"] = diagnostics.as_dict()
+    data["chain"] = {
+        "path": chain.path,
+        "adjustment": method,
+        "dropped": part.dropped,
+        "sigma": sigma,
+        "sigma_source": source,
+        "likelihood": summary.get("likelihood"),
+        "count": summary["count"],
+        "burn_in": summary["burn_in"],
+        "trustworthy": diagnostics.trustworthy,
+        "meanings": meanings,
+    }
 
 
 def _stability_section(doc: Document, stability: dict[str, Any], data: dict[str, Any]) -> None:
@@ -763,14 +1020,19 @@ def _residual_rows(residual: dict[str, Any]) -> list[list[str]]:
 # --- from files -------------------------------------------------------------------------------
 
 
-def _existing(path: str | None, base: Path, fit_path: str | Path, what: str, option: str) -> str | None:
-    found = recorded_path(path, base)
-    if found is not None and not Path(found).exists():
-        raise ReportError(
-            f"the fit result {fit_path} records the {what} {path}, which no longer exists (tried from here and from "
-            f"the result's folder): give {option} explicitly"
-        )
-    return found
+def _existing(path: str | None, bases: Sequence[Path], recorder: str, tried: str, what: str, option: str) -> str | None:
+    """A recorded ``path`` as written if it exists, else relative to the first of ``bases``
+    where it does; a path found nowhere is a one-line error naming it and ``option``."""
+    if path is None:
+        return None
+    for base in bases:
+        found = recorded_path(path, base)
+        if found is not None and Path(found).exists():
+            return found
+    raise ReportError(
+        f"{recorder} records the {what} {path}, which no longer exists (tried from here and from {tried}): "
+        f"give {option} explicitly"
+    )
 
 
 def open_recorded_capture(
@@ -780,53 +1042,92 @@ def open_recorded_capture(
     capture: Sequence[str | Path] | None = None,
     lights: str | Path | None = None,
     mask: str | Path | None = None,
+    chain: str | Path | None = None,
 ) -> Capture:
     """The capture a capture's result records (its paths as written, else relative to the
     folder of ``fit_path``, the result's JSON), each of ``capture`` (paths), ``lights`` and
-    ``mask`` replacing the recorded one when given. A recorded path found nowhere is a
-    one-line error naming it and the option to give instead."""
-    base = Path(fit_path).parent
+    ``mask`` replacing the recorded one when given; the result's recorded encoding, if any,
+    replaces the capture's (as :func:`strauss_fit.fit.capture_result.reload_capture_fit`
+    reads it). With ``chain`` (the path of a capture's chain, whose metadata holds
+    ``result``), ``fit_path`` is the folder the recorded paths are relative to (the chain's
+    ``fit_base``), then the chain's own folder. A recorded path found nowhere is a one-line
+    error naming it and the option to give instead."""
+    if chain is None:
+        bases = [Path(fit_path).parent]
+        recorder, tried = f"the fit result {fit_path}", "the result's folder"
+    else:
+        bases = [Path(fit_path), Path(chain).parent]
+        recorder = f"the fit result the chain {chain} was sampled from"
+        tried = f"that result's folder {fit_path} and the chain's folder"
     if capture:
         paths = [str(p) for p in capture]
     else:
         recorded = result.get("capture")
         if not recorded:
-            raise ReportError(f"the fit result {fit_path} records no capture: give --capture")
+            raise ReportError(f"{recorder} records no capture: give --capture")
         recorded = [recorded] if isinstance(recorded, str) else list(recorded)
-        paths = [str(_existing(str(p), base, fit_path, "capture", "--capture")) for p in recorded]
-    lights_path = str(lights) if lights else _existing(result.get("lights"), base, fit_path, "lights file", "--lights")
-    mask_path = str(mask) if mask else _existing(result.get("mask"), base, fit_path, "mask", "--mask")
-    return open_capture(paths, lights_path, mask_path)
+        paths = [str(_existing(str(p), bases, recorder, tried, "capture", "--capture")) for p in recorded]
+    lights_path = (
+        str(lights) if lights else _existing(result.get("lights"), bases, recorder, tried, "lights file", "--lights")
+    )
+    mask_path = str(mask) if mask else _existing(result.get("mask"), bases, recorder, tried, "mask", "--mask")
+    return open_capture(paths, lights_path, mask_path, result.get("encoding"))
 
 
 def capture_report_from_files(
-    fit_json_path: str | Path,
+    fit_json_path: str | Path | None,
     output_html: str | Path,
     *,
+    chain: str | Path | None = None,
     capture: Capture | Sequence[str | Path] | None = None,
     lights: str | Path | None = None,
     mask: str | Path | None = None,
     title: str | None = None,
     force: bool = False,
 ) -> tuple[Report, list[Path]]:
-    """Build the report of a capture's fit result (the path of its JSON) and write it to
-    ``output_html`` (.html; the Markdown and the PNG folder beside it, all or none). The
-    capture is read again from the paths the result records (:func:`open_recorded_capture`)
-    unless ``capture`` (a :class:`strauss_fit.capture.Capture` or paths) is given. Returns
-    the report and the files written."""
+    """Build the report of a capture's fit result (the path of its JSON), of a capture's
+    chain (``chain``, of ``strauss-fit sample --fit``; without a fit result, the fit its
+    metadata holds) or of both, and write it to ``output_html`` (.html; the Markdown and the
+    PNG folder beside it, all or none). The capture is read again from the paths the result
+    records (:func:`open_recorded_capture`; a chain's relative to the folder of the result
+    it was sampled from) unless ``capture`` (a :class:`strauss_fit.capture.Capture` or
+    paths) is given. A chain sampled from another fit than ``fit_json_path`` is a one-line
+    error (:func:`check_chain_fit`). Returns the report and the files written."""
     out = Path(output_html)
+    if fit_json_path is None and chain is None:
+        raise ReportError("give a capture's fit result (--fit RESULT.json), its chain (--chain CHAIN.h5), or both")
     if out.suffix.lower() not in (".html", ".htm"):
         raise StraussFitError(f"the report is HTML: give -o a .html name, got {output_html}")
-    result = read_json(fit_json_path, "fit result")
-    if not is_capture_result(result):
-        raise ReportError(f"{fit_json_path} is not a capture's fit result (no images_fitted, circle and settings)")
+    loaded = load_chain(chain, required=True) if chain is not None else None
+    if loaded is not None and not is_capture_chain(loaded.meta):
+        raise ReportError(
+            f"{chain} is the chain of a single image's fit, not of a capture's: give a capture's chain "
+            "('strauss-fit sample --fit' of a capture's result)"
+        )
+    if fit_json_path is not None:
+        result = read_json(fit_json_path, "fit result")
+        if not is_capture_result(result):
+            raise ReportError(f"{fit_json_path} is not a capture's fit result (no images_fitted, circle and settings)")
+        if loaded is not None:
+            check_chain_fit(loaded, result, source=f"the fit result {fit_json_path}")
+    else:  # the chain alone (given: see above)
+        result = loaded.meta["fit"]
+        if not is_capture_result(result):
+            raise ReportError(f"the chain {chain} holds no capture's fit result (its metadata's 'fit' is damaged)")
     pages = max(1, math.ceil(int(result.get("images") or 0) / GRID_IMAGES))
-    check_report_outputs(
-        out, force, [f"lights-{k + 1}.png" for k in range(pages)] + ["intervals.png", "correlation.png"]
-    )
-    if not isinstance(capture, Capture):
-        capture = open_recorded_capture(result, fit_json_path, capture=capture, lights=lights, mask=mask)
-    samples, fit = reload_capture_fit(result, capture=capture)
+    names = [f"lights-{k + 1}.png" for k in range(pages)] + ["intervals.png", "correlation.png"]
+    check_report_outputs(out, force, names + (["corner.png", "trace.png"] if loaded is not None else []))
+    if fit_json_path is not None:
+        if not isinstance(capture, Capture):
+            capture = open_recorded_capture(result, fit_json_path, capture=capture, lights=lights, mask=mask)
+        samples, fit = reload_capture_fit(result, capture=capture)
+    else:
+        if not isinstance(capture, Capture):
+            base = loaded.meta.get("fit_base") or Path(chain).parent
+            capture = open_recorded_capture(result, base, capture=capture, lights=lights, mask=mask, chain=chain)
+        samples, fit = reload_chain_capture(loaded.meta, capture)
     held = reload_held_out(result, fit, capture)
-    report = build_capture_report(result, samples, fit, held=held, title=title, assets=f"{out.stem}_files")
+    report = build_capture_report(
+        result, samples, fit, held=held, title=title, assets=f"{out.stem}_files", chain=loaded
+    )
     return report, write_report(report, out, force=force)

@@ -33,7 +33,7 @@ from ..color import srgb_encode
 from ..errors import StraussFitError
 from ..fit.result import FitResult
 from ..inference import laplace as _laplace
-from ..inference.sampler import Chain, load_chain
+from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings, loss_warning
 from ..io.files import Outputs, check_writable, read_json
 from ..io.targets import Target, load_target, match_scene
@@ -475,23 +475,7 @@ def build_report(
 
     if chain is not None and diagnostics is not None:
         doc.heading("Sampler diagnostics")
-        doc.image(
-            "trace.png",
-            trace_figure(chain.chain, chain.log_prob, labels, diagnostics.burn_in),
-            "trace of every walker; shaded: burn-in (2 × the largest autocorrelation time), discarded",
-        )
-        verdict = "trustworthy" if diagnostics.trustworthy else "NOT trustworthy"
-        doc.para(
-            f"{diagnostics.steps} steps × {diagnostics.walkers} walkers; burn-in {diagnostics.burn_in} steps; "
-            f"the chain is {diagnostics.tau_multiple:.0f} autocorrelation times long "
-            f"(needed: {diagnostics.min_tau_multiple:.0f}); acceptance fraction {diagnostics.acceptance_mean:.2f} "
-            f"(walkers {diagnostics.acceptance_min:.2f}–{diagnostics.acceptance_max:.2f}). Verdict: {verdict}.",
-            "ok" if diagnostics.trustworthy else "bad",
-        )
-        doc.table(
-            ["parameter", "τ (steps)", "effective samples"],
-            [[label, f"{t:.1f}", f"{e:.0f}"] for label, t, e in zip(labels, diagnostics.tau, diagnostics.ess)],
-        )
+        sampler_diagnostics(doc, chain, diagnostics)
 
     doc.heading("How to read this report", 3)
     doc.bullets(
@@ -512,6 +496,33 @@ def build_report(
         ]
     )
     return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
+
+
+def sampler_diagnostics(
+    doc: Document, chain: Chain, diagnostics: Diagnostics, *, shown: Sequence[int] | None = None, note: str = ""
+) -> None:
+    """The sampler's diagnostics in a report (after its heading): the trace plots
+    (``trace.png``, of the parameters ``shown``, by index, default all; ``note`` ends their
+    description), the verdict in one paragraph, and τ and the effective samples of every
+    parameter. The one section of the report of one image and of a capture's."""
+    shown = list(range(len(chain.labels))) if shown is None else list(shown)
+    doc.image(
+        "trace.png",
+        trace_figure(chain.chain[:, :, shown], chain.log_prob, [chain.labels[k] for k in shown], diagnostics.burn_in),
+        "trace of every walker; shaded: burn-in (2 × the largest autocorrelation time), discarded" + note,
+    )
+    verdict = "trustworthy" if diagnostics.trustworthy else "NOT trustworthy"
+    doc.para(
+        f"{diagnostics.steps} steps × {diagnostics.walkers} walkers; burn-in {diagnostics.burn_in} steps; "
+        f"the chain is {diagnostics.tau_multiple:.0f} autocorrelation times long "
+        f"(needed: {diagnostics.min_tau_multiple:.0f}); acceptance fraction {diagnostics.acceptance_mean:.2f} "
+        f"(walkers {diagnostics.acceptance_min:.2f}–{diagnostics.acceptance_max:.2f}). Verdict: {verdict}.",
+        "ok" if diagnostics.trustworthy else "bad",
+    )
+    doc.table(
+        ["parameter", "τ (steps)", "effective samples"],
+        [[label, f"{t:.1f}", f"{e:.0f}"] for label, t, e in zip(diagnostics.labels, diagnostics.tau, diagnostics.ess)],
+    )
 
 
 def _statistical_name(fit: FitResult) -> str:

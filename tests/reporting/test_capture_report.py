@@ -1,7 +1,8 @@
 """The report of a capture's fit: one grid row per image (the held-out ones last, predicted),
 the residual panels are fit − target, the page is self-contained and escapes the result's
 text, equivalence ranges are shown when present, and ``strauss-fit report`` writes it or
-fails in one line when the recorded capture is gone."""
+fails in one line when the recorded capture is gone; with a capture's chain, the posterior
+section is the chain's, and a chain of another fit or whose capture moved is refused."""
 
 from __future__ import annotations
 
@@ -17,7 +18,10 @@ from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit.capture import capture_inputs, open_capture
 from strauss_fit.fit.capture import CaptureFitOptions
 from strauss_fit.fit.capture_result import fit_capture, predict, reload_capture_fit, reload_held_out
+from strauss_fit.inference.capture_posterior import capture_chain_summary, sample_capture
+from strauss_fit.inference.sampler import SampleSettings, load_chain, write_metadata
 from strauss_fit.reporting.capture_report import build_capture_report, open_recorded_capture
+from strauss_fit.reporting.fit_report import ReportError
 from strauss_fit_cli.main import main
 
 SMALL = dict(frame=(120, 96), center_px=(60.3, 47.8), radius_px=30.0)
@@ -169,10 +173,10 @@ def test_cli_one_line_error_when_the_recorded_capture_is_gone(fitted, tmp_path, 
     assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1, err
     assert "records the capture cap, which no longer exists" in err and "--capture" in err
     assert not (tmp_path / "r.html").exists() and not (tmp_path / "r_files").exists()
-    # a chain with a capture's result is refused in one line too
+    # a chain that is not there: one line too, before the capture is read
     code = main(["report", "--fit", str(tmp_path / "fit.json"), "--chain", "c.h5", "-o", str(tmp_path / "r.html")])
     err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "chain is not supported" in err, err
+    assert code == 2 and err.count("\n") == 1 and "chain file not found: c.h5" in err, err
 
 
 def test_stability_section_lists_halves_and_disagreeing_images(fitted, reloaded):
@@ -214,3 +218,102 @@ def test_stability_section_lists_halves_and_disagreeing_images(fitted, reloaded)
     assert "<script>x</script>" not in report.html and "&lt;script&gt;x&lt;/script&gt; grazes" in report.html
     # no stability in the result: no section
     assert "stability" not in build_capture_report(result, samples, fit).data
+
+
+# --- with a chain -----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def chain_path(fitted):
+    """A short chain of the fit (300 steps, not converged), its likelihood a subsample."""
+    folder, _ = fitted
+    settings = SampleSettings(max_steps=300, min_tau_multiple=50, check_every=100, walkers=16, seed=2)
+    sample_capture(folder / "fit.json", folder / "chain.h5", settings=settings, values=20_000, adjust="none")
+    return folder / "chain.h5"
+
+
+def test_posterior_section_is_the_chains(fitted, reloaded, chain_path):
+    _, result = fitted
+    samples, fit, held = reloaded
+    chain = load_chain(chain_path, required=True)
+    report = build_capture_report(result, samples, fit, held=held, chain=chain)
+    summary = capture_chain_summary(chain)
+    rows = report.data["posterior"]
+    assert [row["label"] for row in rows] == fit.labels == summary["labels"]
+    for row in rows:
+        p = summary["parameters"][row["label"]]
+        for key in ("median", "p16", "p84", "p2.5", "p97.5"):
+            assert row[key] == pytest.approx(p[key], rel=1e-12, abs=1e-15), (row["label"], key)
+    assert [row["value"] for row in rows] == pytest.approx(list(fit.physical), rel=1e-12)
+    assert report.data["chain"]["adjustment"] == "none" and report.data["chain"]["sigma"] == chain.meta["sigma"]
+    assert "not adjusted" in report.markdown and "Gaussian noise of σ = " in report.markdown
+    assert {"corner.png", "trace.png"} <= set(report.images)
+    # the chain's verdict: an untrustworthy chain is the first warning
+    diagnostics = chain.diagnostics()
+    assert report.data["diagnostics"]["trustworthy"] == diagnostics.trustworthy
+    assert report.data["warnings"][0].startswith("The chain is not trustworthy yet") == (not diagnostics.trustworthy)
+    assert not diagnostics.trustworthy  # 300 steps are not 50 autocorrelation times
+    markdown = report.markdown
+    order = ["## Parameters", "## Correlations", "## Posterior", "### Sampler diagnostics"]
+    assert [markdown.index(heading) for heading in order] == sorted(markdown.index(heading) for heading in order)
+    # a fit the chain was not sampled from is refused
+    other = copy.deepcopy(result)
+    other["smoothness"] *= 1.01
+    if "values" in other:
+        other["values"]["smoothness"] *= 1.01
+    with pytest.raises(ReportError, match="sampled from another fit.*smoothness"):
+        build_capture_report(other, samples, fit, chain=chain)
+
+
+def test_cli_reports_a_capture_chain(fitted, chain_path, tmp_path, capsys):
+    folder, _ = fitted
+    out = tmp_path / "r.html"
+    code = main(["report", "--chain", str(chain_path), "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "warning: The chain is not trustworthy yet" in captured.err
+    page = out.read_text()
+    assert "<h2>Posterior</h2>" in page and "held out" in page
+    assert sorted(p.name for p in (tmp_path / "r_files").iterdir()) == [
+        "corner.png",
+        "correlation.png",
+        "lights-1.png",
+        "trace.png",
+    ]
+    # with the fit result it was sampled from, too
+    code = main(["report", "--fit", str(folder / "fit.json"), "--chain", str(chain_path), "-o", str(out), "--force"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "<h2>Posterior</h2>" in out.read_text()
+
+
+def test_cli_refuses_a_capture_chain_in_one_line(fitted, chain_path, tmp_path, capsys):
+    folder, result = fitted
+
+    def refused(*argv):
+        code = main([str(a) for a in argv])
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1, err
+        assert not (tmp_path / "r.html").exists() and not (tmp_path / "r_files").exists()
+        return err
+
+    # the fit the chain was sampled from moved, and its capture with it
+    moved = tmp_path / "moved.h5"
+    shutil.copy(chain_path, moved)
+    meta = load_chain(moved, required=True).meta
+    write_metadata(moved, {**meta, "fit_base": str(tmp_path / "gone")})
+    err = refused("report", "--chain", moved, "-o", tmp_path / "r.html")
+    assert "records the capture cap, which no longer exists" in err and "--capture" in err, err
+    # a fit result the chain was not sampled from (refused before the capture is read)
+    other = copy.deepcopy(result)
+    other["smoothness"] *= 1.01
+    if "values" in other:
+        other["values"]["smoothness"] *= 1.01
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    err = refused("report", "--fit", tmp_path / "other.json", "--chain", chain_path, "-o", tmp_path / "r.html")
+    assert "was sampled from another fit" in err and "smoothness" in err, err
+    # the fit result of one image with a capture's chain
+    (tmp_path / "single.json").write_text(json.dumps({"free": ["color", "smoothness"]}))
+    err = refused("report", "--fit", tmp_path / "single.json", "--chain", chain_path, "-o", tmp_path / "r.html")
+    assert "is a capture's but" in err and "different fits" in err, err
