@@ -1117,7 +1117,11 @@ def capture_report_from_files(
     pages = max(1, math.ceil(int(result.get("images") or 0) / GRID_IMAGES))
     names = [f"lights-{k + 1}.png" for k in range(pages)] + ["intervals.png", "correlation.png"]
     check_report_outputs(out, force, names + (["corner.png", "trace.png"] if loaded is not None else []))
-    if fit_json_path is not None:
+    scene_based = bool(result.get("scene") and result.get("target") and not result.get("capture") and not capture)
+    if scene_based:  # one target and its scene (fit --model): read back from them
+        base = Path(fit_json_path).parent if fit_json_path is not None else loaded.meta.get("fit_base")
+        samples, fit = reload_capture_fit(result, base=base)
+    elif fit_json_path is not None:
         if not isinstance(capture, Capture):
             capture = open_recorded_capture(result, fit_json_path, capture=capture, lights=lights, mask=mask)
         samples, fit = reload_capture_fit(result, capture=capture)
@@ -1126,7 +1130,7 @@ def capture_report_from_files(
             base = loaded.meta.get("fit_base") or Path(chain).parent
             capture = open_recorded_capture(result, base, capture=capture, lights=lights, mask=mask, chain=chain)
         samples, fit = reload_chain_capture(loaded.meta, capture)
-    held = reload_held_out(result, fit, capture)
+    held = None if scene_based else reload_held_out(result, fit, capture)
     report = build_capture_report(
         result, samples, fit, held=held, title=title, assets=f"{out.stem}_files", chain=loaded
     )

@@ -73,6 +73,13 @@ def test_cli_model_on_one_target_and_back(tmp_path):
     # the result reads back from its recorded target and scene (what sample and report do)
     samples, fit = reload_capture_fit(result, base=tmp_path)
     assert fit.model == "lambert" and samples.count == 1
+    report = subprocess.run(
+        [sys.executable, "-m", "strauss_fit_cli.main", "report", "--fit", str(tmp_path / "l.json"),
+         "-o", str(tmp_path / "r.html")],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert report.returncode == 0, report.stderr
+    assert "lambert" in (tmp_path / "r.md").read_text()
     two = subprocess.run(
         [sys.executable, "-m", "strauss_fit_cli.main", "fit", str(target), str(target), "--scene", str(scene),
          "--model", "phong", "-o", str(tmp_path / "p/"), "--quiet"],
