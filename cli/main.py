@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "phong2strauss_cmd",
     "study_cmd",
     "lights_cmd",
+    "compare_cmd",
 )
 
 
