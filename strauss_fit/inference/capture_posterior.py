@@ -101,7 +101,7 @@ from ..errors import CaptureError, StraussFitError
 from ..fit.capture import POSITIVE, UNIT, _compiled, _Param, _terms, _weighted_residual
 from ..fit.capture_result import is_capture_result, reload_capture_fit
 from ..fit.options import DEFAULT_QUALITY
-from ..io.files import Outputs, check_writable, read_json
+from ..io.files import check_writable, read_json
 from ..precision import uses_float64
 from . import laplace as _laplace
 from .adjustment import METHODS as ADJUST_METHODS
@@ -112,15 +112,12 @@ from .sampler import (
     Progress,
     SampleResult,
     SampleSettings,
-    SamplingInterrupted,
-    _store_adjustment,
     autocorrelation_times,
     burn_in,
     default_walkers,
     initial_walkers,
     load_chain,
-    run_sampler,
-    stored_steps,
+    run_and_summarise,
 )
 from .summaries import (
     LAPLACE,
@@ -806,31 +803,7 @@ def sample_capture(
             "quality": quality,
             "adjustment": adjustment,
         }
-    try:
-        run = run_sampler(
-            posterior,  # type: ignore[arg-type]  # a LogPosterior's interface: prior, (W, P) -> (W,)
-            out,
-            start=start,
-            settings=settings,
-            metadata=meta,
-            resume=resume,
-            progress=progress,
-            replaces=() if resume else (summary_path,),
-        )
-    except KeyboardInterrupt:
-        raise SamplingInterrupted(out, stored_steps(out)) from None
-    chain = load_chain(out, required=True)
-    if chain.adjustment.get("method") == "affine":
-        _store_adjustment(chain)
-    summary = summarise_capture_chain(chain)
-    summary["run"] = {
-        "stopped": run.stopped,
-        "new_steps": run.new_steps,
-        "wall_s": run.wall_s,
-        "sampling_s": run.sampling_s,
-        "steps_per_s": run.steps_per_s,
-    }
-    with Outputs(force=True) as written:
-        written.add_json(summary_path, summary)
-        written.commit(final=True)
-    return SampleResult(out, summary_path, summary, run)
+    return run_and_summarise(
+        posterior, out, summary_path, summarise_capture_chain, start=start, settings=settings, metadata=meta,
+        resume=resume, progress=progress,
+    )  # fmt: skip

@@ -1186,13 +1186,35 @@ def sample(
             "quality": quality,
             "adjustment": adjustment,
         }
+    return run_and_summarise(
+        log_posterior, out, summary_path, summarise_chain, start=start, settings=settings, metadata=meta, resume=resume,
+        progress=progress,
+    )  # fmt: skip
+
+
+def run_and_summarise(
+    log_posterior: Any,
+    out: Path,
+    summary_path: Path,
+    summarise: Callable[[Chain], dict[str, Any]],
+    *,
+    start: np.ndarray,
+    settings: SampleSettings,
+    metadata: dict[str, Any],
+    resume: bool,
+    progress: Callable[[Progress], None] | None,
+) -> SampleResult:
+    """Run the sampler into the chain file ``out`` (:func:`run_sampler`), store an affine
+    adjustment, and write ``summarise(chain)`` with the run's figures to ``summary_path``:
+    the end of ``sample`` for single images and for captures. Ctrl-C raises
+    :class:`SamplingInterrupted` after every step so far is written."""
     try:
         run = run_sampler(
             log_posterior,
             out,
             start=start,
             settings=settings,
-            metadata=meta,
+            metadata=metadata,
             resume=resume,
             progress=progress,
             # --force: the old summary goes when the new chain replaces the old one
@@ -1203,7 +1225,7 @@ def sample(
     chain = load_chain(out, required=True)
     if chain.adjustment.get("method") == "affine":
         _store_adjustment(chain)
-    summary = summarise_chain(chain)
+    summary = summarise(chain)
     summary["run"] = {
         "stopped": run.stopped,
         "new_steps": run.new_steps,
