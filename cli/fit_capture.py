@@ -25,9 +25,10 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--model",
-        choices=("strauss", "lambert", "phong", "blinn-phong"),
         default="strauss",
-        help="the reflectance model fitted to the capture (default strauss)",
+        metavar="NAME",
+        help="the reflectance model fitted: strauss (the default), or another registered one (lambert, phong, "
+        "blinn-phong, cook-torrance: docs/reflectance-models.md); for captures, and for one target with --scene",
     )
     group.add_argument(
         "--ambient", action="store_true", help="also fit an ambient (room) light reaching every point of the sphere"

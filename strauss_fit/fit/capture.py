@@ -39,13 +39,16 @@ from ..capture._samples import CaptureSamples
 from ..color import delta_e_2000
 from ..errors import CaptureError
 from ..inference.laplace import sandwich
-from ..models.strauss import angular_terms, combine_rgb, weights_of
-from ..numerics import dot, safe_normalize
+from ..models.reflectance import REFLECTANCE_MODELS, reflectance_model
 from ..precision import float64
 from .solvers import _result_code, levenberg_marquardt, status_name
 
-#: The reflectance models a capture can be fitted with.
-MODELS = ("strauss", "lambert", "phong", "blinn-phong")
+#: The reflectance models a capture can be fitted with: every registered one.
+MODELS = tuple(REFLECTANCE_MODELS)
+#: Parameters a capture holds, at these values: a capture shows an opaque sample against a
+#: dark background, where transparency only dims the surface (and trades off with C) and
+#: refraction has no effect.
+HELD = {"transparency": 0.0, "ior": 1.5}
 EXPOSURES = ("global", "per-image", "fixed")
 #: Values (image × pixel × channel) the global search and the starts use.
 SEARCH_VALUES = 60_000
@@ -93,14 +96,14 @@ class _Param:
 
 
 def _parameters(options: CaptureFitOptions, images: int) -> tuple[_Param, ...]:
-    if options.model == "strauss":
-        params = [_Param("color", 3, UNIT), _Param("smoothness", 1, UNIT), _Param("metalness", 1, UNIT)]
-        if options.exposure != "fixed":
-            params.append(_Param("exposure", 1, POSITIVE))
-    elif options.model == "lambert":
-        params = [_Param("albedo", 3, POSITIVE)]
-    else:
-        params = [_Param("diffuse", 3, POSITIVE), _Param("specular", 1, POSITIVE), _Param("exponent", 1, POSITIVE)]
+    """The model's parameters (:mod:`strauss_fit.models.reflectance`) less those a capture
+    holds (:data:`HELD`), an exposure when the model's coefficients are bounded (C ≤ 1
+    cannot absorb the photographs' scale), and the capture's own: per-image exposures, white
+    balance, ambient light."""
+    model = reflectance_model(options.model)
+    params = [_Param(p.name, p.size, p.kind) for p in model.parameters if p.name not in HELD]
+    if model.bounded_scale and options.exposure != "fixed":
+        params.append(_Param("exposure", 1, POSITIVE))
     if options.exposure == "per-image" and images > 1:
         params.append(_Param("image_exposure", images - 1, POSITIVE))
     if options.white_balance:
@@ -141,46 +144,31 @@ def _split(params: Sequence[_Param], vector: jax.Array) -> dict[str, jax.Array]:
     return {p.name: vector[start : start + p.size] for p, start in zip(params, _offsets(params))}
 
 
-def _terms(samples: CaptureSamples) -> dict[str, jax.Array]:
-    """The material-independent terms of every (image, light, pixel), shapes (L, K, P)."""
+def _terms(samples: CaptureSamples, model: str = "strauss") -> dict[str, jax.Array]:
+    """The material-independent terms of every (image, light, pixel) for ``model``
+    (:meth:`strauss_fit.models.reflectance.ReflectanceModel.terms`), shapes (L, K, P), with
+    the lights' intensities and any known ambient light."""
     normal = jnp.asarray(samples.normals)[None, None]
     view = jnp.asarray(samples.views)[None, None]
-    to_light = jnp.asarray(samples.light_dirs)
-    terms = angular_terms(normal, to_light, view)
-    half = safe_normalize(to_light + view)
-    cos_nh = jnp.where(terms.lit, jnp.clip(dot(normal, half), 0.0, 1.0), 0.0)
-    out = {} if samples.ambient_light is None else {"ambient_light": jnp.asarray(samples.ambient_light)}
-    return out | {
-        "lit": terms.lit,
-        "cos_alpha": terms.cos_alpha,
-        "cos_beta": terms.cos_beta,
-        "cos_nh": cos_nh,
-        "fresnel_alpha": terms.fresnel_alpha,
-        "j": terms.j,
-        "light_rgb": jnp.asarray(samples.light_rgb),
-    }
+    terms = dict(reflectance_model(model).terms(normal, jnp.asarray(samples.light_dirs), view))
+    terms["light_rgb"] = jnp.asarray(samples.light_rgb)
+    if samples.ambient_light is not None:
+        terms["ambient_light"] = jnp.asarray(samples.ambient_light)
+    return terms
+
+
+def _with_held(x: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """``x`` with the held parameters (:data:`HELD`) at their values."""
+    like = next(iter(x.values()))
+    return {name: jnp.full((1,), value, dtype=like.dtype) for name, value in HELD.items()} | x
 
 
 def _reflected(model: str, x: dict[str, jax.Array], terms: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
-    """Σ_k I_lkc f_c (L, P, 3) and the ambient reflectance a_c (3,)."""
-    if model == "strauss":
-        from ..models.strauss import AngularTerms
-
-        angular = AngularTerms(terms["lit"], terms["cos_alpha"], terms["cos_beta"], terms["fresnel_alpha"], terms["j"])
-        s, m = x["smoothness"][0], x["metalness"][0]
-        weights = weights_of(s, m, jnp.zeros_like(s), angular)
-        per_light = combine_rgb(weights, x["color"], jnp.ones(3, dtype=s.dtype))
-        ambient = (1 - s**3) * x["color"]
-    elif model == "lambert":
-        per_light = terms["cos_alpha"][..., None] * x["albedo"]
-        ambient = x["albedo"]
-    else:
-        cos = terms["cos_nh"] if model == "blinn-phong" else terms["cos_beta"]
-        positive = cos > 0
-        lobe = jnp.where(positive, jnp.exp(x["exponent"][0] * jnp.log(jnp.where(positive, cos, 1.0))), 0.0)
-        per_light = terms["cos_alpha"][..., None] * x["diffuse"] + (lobe * x["specular"][0])[..., None]
-        ambient = x["diffuse"]
-    return jnp.sum(per_light * terms["light_rgb"], axis=1), ambient
+    """Σ_k I_lkc f_c (L, P, 3) and the ambient reflectance a_c (3,) of the registered model."""
+    reflectance = reflectance_model(model)
+    values = _with_held(x)
+    per_light = reflectance.radiance(values, terms)
+    return jnp.sum(per_light * terms["light_rgb"], axis=1), reflectance.ambient(values)
 
 
 def _predict(model: str, params: tuple[_Param, ...], physical: jax.Array, terms: dict[str, jax.Array]) -> jax.Array:
@@ -227,7 +215,7 @@ def _problem(samples: CaptureSamples, options: CaptureFitOptions) -> _Problem:
     return _Problem(
         options.model,
         _parameters(options, samples.count),
-        _terms(samples),
+        _terms(samples, options.model),
         jnp.asarray(samples.values),
         jnp.asarray(samples.usable, dtype=jnp.float64),
     )
@@ -290,93 +278,48 @@ def _channel_design(
     return np.concatenate(rows), np.concatenate(target)
 
 
-def _known_ambient(terms: dict[str, jax.Array]) -> np.ndarray | float:
-    """A known ambient light (L, 1, 3), broadcast over the pixels, or 0."""
-    return np.asarray(terms["ambient_light"])[:, None, :] if "ambient_light" in terms else 0.0
+def _start_cost(
+    problem: _Problem, values: dict[str, np.ndarray], scale: float | None
+) -> tuple[float, dict[str, np.ndarray]]:
+    """The cost of a start (weighted sum of squares over the subsample); for a model whose
+    scale is an exposure, that exposure re-solved for the clipped values (one linear
+    unknown)."""
+    x = {name: jnp.asarray(np.atleast_1d(v), dtype=jnp.float64) for name, v in values.items()}
+    reflected, ambient = _reflected(problem.model, x, problem.terms)
+    if "ambient_light" in problem.terms:
+        reflected = reflected + problem.terms["ambient_light"][:, None, :] * ambient
+    column = (np.asarray(reflected) * np.asarray(problem.weight)).ravel()
+    target = (np.asarray(problem.observed) * np.asarray(problem.weight)).ravel()
+    if scale is None:
+        return float(np.sum((column - target) ** 2)), values
+    exposure = max(float(column @ target / max(column @ column, 1e-300)), 1e-6)
+    return float(np.sum((exposure * column - target) ** 2)), values | {"exposure": np.array([exposure])}
 
 
-def _strauss_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
-    """Grid over (s, m); for each, :math:`\\hat I_c = X_c\\,a_c + Y\\,b_c` with X = E·C and
-    Y = E solved by linear least squares (a = Σ I (d + w), b = Σ I (r_s − w))."""
-    from ..models.strauss import AngularTerms
-
-    t = problem.terms
-    angular = AngularTerms(t["lit"], t["cos_alpha"], t["cos_beta"], t["fresnel_alpha"], t["j"])
+def _model_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
+    """For each point of the model's grid of non-linear values
+    (:meth:`~strauss_fit.models.reflectance.ReflectanceModel.start_grid`), the linear unknowns
+    (a per-channel one and a shared one, :meth:`~strauss_fit.models.reflectance.ReflectanceModel.linear_parts`)
+    solved exactly by linear least squares over the subsample; the ``keep`` best."""
+    model = reflectance_model(problem.model)
+    rgb = np.asarray(problem.terms["light_rgb"])
     observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
-    rgb = np.asarray(t["light_rgb"])
     found = []
-    for s in (0.05, 0.3, 0.5, 0.65, 0.75, 0.85, 0.92):
-        for m in (0.0, 0.25, 0.5, 0.75, 1.0):
-            w = weights_of(jnp.asarray(s), jnp.asarray(m), jnp.asarray(0.0), angular)
-            a = np.sum(np.asarray(w.diffuse + w.tint)[..., None] * rgb, axis=1) + _known_ambient(t) * (1 - s**3)
-            b = np.sum(np.asarray(w.specular - w.tint)[..., None] * rgb, axis=1)
-            design, target_v = _channel_design(a, b, observed, weight)
-            solution, _ = _least_squares_linear(design, target_v)
-            exposure = max(float(solution[3]), 1e-6)
-            color = np.clip(solution[:3] / exposure, 0.01, 0.99)
-            # the exposure again for the clipped colour (one linear unknown)
-            column = design[:, :3] @ color + design[:, 3]
-            exposure = max(float(column @ target_v / max(column @ column, 1e-300)), 1e-6)
-            cost = float(np.sum((exposure * column - target_v) ** 2))
-            found.append(
-                (
-                    cost,
-                    {
-                        "color": color,
-                        "smoothness": np.array([s]),
-                        "metalness": np.array([m]),
-                        "exposure": np.array([exposure]),
-                    },
-                )
-            )
+    for nonlinear in model.start_grid() or [{}]:
+        per_channel, shared = (np.asarray(v) for v in model.linear_parts(nonlinear, problem.terms))
+        per_channel = np.sum(per_channel * rgb, axis=1)  # (L, P, 3)
+        shared = np.sum(shared * rgb, axis=1)
+        solution, _ = _least_squares_linear(*_channel_design(per_channel, shared, observed, weight))
+        values, scale = model.from_linear(nonlinear, solution[:3], solution[3])
+        values = {k: np.atleast_1d(np.asarray(v, dtype=np.float64)) for k, v in values.items() if k not in HELD}
+        found.append(_start_cost(problem, values, scale if model.bounded_scale else None))
     found.sort(key=lambda item: item[0])
     return [values for _, values in found[:keep]]
-
-
-def _phong_starts(problem: _Problem, keep: int = 2) -> list[dict[str, np.ndarray]]:
-    t = problem.terms
-    observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
-    rgb = np.asarray(t["light_rgb"])
-    cos = np.asarray(t["cos_nh"] if problem.model == "blinn-phong" else t["cos_beta"])
-    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * rgb, axis=1) + _known_ambient(t)
-    found = []
-    for exponent in np.geomspace(2.0, 5000.0, 14):
-        lobe = np.sum((np.where(cos > 0, cos, 0.0) ** exponent)[..., None] * rgb, axis=1)
-        solution, cost = _least_squares_linear(*_channel_design(diffuse, lobe, observed, weight))
-        solution = np.maximum(solution, 1e-6)
-        found.append((cost, {"diffuse": solution[:3], "specular": solution[3:4], "exponent": np.array([exponent])}))
-    found.sort(key=lambda item: item[0])
-    return [values for _, values in found[:keep]]
-
-
-def _lambert_starts(problem: _Problem) -> list[dict[str, np.ndarray]]:
-    t = problem.terms
-    observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
-    diffuse = np.sum(np.asarray(t["cos_alpha"])[..., None] * np.asarray(t["light_rgb"]), axis=1) + _known_ambient(t)
-    albedo = np.array(
-        [
-            max(
-                float(
-                    np.sum(weight[..., c] * diffuse[..., c] * observed[..., c])
-                    / max(np.sum(weight[..., c] * diffuse[..., c] ** 2), 1e-300)
-                ),
-                1e-6,
-            )
-            for c in range(3)
-        ]
-    )
-    return [{"albedo": albedo}]
 
 
 def _starts(problem: _Problem) -> list[np.ndarray]:
-    if problem.model == "strauss":
-        found = _strauss_starts(problem)
-    elif problem.model == "lambert":
-        found = _lambert_starts(problem)
-    else:
-        found = _phong_starts(problem)
     out = []
-    for values in found:
+    for values in _model_starts(problem):
         full = []
         for p in problem.params:
             if p.name in values:
@@ -628,7 +571,11 @@ def _circle_covariance(coarse: _Problem, samples: CaptureSamples, physical: np.n
     residual_fn, jacobian_fn = _compiled(coarse.model, coarse.params)
     at = jnp.asarray(physical)
     base = _Problem(
-        coarse.model, coarse.params, _terms(sub), jnp.asarray(sub.values), jnp.asarray(sub.usable, dtype=jnp.float64)
+        coarse.model,
+        coarse.params,
+        _terms(sub, coarse.model),
+        jnp.asarray(sub.values),
+        jnp.asarray(sub.usable, dtype=jnp.float64),
     )
     jac = np.asarray(jacobian_fn(at, base.data))[:, free]
     bread = jac.T @ jac
@@ -638,7 +585,11 @@ def _circle_covariance(coarse: _Problem, samples: CaptureSamples, physical: np.n
         for moved in pair:
             normals, views = surface_at(x, y, moved, samples.camera, samples.shape)
             shifted = _Problem(
-                base.model, base.params, _terms(replace(sub, normals=normals, views=views)), base.observed, base.weight
+                base.model,
+                base.params,
+                _terms(replace(sub, normals=normals, views=views), base.model),
+                base.observed,
+                base.weight,
             )
             residuals.append(np.asarray(residual_fn(at, shifted.data)))
         change = 0.5 * (residuals[1] - residuals[0])

@@ -101,7 +101,7 @@ def _ranges(
     samples: CaptureSamples, fit: CaptureFit, delta_e: float, values: int, seed: int, max_steps: int
 ) -> dict[str, Any]:
     sub = _subsample(samples, values, seed)
-    terms = _terms(sub)
+    terms = _terms(sub, fit.model)
     x_best = np.asarray(fit.physical, dtype=np.float64)
     best = np.maximum(np.asarray(_predict(fit.model, fit.params, jnp.asarray(x_best), terms)), 0.0)
     # ΔE is judged where the photograph's three channels are all usable (as delta_e_mean)

@@ -235,7 +235,7 @@ def predict(samples: CaptureSamples, fit: CaptureFit) -> tuple[np.ndarray, list[
     )
     with float64():
         # a writable copy: each image is scaled in place below
-        predicted = np.array(_predict(fit.model, params, jnp.asarray(physical), _terms(samples)))
+        predicted = np.array(_predict(fit.model, params, jnp.asarray(physical), _terms(samples, fit.model)))
     scales = [1.0] * samples.count
     if "image_exposure" in names:
         for i in range(samples.count):
@@ -586,7 +586,7 @@ def reload_capture_fit(
     if corr.shape != (physical.size, physical.size):
         corr = np.eye(physical.size)
     with float64():
-        predicted = np.asarray(_predict(options.model, params, jnp.asarray(physical), _terms(samples)))
+        predicted = np.asarray(_predict(options.model, params, jnp.asarray(physical), _terms(samples, options.model)))
     fit = CaptureFit(
         model=options.model,
         params=params,

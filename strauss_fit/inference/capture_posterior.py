@@ -203,14 +203,14 @@ def data_digest(samples: CaptureSamples) -> str:
     return hashlib.sha256(values.tobytes() + usable.tobytes()).hexdigest()
 
 
-def _data(samples: CaptureSamples, index: np.ndarray, real: np.ndarray | None = None) -> tuple:
-    """The residual's data (terms, observed, weight) at the sphere pixels ``index``; pixels
-    where ``real`` is False (padding) get weight 0."""
+def _data(model: str, samples: CaptureSamples, index: np.ndarray, real: np.ndarray | None = None) -> tuple:
+    """The residual's data (``model``'s terms, observed, weight) at the sphere pixels
+    ``index``; pixels where ``real`` is False (padding) get weight 0."""
     sub = samples.pixels(index)
     weight = np.asarray(sub.usable, dtype=np.float64)
     if real is not None:
         weight = weight * np.asarray(real, dtype=np.float64)[None, :, None]
-    return _terms(sub), jnp.asarray(sub.values, dtype=jnp.float64), jnp.asarray(weight)
+    return _terms(sub, model), jnp.asarray(sub.values, dtype=jnp.float64), jnp.asarray(weight)
 
 
 @functools.lru_cache(maxsize=32)
@@ -252,7 +252,7 @@ def _full_pass(
         index = np.arange(start, start + per_chunk)
         real = index < pixels
         _, _, part_rss, part_g, part_b, part_m = _expansion(
-            model, params, x, _data(samples, np.where(real, index, 0), real)
+            model, params, x, _data(model, samples, np.where(real, index, 0), real)
         )
         rss, g, b, m = rss + part_rss, g + part_g, b + part_b, m + part_m
     return rss, g, b, m
@@ -348,9 +348,9 @@ class CapturePosterior:
         self.pixels = pixels
         if pixels is None:
             self.used, self.factor = self.count, 1.0
-            self._args: tuple = (_data(samples, np.arange(total_pixels)), None)
+            self._args: tuple = (_data(model, samples, np.arange(total_pixels)), None)
         else:
-            data = _data(samples, pixels)
+            data = _data(model, samples, pixels)
             self.used = int(np.asarray(data[2]).sum())
             if self.used == 0:
                 raise CaptureError("the likelihood's subsample has no usable value: sample with --values all")
