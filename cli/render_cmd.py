@@ -31,6 +31,18 @@ def add_parser(subparsers) -> None:
         "Traced only as deep as it changes the written image (see docs/commands/render.md)",
     )
     parser.add_argument("--mask", metavar="MASK_OUT", help="also write the sphere mask (white = sphere)")
+    parser.add_argument(
+        "--model",
+        metavar="NAME",
+        help="render another registered reflectance model (lambert, phong, blinn-phong, cook-torrance, or strauss "
+        "as a local, opaque model) instead of the scene's Strauss [material]: docs/reflectance-models.md",
+    )
+    parser.add_argument(
+        "--values",
+        metavar="VALUES.json",
+        help="with --model: the model's parameters, a JSON object of them or a fit result (its 'values'); "
+        "missing ones take the model's defaults",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
     add_evaluator_options(parser)
     parser.set_defaults(run=run)
@@ -59,6 +71,10 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     if args.width or args.height:
         scene = scene.resized(args.width or scene.camera.width, args.height or scene.camera.height)
+    if args.values and not args.model:
+        raise StraussFitError("--values gives a --model's parameters: give --model too")
+    if args.model:
+        return _run_model(args, scene)
     if args.depth:
         scene = dataclasses.replace(scene, depth=args.depth)
     # the file holds float32 (or 8 bits): deeper bounces than it can show are not traced
@@ -79,4 +95,34 @@ def run(args: argparse.Namespace) -> int:
         out.commit(final=True)
     height, width = mask.shape
     print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels)")
+    return 0
+
+
+def _run_model(args: argparse.Namespace, scene) -> int:
+    """``render --model NAME``: :func:`strauss_fit.render.reflectance.render_model`."""
+    import numpy as np
+
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.io.files import Outputs, read_json
+    from strauss_fit.render.reflectance import render_model
+
+    values = {}
+    if args.values:
+        data = read_json(args.values, "--values")
+        if not isinstance(data, dict):
+            raise StraussFitError(f"--values {args.values} must hold a JSON object of the model's parameters")
+        if isinstance(data.get("values"), dict):  # a fit result
+            if data.get("model", args.model) != args.model:
+                raise StraussFitError(f"--values {args.values} is a {data.get('model')} fit, not {args.model}")
+            data = data["values"]
+        values = {k: v for k, v in data.items() if k not in ("exposure", "image_exposure", "white_balance", "ambient")}
+    image, mask = render_model(scene, args.model, values)
+    with Outputs(force=args.force) as out:
+        out.add_image(args.output, np.asarray(image))
+        if args.mask:
+            mask_rgb = np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1)
+            out.add_image(args.mask, mask_rgb, encoding="linear")
+        out.commit(final=True)
+    height, width = mask.shape
+    print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels, model {args.model})")
     return 0
