@@ -3,7 +3,7 @@
 - **Halves.** The images are split into two disjoint halves (odd and even), each fitted
   alone, each fit's perceptual equivalence ranges computed
   (:mod:`strauss_fit.fit.capture_equivalence`). The material is *stable* when each half's
-  value of every compared parameter lies within the other half's range: the two halves
+  value of every compared parameter (:func:`compared`) lies within the other half's range: the two halves
   then describe materials that look the same.
 - **Single images.** Each image is fitted alone and compared with the joint fit. Where
   they differ by more than twice their combined standard deviation (the single image's
@@ -24,17 +24,22 @@ from typing import Any
 import numpy as np
 
 from ..capture._samples import CaptureSamples
+from ..models.reflectance import reflectance_model
 from ..precision import float64
-from .capture import CaptureFit, CaptureFitOptions, _terms, fit_capture_samples
+from .capture import HELD, CaptureFit, CaptureFitOptions, _terms, fit_capture_samples
 from .capture_equivalence import DEFAULT_DELTA_E, capture_equivalence, within
 
-#: The parameters compared, per model (the issue's s and m for Strauss; the lobe for Phong).
-COMPARED = {
-    "strauss": ("smoothness", "metalness"),
-    "phong": ("specular", "exponent"),
-    "blinn-phong": ("specular", "exponent"),
-    "lambert": (),
-}
+
+def compared(model: str) -> tuple[str, ...]:
+    """The parameters compared for ``model``: its non-linear scalar parameters that a
+    capture fits (Strauss s and m, a Phong lobe's exponent, Cook–Torrance's roughness;
+    nothing for Lambert): the ones that shape the image, where the linear ones only scale it."""
+    reflectance = reflectance_model(model)
+    return tuple(
+        p.name for p in reflectance.parameters if p.name in reflectance.nonlinear and p.size == 1 and p.name not in HELD
+    )
+
+
 #: Below this share of the sphere lit, a light grazes it.
 GRAZING_SHARE = 0.25
 #: Above this share of the highlight's pixels saturated, the highlight is not seen.
@@ -69,7 +74,7 @@ def halves(
             }
         )
     agree: dict[str, bool] = {}
-    for name in COMPARED[options.model]:
+    for name in compared(options.model):
         a, b = parts[0], parts[1]
         agree[name] = within(a["values"][name], b["equivalence"][name]) and within(
             b["values"][name], a["equivalence"][name]
@@ -124,7 +129,7 @@ def single_images(
     """Fit each image alone and say where, and why, it disagrees with the joint fit ``joint``
     (``verdict`` gives a fit's verdict on its samples)."""
     log = progress or (lambda message: None)
-    names = COMPARED[options.model]
+    names = compared(options.model)
     joint_values = joint.values()
     joint_sd = joint.deviations("clustered")
     # one image has one exposure: a per-image exposure is the global one

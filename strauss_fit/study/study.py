@@ -36,6 +36,11 @@ the numbers.
 4. **Expressiveness** (:func:`conversions`): Phong materials (drawn as in 1) converted to
    Strauss and Strauss materials (opaque, drawn as in 1) converted to Phong, with the
    distribution of the residual CIEDE2000.
+
+Part 4's images are rendered by one of the two models; :mod:`strauss_fit.study.real` adds,
+when given the data, 5. the same question on measured materials (the MERL BRDFs as Ngan et
+al. fitted them) and 6. on real photographs (held-out error and stability of every capture
+model).
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ import platform
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import equinox as eqx
@@ -93,6 +99,8 @@ class StudyConfig:
     uniformity_steps: int
     uniformity_size: int
     seed: int = 1990
+    #: Image size of the measured-material part (5), when it runs.
+    merl_image_size: int = 48
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -103,9 +111,9 @@ def _grid(step: float) -> tuple[float, ...]:
 
 
 SIZES = {
-    "tiny": StudyConfig("tiny", 60, (0.0, 30.0, 60.0, 80.0, 89.0), 24, 24, 3, 4, 1, 6, 24),
-    "small": StudyConfig("small", 1000, _grid(5.0), DEFAULT_NODES, 32, 16, 4, 4, 21, 48),
-    "full": StudyConfig("full", 4000, _grid(2.0), DEFAULT_NODES, 64, 96, 4, 12, 41, 96),
+    "tiny": StudyConfig("tiny", 60, (0.0, 30.0, 60.0, 80.0, 89.0), 24, 24, 3, 4, 1, 6, 24, merl_image_size=24),
+    "small": StudyConfig("small", 1000, _grid(5.0), DEFAULT_NODES, 32, 16, 4, 4, 21, 48, merl_image_size=48),
+    "full": StudyConfig("full", 4000, _grid(2.0), DEFAULT_NODES, 64, 96, 4, 12, 41, 96, merl_image_size=64),
 }
 
 
@@ -695,9 +703,21 @@ def uniformity(config: StudyConfig, rng: np.random.Generator, say: Callable[[str
 
 
 @uses_float64
-def run_study(config: StudyConfig, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def run_study(
+    config: StudyConfig,
+    progress: Callable[[str], None] | None = None,
+    *,
+    merl_fits: str | Path | None = None,
+    capture: str | Path | None = None,
+) -> dict[str, Any]:
     """Run the four parts and return every figure (JSON-ready, see
-    :mod:`strauss_fit.reporting.study_report`)."""
+    :mod:`strauss_fit.reporting.study_report`). With ``merl_fits`` (bbm's
+    ``fits_parsed.json`` or its folder) and ``capture`` (a capture folder or manifest), the
+    measured-material parts run too (:mod:`strauss_fit.study.real`: the ``merl`` and
+    ``capture`` entries; :func:`strauss_fit.study.real_report.write_study_report` writes them
+    up)."""
+    from .real import capture_models, merl_expressiveness
+
     say = progress or (lambda message: None)
     started = time.perf_counter()
     seeds = np.random.SeedSequence(config.seed).spawn(3)
@@ -714,6 +734,15 @@ def run_study(config: StudyConfig, progress: Callable[[str], None] | None = None
     t0 = time.perf_counter()
     part3 = uniformity(config, np.random.default_rng(seeds[2]), say)
     timings["uniformity_s"] = time.perf_counter() - t0
+    measured = {}
+    if merl_fits is not None:
+        t0 = time.perf_counter()
+        measured["merl"] = merl_expressiveness(merl_fits, size=config.merl_image_size, say=say)
+        timings["merl_s"] = time.perf_counter() - t0
+    if capture is not None:
+        t0 = time.perf_counter()
+        measured["capture"] = capture_models(capture, say=say)
+        timings["capture_s"] = time.perf_counter() - t0
     timings["total_s"] = time.perf_counter() - started
     from .._version import __version__
 
@@ -732,6 +761,7 @@ def run_study(config: StudyConfig, progress: Callable[[str], None] | None = None
             "independence": part2,
             "uniformity": part3,
             "expressiveness": run["summary"],
+            **measured,
             "timing": timings,
         }
     )
