@@ -111,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
     models = check_models(args.models)
     if not args.output.strip():
         raise StraussFitError("-o is empty: give COMPARE.json")
+    if not Path(args.output).name:  # '.', '/': no file name to put the figure beside
+        raise StraussFitError(f"-o {args.output} is a folder: give COMPARE.json")
     png = figure_path(args.output)
     log = progress_printer(args.quiet, "... ")
     if args.capture:
@@ -162,14 +164,20 @@ def _check_outputs(args: argparse.Namespace, png: Path, inputs: dict) -> None:
 def _capture_samples(args: argparse.Namespace, png: Path, log):
     from strauss_fit.capture import capture_inputs, load_samples, open_capture
 
+    from .fit_capture import description_files
     from .fit_cmd import parse_noise
 
     encoding = None if args.encoding == "auto" else args.encoding
     capture = open_capture(args.capture, args.lights, args.mask, encoding)
     named = {f"--capture image {i + 1}": image.path for i, image in enumerate(capture.images)}
     named.update({"--capture": args.capture[0], "--lights": args.lights, "--mask": capture.mask})
+    named.update(description_files(capture))
     _check_outputs(args, png, named)
     given = parse_noise(args.noise)
+    if given is not None:  # σ² and 1/σ² within float64's range, as for TARGET's noise
+        from strauss_fit.inference.noise import check_noise_level
+
+        check_noise_level(given, "--noise")
     log(f"reading {len(capture.images)} images")
     samples = load_samples(capture)
     exposure = "per-image" if args.fit_exposure else "global"

@@ -7,8 +7,26 @@ to ``fit`` by :func:`add_capture_options` (see docs/captures.md).
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from .common import escape, progress_printer
+
+#: Options of ``fit`` that the capture fitter does not take: refused, never silently ignored.
+NOT_TAKEN = (
+    "compare",
+    "resume",
+    "workers",
+    "scheduler",
+    "render_fit",
+    "manifest",
+    "fit_lights",
+    "noise",
+    "reference_noise",
+    "starts",
+    "max_steps",
+    "fix",
+    "free",
+)
 
 
 def add_capture_options(parser: argparse.ArgumentParser) -> None:
@@ -48,12 +66,24 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def description_files(capture) -> dict[str, Path]:
+    """The files that describe ``capture`` (its manifest, or a DiLiGenT folder's lists), which
+    no output may replace (``-o FOLDER/capture.toml`` with ``--capture FOLDER``)."""
+    source = capture.source
+    if source is None:
+        return {}
+    if capture.layout == "diligent":
+        names = ("filenames.txt", "light_directions.txt", "light_intensities.txt")
+        return {f"--capture's {name}": Path(source) / name for name in names}
+    return {"--capture's manifest": Path(source)}
+
+
 def run_capture(args: argparse.Namespace) -> int:
     from strauss_fit.capture import capture_inputs, open_capture
     from strauss_fit.errors import StraussFitError
     from strauss_fit.fit.capture import CaptureFitOptions
     from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
-    from strauss_fit.fit.capture_result import format_capture_table
+    from strauss_fit.fit.capture_result import format_capture_table, holdout_indices
     from strauss_fit.io.files import Outputs, check_distinct, check_writable
 
     from .fit_cmd import equivalence_asked
@@ -62,16 +92,26 @@ def run_capture(args: argparse.Namespace) -> int:
         raise StraussFitError("give either TARGET images (one image each) or --capture, not both")
     if args.scene is not None:
         raise StraussFitError("a capture states its own lights and camera: --scene is for single targets")
-    for option in ("compare", "resume", "workers", "scheduler", "render_fit", "manifest"):
+    for option in NOT_TAKEN:
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --capture")
+    if args.output.endswith(("/", "\\")):
+        raise StraussFitError(f"-o {args.output} names a folder: a capture's fit writes one RESULT.json")
     paths = args.capture
     encoding = None if args.encoding == "auto" else args.encoding
     capture = open_capture(paths, args.lights, args.mask, encoding)
     inputs = {f"--capture image {i + 1}": image.path for i, image in enumerate(capture.images)}
     inputs.update({"--capture": paths[0], "--lights": args.lights, "--mask": capture.mask})
+    inputs.update(description_files(capture))
     check_distinct({"-o": args.output}, inputs)
     check_writable(args.output, args.force)
+    # the images to fit, before any is read
+    held = holdout_indices(args.holdout, len(capture.images)) if args.holdout is not None else []
+    if args.stability and len(capture.images) - len(held) < 2:
+        raise StraussFitError(
+            "--stability fits two halves of the images: it needs at least 2 images to fit, "
+            f"not {len(capture.images) - len(held)}"
+        )
     options = CaptureFitOptions(
         model=args.model,
         exposure="per-image" if args.fit_exposure else "global",
@@ -105,6 +145,7 @@ def run_scene_model(args: argparse.Namespace) -> int:
     from strauss_fit.fit.capture import CaptureFitOptions
     from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
     from strauss_fit.fit.capture_result import format_capture_table
+    from strauss_fit.fit.folder import sidecar_of
     from strauss_fit.fit.scene_samples import samples_from_scene
     from strauss_fit.io.files import Outputs, check_distinct, check_writable
     from strauss_fit.io.targets import load_target
@@ -116,11 +157,23 @@ def run_scene_model(args: argparse.Namespace) -> int:
         raise StraussFitError(f"--model {args.model} fits one target at a time (got {len(args.target)})")
     if args.scene is None:
         raise StraussFitError(f"--model {args.model} needs the target's scene (--scene SCENE.toml)")
-    for option in ("compare", "resume", "workers", "scheduler", "render_fit", "manifest", "fix", "free"):
+    for option in NOT_TAKEN:
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --model {args.model}")
     target_path = args.target[0]
-    check_distinct({"-o": args.output}, {"TARGET": target_path, "--scene": args.scene, "--mask": args.mask})
+    if target_path.startswith("@") or Path(target_path).is_dir():
+        raise StraussFitError(f"--model {args.model} fits one target image, not a folder or an @LIST: {target_path}")
+    if args.output.endswith(("/", "\\")):
+        raise StraussFitError(f"-o {args.output} names a folder: --model {args.model} writes one RESULT.json")
+    check_distinct(
+        {"-o": args.output},
+        {
+            "TARGET": target_path,
+            "TARGET's sidecar (its noise and truth)": sidecar_of(target_path),
+            "--scene": args.scene,
+            "--mask": args.mask,
+        },
+    )
     check_writable(args.output, args.force)
     samples = samples_from_scene(load_scene(args.scene), load_target(target_path, args.mask, args.encoding))
     options = CaptureFitOptions(

@@ -329,7 +329,7 @@ def run(args: argparse.Namespace) -> int:
         from .fit_capture import run_capture
 
         return run_capture(args)
-    for option in ("lights", "ambient", "white_balance", "holdout"):
+    for option in ("lights", "ambient", "white_balance", "holdout", "stability"):
         if getattr(args, option):
             from strauss_fit.errors import StraussFitError
 

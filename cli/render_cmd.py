@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from strauss_fit.io.images import check_image_output
 
     # every output checked before any work
-    check_distinct({"-o": args.output, "--mask": args.mask}, {"SCENE": args.scene})
+    check_distinct({"-o": args.output, "--mask": args.mask}, {"SCENE": args.scene, "--values": args.values})
     check_image_output(args.output, args.force)
     if args.mask:
         check_image_output(args.mask, args.force)
@@ -104,13 +104,21 @@ def _run_model(args: argparse.Namespace, scene) -> int:
 
     from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import Outputs, read_json
+    from strauss_fit.models.reflectance import reflectance_model
     from strauss_fit.render.reflectance import render_model
 
+    reflectance_model(args.model)  # an unknown name before the values are read
     values = {}
     if args.values:
         data = read_json(args.values, "--values")
         if not isinstance(data, dict):
             raise StraussFitError(f"--values {args.values} must hold a JSON object of the model's parameters")
+        if not isinstance(data.get("values"), dict) and {"free", "models", "kind", "residual", "settings"} & set(data):
+            # another command's result: a Strauss fit of one image, a comparison, a chain's summary
+            raise StraussFitError(
+                f"--values {args.values} is a result without a model's 'values' (not of 'fit --model' or "
+                "'fit --capture'): give such a result, or a JSON object of the model's parameters"
+            )
         if isinstance(data.get("values"), dict):  # a fit result
             if data.get("model", args.model) != args.model:
                 raise StraussFitError(f"--values {args.values} is a {data.get('model')} fit, not {args.model}")

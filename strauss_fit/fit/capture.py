@@ -338,7 +338,7 @@ def _starts(problem: _Problem) -> list[np.ndarray]:
 def _labels(params: Sequence[_Param]) -> list[str]:
     labels = []
     for p in params:
-        if p.name in ("color", "albedo", "diffuse", "ambient"):
+        if p.name in ("color", "albedo", "diffuse", "ambient", "kd", "f0"):  # RGB
             labels += [f"{p.name}_{c}" for c in "rgb"]
         elif p.name == "white_balance":
             labels += ["white_balance_r", "white_balance_b"]

@@ -61,6 +61,7 @@ MATERIAL = {
     "lambert": ("albedo",),
     "phong": ("diffuse", "specular", "exponent"),
     "blinn-phong": ("diffuse", "specular", "exponent"),
+    "cook-torrance": ("kd", "f0", "roughness"),
 }
 #: Offset of the cube root, as a fraction of the best prediction's 98th percentile (as for
 #: single images, :data:`strauss_fit.fit.problem.PERCEPTUAL_OFFSET`).

@@ -510,6 +510,64 @@ def is_capture_result(data: Any) -> bool:
     return isinstance(data, dict) and "images_fitted" in data and "circle" in data and "settings" in data
 
 
+#: The JSON types of a capture's result's fields that ``sample`` and ``report`` read (each
+#: may be absent or null: the readers say what they miss).
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    **dict.fromkeys(
+        (
+            "values",
+            "held",
+            "uncertainty",
+            "uncertainty_laplace",
+            "uncertainty_method",
+            "uncertainty_circle",
+            "correlation",
+            "residual",
+            "circle",
+            "camera",
+            "settings",
+            "solver",
+            "holdout",
+            "equivalence",
+            "stability",
+        ),
+        (dict,),
+    ),
+    **dict.fromkeys(("free", "warnings", "notes", "per_image"), (list,)),
+    **dict.fromkeys(("model", "lights", "mask", "target", "scene", "encoding"), (str,)),
+    **dict.fromkeys(("images", "images_fitted", "pixels"), (int,)),
+    "equivalence_delta_e": (float, int),
+    "capture": (str, list),
+}
+
+
+#: How :func:`check_capture_result` names the JSON types.
+_JSON_NAMES = {
+    dict: "an object",
+    list: "a list",
+    str: "text",
+    int: "a whole number",
+    float: "a number",
+    bool: "true/false",
+}
+
+
+def check_capture_result(result: dict[str, Any], source: str = "the capture's result") -> None:
+    """A one-line :class:`~strauss_fit.errors.CaptureError` when a field of a capture's
+    result (``source`` names it) has the wrong JSON type: a damaged or hand-edited file."""
+    for name, types in _FIELD_TYPES.items():
+        value = result.get(name)
+        if value is None:
+            continue
+        if not isinstance(value, types) or isinstance(value, bool):
+            expected = " or ".join(dict.fromkeys(_JSON_NAMES[t] for t in types))
+            found = _JSON_NAMES.get(type(value), type(value).__name__)
+            raise CaptureError(f"{source} is damaged: its {name!r} is {found}, not {expected}")
+        items = value if name in ("free", "notes", "capture") and isinstance(value, list) else []
+        if any(not isinstance(item, str) for item in items):
+            raise CaptureError(f"{source} is damaged: its {name!r} holds something other than text")
+
+
 def capture_options(result: dict[str, Any]) -> CaptureFitOptions:
     """The options a capture's result was fitted with (its ``settings``)."""
     settings = result.get("settings") or {}
@@ -529,6 +587,7 @@ def reload_capture_fit(
     to ``base``, the result's folder), unless ``capture`` is given."""
     if not is_capture_result(result):
         raise CaptureError("not a capture's fit result (no images_fitted, circle and settings)")
+    check_capture_result(result)
     options = capture_options(result)
     folder = None if base is None else Path(base)
     if capture is None and result.get("scene") and result.get("target") and not result.get("capture"):
@@ -569,20 +628,31 @@ def reload_capture_fit(
         held = set(holdout_indices(holdout, samples.count))
         samples = samples.select([i for i in range(samples.count) if i not in held])
     params = _parameters(options, samples.count)
-    values = result.get("values") or {name: result[name] for name in result["free"] if name in result}
-    try:
-        physical = np.concatenate([np.atleast_1d(np.asarray(values[p.name], dtype=np.float64)) for p in params])
-    except KeyError as missing:
-        raise CaptureError(f"the capture's result has no value for {missing.args[0]}") from None
-    if physical.size != _offsets(params)[-1]:
-        raise CaptureError("the capture's result does not match its settings (parameter sizes differ)")
-    sd_clustered = np.concatenate(
-        [np.atleast_1d(np.asarray(result["uncertainty"][p.name], dtype=np.float64)) for p in params]
-    )
-    sd_laplace = np.concatenate(
-        [np.atleast_1d(np.asarray(result["uncertainty_laplace"][p.name], dtype=np.float64)) for p in params]
-    )
-    corr = np.asarray((result.get("correlation") or {}).get("matrix", np.eye(physical.size)), dtype=np.float64)
+    values = result.get("values") or {name: result[name] for name in result.get("free") or [] if name in result}
+
+    def finite(value: Any, what: str) -> np.ndarray:
+        try:
+            out = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise CaptureError(f"the capture's result is damaged: its {what} are not numbers") from None
+        if not np.all(np.isfinite(out)):
+            raise CaptureError(f"the capture's result is damaged: its {what} are not all finite")
+        return out
+
+    def by_parameter(field: dict[str, Any], what: str, one: str) -> np.ndarray:
+        try:
+            parts = [np.atleast_1d(finite(field[p.name], what)) for p in params]
+        except KeyError as missing:
+            raise CaptureError(f"the capture's result has no {one} for {missing.args[0]}") from None
+        out = np.concatenate(parts)
+        if out.size != _offsets(params)[-1]:
+            raise CaptureError("the capture's result does not match its settings (parameter sizes differ)")
+        return out
+
+    physical = by_parameter(values, "values", "value")
+    sd_clustered = by_parameter(result.get("uncertainty") or {}, "uncertainties", "uncertainty")
+    sd_laplace = by_parameter(result.get("uncertainty_laplace") or {}, "Laplace uncertainties", "Laplace uncertainty")
+    corr = finite((result.get("correlation") or {}).get("matrix", np.eye(physical.size)), "correlations")
     if corr.shape != (physical.size, physical.size):
         corr = np.eye(physical.size)
     with float64():

@@ -64,6 +64,8 @@ def samples_from_scene(scene: Scene, target: Target) -> CaptureSamples:
         light_dirs = np.moveaxis(to_light, 0, 1)[None]
         light_rgb = np.moveaxis(strength, 0, 1)[None]
     values = np.asarray(target.pixels, dtype=np.float64)[rows, cols][None]
+    if not float(np.max(values)) > 0:  # as the Strauss fit says (a relative RMS would be 0/0)
+        raise StraussFitError(f"target {target.path} is black on every usable sphere pixel: nothing to fit")
     usable = np.ones(values.shape, dtype=bool)
     frame = np.asarray(target.pixels, dtype=np.float64)
     laplacian = five_point_laplacian(

@@ -86,6 +86,7 @@ from __future__ import annotations
 import copy
 import functools
 import hashlib
+import json
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -447,6 +448,39 @@ def is_capture_chain(meta: dict[str, Any]) -> bool:
     return isinstance(meta, dict) and meta.get("kind") == KIND
 
 
+def check_capture_chain(meta: dict[str, Any], path: str | Path) -> dict[str, Any]:
+    """``meta``, a capture's chain's metadata (of the chain file ``path``), or a one-line
+    :class:`~strauss_fit.inference.sampler.ChainError` when what only a capture's chain holds
+    (beside what :func:`strauss_fit.inference.sampler.read_metadata` checks) is damaged."""
+
+    def damaged(what: str) -> ChainError:
+        return ChainError(f"chain file {path}: its strauss-fit metadata is damaged ({what})")
+
+    size = len(meta.get("labels") or [])
+    x_hat = meta.get("x_hat")
+    if not (
+        isinstance(x_hat, list)
+        and len(x_hat) == size
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in x_hat)
+    ):
+        raise damaged(f"'x_hat' must be {size} finite numbers, one per label")
+    for key, kind, what in (
+        ("adjustment", dict, "an object"),
+        ("likelihood", dict, "an object"),
+        ("fit_base", str, "text"),
+        ("fit_path", str, "text"),
+        ("at_bound", list, "a list"),
+        ("laplace_covariance", list, "a list"),
+    ):
+        if meta.get(key) is not None and not isinstance(meta[key], kind):
+            raise damaged(f"'{key}' must be {what}")
+    try:
+        np.asarray(meta.get("laplace_covariance") or [], dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise damaged("'laplace_covariance' must be a matrix of numbers") from None
+    return meta
+
+
 def reload_chain_capture(meta: dict[str, Any], capture: Capture | None = None) -> tuple[CaptureSamples, Any]:
     """The capture's samples and fit (:func:`strauss_fit.fit.capture_result.reload_capture_fit`)
     that a capture's chain was sampled from, from its metadata (the fit result it holds, the
@@ -626,6 +660,16 @@ def _adjustment(
         method, reason = adjust, f"--adjust {adjust}: to the fit's image-cluster sandwich"
     if method != "none" and not (np.all(np.isfinite(clustered)) and np.any(np.diag(clustered) > 0)):
         raise ChainError("the fit's image-cluster sandwich has no finite, positive variance to adjust the chain to")
+    if method == "affine":  # the map needs V positive definite: found out now, not after sampling
+        use = adjusted_entries(clustered)
+        part = clustered[np.ix_(use, use)]
+        try:
+            np.linalg.cholesky((part + part.T) / 2)
+        except np.linalg.LinAlgError:
+            raise ChainError(
+                "the fit's image-cluster sandwich is singular (values that trade off exactly, correlation ±1): the "
+                "affine adjustment cannot map the chain to it; give --adjust temperature or --adjust none"
+            ) from None
     return method, reason, clustered
 
 
@@ -640,7 +684,10 @@ def _circle_dominated(result: dict[str, Any]) -> str:
         total = laplace.get(name)
         if share is None or total is None:
             continue
-        share_a, total_a = np.atleast_1d(np.asarray(share, float)), np.atleast_1d(np.asarray(total, float))
+        try:
+            share_a, total_a = np.atleast_1d(np.asarray(share, float)), np.atleast_1d(np.asarray(total, float))
+        except (TypeError, ValueError, OverflowError):  # a damaged result: no share to name
+            continue
         if share_a.shape != total_a.shape:
             continue
         own = np.sqrt(np.maximum(total_a**2 - share_a**2, 0.0))
@@ -709,6 +756,7 @@ def sample_capture(
         meta = existing.meta
         if not is_capture_chain(meta):
             raise ChainError(f"{out} is a chain of a single image's fit, not of a capture's")
+        check_capture_chain(meta, out)
         check_writable(summary_path, True)
         kept = (meta.get("adjustment") or {}).get("method", "none")
         if adjust != "auto" and adjust != kept:
@@ -745,6 +793,13 @@ def sample_capture(
         result, fit_path, fit_base = _read_result(fit) if fit is not None else (None, None, None)
         if result is None or not is_capture_result(result):
             raise ChainError("not a capture's fit result (strauss-fit fit --capture)")
+        try:  # the chain's metadata keeps it, as JSON
+            json.dumps(result, allow_nan=False)
+        except (TypeError, ValueError):
+            named = f" {fit_path}" if fit_path else ""
+            raise ChainError(
+                f"the fit result{named} is damaged: it holds NaN or infinity, which JSON does not allow"
+            ) from None
         if base is not None:
             fit_base = str(Path(base).resolve())
         log("reading the capture")

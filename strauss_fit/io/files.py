@@ -379,8 +379,10 @@ def read_json(path: str | Path, what: str = "JSON file") -> Any:
     path = check_input_file(path, what)
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # JSONDecodeError, UnicodeDecodeError, an integer of > 4300 digits
         raise StraussFitError(f"cannot read {what} {path}: {exc}") from None
+    except RecursionError:
+        raise StraussFitError(f"cannot read {what} {path}: nested too deeply") from None
 
 
 def no_space(path: str | Path) -> OSError:

@@ -36,11 +36,18 @@ import numpy as np
 from ..capture import Capture, CaptureSamples, Circle, open_capture
 from ..errors import StraussFitError
 from ..fit.capture import BOUND_FACTOR, CaptureFit, delta_e_mean, relative_rms
-from ..fit.capture_result import holdout_indices, is_capture_result, reload_capture_fit, reload_held_out
+from ..fit.capture_result import (
+    check_capture_result,
+    holdout_indices,
+    is_capture_result,
+    reload_capture_fit,
+    reload_held_out,
+)
 from ..inference.capture_posterior import (
     _circle_warning,
     _fit_laplace,
     capture_chain_summary,
+    check_capture_chain,
     data_digest,
     is_capture_chain,
     reload_chain_capture,
@@ -1104,16 +1111,20 @@ def capture_report_from_files(
             f"{chain} is the chain of a single image's fit, not of a capture's: give a capture's chain "
             "('strauss-fit sample --fit' of a capture's result)"
         )
+    if loaded is not None:
+        check_capture_chain(loaded.meta, chain)
     if fit_json_path is not None:
         result = read_json(fit_json_path, "fit result")
         if not is_capture_result(result):
             raise ReportError(f"{fit_json_path} is not a capture's fit result (no images_fitted, circle and settings)")
+        check_capture_result(result, f"the fit result {fit_json_path}")
         if loaded is not None:
             check_chain_fit(loaded, result, source=f"the fit result {fit_json_path}")
     else:  # the chain alone (given: see above)
         result = loaded.meta["fit"]
         if not is_capture_result(result):
             raise ReportError(f"the chain {chain} holds no capture's fit result (its metadata's 'fit' is damaged)")
+        check_capture_result(result, f"the fit result in the chain {chain}")
     pages = max(1, math.ceil(int(result.get("images") or 0) / GRID_IMAGES))
     names = [f"lights-{k + 1}.png" for k in range(pages)] + ["intervals.png", "correlation.png"]
     check_report_outputs(out, force, names + (["corner.png", "trace.png"] if loaded is not None else []))

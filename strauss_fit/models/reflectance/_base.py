@@ -79,7 +79,10 @@ class Parameter:
 
     def contains(self, value: Any) -> bool:
         """Whether every channel of ``value`` is finite and within the range."""
-        arr = np.asarray(value, dtype=float)
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (OverflowError, TypeError, ValueError):  # an integer beyond float64 (JSON allows 10**400)
+            return False
         inside = np.isfinite(arr)
         if self.low is not None:
             inside &= arr >= self.low
