@@ -12,6 +12,7 @@ the plots are embedded as base64 PNG), with the one document builder
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -627,6 +628,23 @@ def write_report(study: dict[str, Any], outdir: str | Path, *, force: bool = Fal
     if missing; its parent must exist), all or none (each file is written in full to a
     temporary file, then all are renamed together). Existing files are refused without
     ``force``."""
+    return write_study_files(study, outdir, FILES, conclusions, plots, study_document, force=force)
+
+
+def write_study_files(
+    study: dict[str, Any],
+    outdir: str | Path,
+    files: Sequence[str],
+    verdicts_of: Callable[[dict[str, Any]], Any],
+    images_of: Callable[[dict[str, Any]], dict[str, bytes]],
+    document_of: Callable[[dict[str, Any], Any, dict[str, bytes]], Document],
+    *,
+    force: bool = False,
+) -> list[Path]:
+    """The one writer of a study's report: ``files`` checked first, then the JSON (the study
+    with ``verdicts_of(study)`` as its conclusions), the PNGs of ``images_of`` and the
+    Markdown and HTML of ``document_of(study, verdicts, images)``, all or none; ``outdir`` is
+    created if missing (its parent must exist) and removed again, if empty, on failure."""
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise StraussFitError(f"output path is not a folder: {outdir}")
@@ -640,13 +658,13 @@ def write_report(study: dict[str, Any], outdir: str | Path, *, force: bool = Fal
             raise StraussFitError(f"cannot create {outdir}: {exc.strerror or exc}") from None
         created = True
     try:
-        for name in FILES:
+        for name in files:
             check_writable(outdir / name, force)
-        verdicts = conclusions(study)
+        verdicts = verdicts_of(study)
         document = dict(study)
         document["conclusions"] = verdicts
-        images = plots(study)
-        doc = study_document(study, verdicts, images)
+        images = images_of(study)
+        doc = document_of(study, verdicts, images)
         with Outputs(force=force) as out:
             out.add_json(outdir / "study.json", document)
             for name, data in images.items():
@@ -663,8 +681,9 @@ def write_report(study: dict[str, Any], outdir: str | Path, *, force: bool = Fal
         raise
 
 
-def check_outputs(outdir: str | Path, force: bool) -> None:
-    """Refuse early (before the study runs) if the outputs exist and ``force`` is not set."""
+def check_outputs(outdir: str | Path, force: bool, files: Sequence[str] = FILES) -> None:
+    """Refuse early (before the study runs) if the outputs ``files`` exist and ``force`` is
+    not set."""
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise StraussFitError(f"output path is not a folder: {outdir}")
@@ -672,5 +691,5 @@ def check_outputs(outdir: str | Path, force: bool) -> None:
         if not outdir.parent.is_dir():
             raise StraussFitError(f"output folder's parent does not exist: {outdir.parent}")
         return
-    for name in FILES:
+    for name in files:
         check_writable(outdir / name, force)

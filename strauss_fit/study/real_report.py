@@ -15,10 +15,18 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import StraussFitError
-from ..io.files import Outputs, check_writable
 from ..reporting.figures import new_figure, png_bytes
-from ..reporting.study_report import _STYLE, DPI, FILES, TITLE, _num, _pct, conclusions, plots, study_document
+from ..reporting.study_report import (
+    DPI,
+    FILES,
+    _num,
+    _pct,
+    check_outputs,
+    conclusions,
+    plots,
+    study_document,
+    write_study_files,
+)
 from .real import CLASSES
 
 #: The figure of part 5.
@@ -499,50 +507,17 @@ def write_study_report(study: dict[str, Any], outdir: str | Path, *, force: bool
     missing; its parent must exist), all or none, as
     :func:`strauss_fit.reporting.study_report.write_report` does, with sections 5 and 6
     and their verdicts when the study has them."""
-    outdir = Path(outdir)
-    if outdir.exists() and not outdir.is_dir():
-        raise StraussFitError(f"output path is not a folder: {outdir}")
-    created = False
-    if not outdir.exists():
-        if not outdir.parent.is_dir():
-            raise StraussFitError(f"output folder's parent does not exist: {outdir.parent}")
-        try:
-            outdir.mkdir()
-        except OSError as exc:
-            raise StraussFitError(f"cannot create {outdir}: {exc.strerror or exc}") from None
-        created = True
-    try:
-        for name in report_files(study):
-            check_writable(outdir / name, force)
-        verdicts = all_conclusions(study)
-        document = dict(study)
-        document["conclusions"] = verdicts
-        images = {**plots(study), **real_plots(study)}
-        doc = study_markdown_document(study, verdicts, images)
-        with Outputs(force=force) as out:
-            out.add_json(outdir / "study.json", document)
-            for name, data in images.items():
-                out.add_bytes(outdir / name, data)
-            out.add_text(outdir / "study.md", doc.markdown())
-            out.add_text(outdir / "study.html", doc.html(TITLE, _STYLE, spaced=True))
-            return out.commit(final=True)
-    except BaseException:
-        if created:
-            try:
-                outdir.rmdir()  # only if empty
-            except OSError:
-                pass
-        raise
+    return write_study_files(
+        study,
+        outdir,
+        report_files(study),
+        all_conclusions,
+        lambda data: {**plots(data), **real_plots(data)},
+        study_markdown_document,
+        force=force,
+    )
 
 
 def check_study_outputs(outdir: str | Path, force: bool, *, merl: bool = False) -> None:
     """Refuse early (before the study runs) if the outputs exist and ``force`` is not set."""
-    outdir = Path(outdir)
-    if outdir.exists() and not outdir.is_dir():
-        raise StraussFitError(f"output path is not a folder: {outdir}")
-    if not outdir.exists():
-        if not outdir.parent.is_dir():
-            raise StraussFitError(f"output folder's parent does not exist: {outdir.parent}")
-        return
-    for name in report_files(merl=merl):
-        check_writable(outdir / name, force)
+    check_outputs(outdir, force, report_files(merl=merl))
