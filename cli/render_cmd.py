@@ -51,7 +51,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     check_evaluator_options(args)
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.io.files import Outputs, check_distinct
+    from strauss_fit.io.files import check_distinct
     from strauss_fit.io.images import check_image_output
 
     # every output checked before any work
@@ -63,7 +63,6 @@ def run(args: argparse.Namespace) -> int:
         raise StraussFitError(f"--depth must be from 1 to 64, got {args.depth}")
 
     import jax.numpy as jnp
-    import numpy as np
 
     from strauss_fit import load_scene, render
     from strauss_fit.render.strauss import OUTPUT_TOLERANCE, depth_messages
@@ -87,23 +86,14 @@ def run(args: argparse.Namespace) -> int:
         dtype=jnp.dtype(args.precision),
         depth_tolerance=OUTPUT_TOLERANCE,
     )
-    with Outputs(force=args.force) as out:
-        out.add_image(args.output, np.asarray(image))
-        if args.mask:
-            mask_rgb = np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1)
-            out.add_image(args.mask, mask_rgb, encoding="linear")
-        out.commit(final=True)
-    height, width = mask.shape
-    print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels)")
-    return 0
+    return _write(args, image, mask, "")
 
 
 def _run_model(args: argparse.Namespace, scene) -> int:
     """``render --model NAME``: :func:`strauss_fit.render.reflectance.render_model`."""
-    import numpy as np
 
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.io.files import Outputs, read_json
+    from strauss_fit.io.files import read_json
     from strauss_fit.models.reflectance import reflectance_model
     from strauss_fit.render.reflectance import render_model
 
@@ -125,6 +115,15 @@ def _run_model(args: argparse.Namespace, scene) -> int:
             data = data["values"]
         values = {k: v for k, v in data.items() if k not in ("exposure", "image_exposure", "white_balance", "ambient")}
     image, mask = render_model(scene, args.model, values)
+    return _write(args, image, mask, f", model {args.model}")
+
+
+def _write(args: argparse.Namespace, image, mask, detail: str) -> int:
+    """Write the image and, with ``--mask``, the mask together (all or nothing), and say so."""
+    import numpy as np
+
+    from strauss_fit.io.files import Outputs
+
     with Outputs(force=args.force) as out:
         out.add_image(args.output, np.asarray(image))
         if args.mask:
@@ -132,5 +131,5 @@ def _run_model(args: argparse.Namespace, scene) -> int:
             out.add_image(args.mask, mask_rgb, encoding="linear")
         out.commit(final=True)
     height, width = mask.shape
-    print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels, model {args.model})")
+    print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels{detail})")
     return 0
