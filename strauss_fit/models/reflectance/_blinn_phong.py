@@ -12,11 +12,12 @@ from jax.typing import ArrayLike
 
 from ...precision import uses_float64
 from ..phong import highlight_power, phong_angles
-from ._base import Parameter, ReflectanceModel, channels, power_lobe_width, scalar
+from ._base import Parameter, power_lobe_width, scalar
+from ._lobe import DiffuseLobeModel
 
 
 @final
-class BlinnPhong(ReflectanceModel):
+class BlinnPhong(DiffuseLobeModel):
     r"""Normalised Blinn–Phong: the BRDF
     :math:`f_r = k_d/\pi + k_s\,\frac{e + 8}{8\pi}\,(N\cdot H)^e`, H = (L + V)/|L + V|, so
 
@@ -76,33 +77,9 @@ class BlinnPhong(ReflectanceModel):
         power = highlight_power(terms["cos_nh"], e)
         return jnp.where(terms["lit"], (e + 8) / 8 * power * terms["cos_alpha"], 0.0)
 
-    @uses_float64
-    def radiance(self, x: Mapping[str, Array], terms: Mapping[str, Array]) -> Array:
-        lobe = self._lobe(x["exponent"], terms)
-        return terms["cos_alpha"][..., None] * jnp.asarray(x["diffuse"]) + (scalar(x["specular"]) * lobe)[..., None]
-
-    @uses_float64
-    def ambient(self, x: Mapping[str, Array]) -> Array:
-        return jnp.asarray(x["diffuse"])
-
     def start_grid(self) -> list[dict[str, float]]:
         """Exponents geomspace(4, 20000, 14): the Phong grid's lobes (e ≈ 4n for the same width)."""
         return [{"exponent": float(n)} for n in np.geomspace(4.0, 20000.0, 14)]
-
-    @uses_float64
-    def linear_parts(self, nonlinear: Mapping[str, ArrayLike], terms: Mapping[str, Array]) -> tuple[Array, Array]:
-        """per_channel cos α (a = k_d), shared (e + 8)/8 (N·H)^e cos α (b = k_s)."""
-        lobe = self._lobe(self._nonlinear_values(nonlinear)["exponent"], terms)
-        cos_alpha = terms["cos_alpha"]
-        return channels(cos_alpha, cos_alpha.shape), channels(lobe, lobe.shape)
-
-    @uses_float64
-    def from_linear(
-        self, nonlinear: Mapping[str, ArrayLike], a: ArrayLike, b: ArrayLike
-    ) -> tuple[dict[str, Array], Array | None]:
-        """k_d = a, k_s = b (each at least 0); no scale."""
-        values = {**self._nonlinear_values(nonlinear), "diffuse": a, "specular": b}
-        return self._complete(values), None
 
     def _albedo_lobe(self, x: Mapping[str, Array], cos_in: Array) -> tuple[str, Array]:
         return "half", power_lobe_width(scalar(x["exponent"]))

@@ -12,11 +12,12 @@ from jax.typing import ArrayLike
 
 from ...precision import uses_float64
 from ..phong import highlight_power, phong_angles
-from ._base import Parameter, ReflectanceModel, channels, power_lobe_width, scalar
+from ._base import Parameter, power_lobe_width, scalar
+from ._lobe import DiffuseLobeModel
 
 
 @final
-class Phong(ReflectanceModel):
+class Phong(DiffuseLobeModel):
     r""":math:`L = k_d\cos\alpha + k_s\max(\cos\beta, 0)^n`, cos β = R·V with R the mirror
     direction of L: the capture fitter's Phong, and
     :func:`~strauss_fit.models.phong.phong_shade` with :math:`k_d C_d` = ``diffuse`` and
@@ -68,33 +69,9 @@ class Phong(ReflectanceModel):
     def _lobe(self, exponent: ArrayLike, terms: Mapping[str, Array]) -> Array:
         return jnp.where(terms["lit"], highlight_power(terms["cos_beta"], scalar(exponent)), 0.0)
 
-    @uses_float64
-    def radiance(self, x: Mapping[str, Array], terms: Mapping[str, Array]) -> Array:
-        lobe = self._lobe(x["exponent"], terms)
-        return terms["cos_alpha"][..., None] * jnp.asarray(x["diffuse"]) + (scalar(x["specular"]) * lobe)[..., None]
-
-    @uses_float64
-    def ambient(self, x: Mapping[str, Array]) -> Array:
-        return jnp.asarray(x["diffuse"])
-
     def start_grid(self) -> list[dict[str, float]]:
         """Exponents geomspace(2, 5000, 14), the capture fitter's."""
         return [{"exponent": float(n)} for n in np.geomspace(2.0, 5000.0, 14)]
-
-    @uses_float64
-    def linear_parts(self, nonlinear: Mapping[str, ArrayLike], terms: Mapping[str, Array]) -> tuple[Array, Array]:
-        """per_channel cos α (a = k_d), shared the lobe (b = k_s)."""
-        lobe = self._lobe(self._nonlinear_values(nonlinear)["exponent"], terms)
-        cos_alpha = terms["cos_alpha"]
-        return channels(cos_alpha, cos_alpha.shape), channels(lobe, lobe.shape)
-
-    @uses_float64
-    def from_linear(
-        self, nonlinear: Mapping[str, ArrayLike], a: ArrayLike, b: ArrayLike
-    ) -> tuple[dict[str, Array], Array | None]:
-        """k_d = a, k_s = b (each at least 0); no scale."""
-        values = {**self._nonlinear_values(nonlinear), "diffuse": a, "specular": b}
-        return self._complete(values), None
 
     def _albedo_lobe(self, x: Mapping[str, Array], cos_in: Array) -> tuple[str, Array]:
         return "mirror", power_lobe_width(scalar(x["exponent"]))
