@@ -30,6 +30,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,7 @@ from strauss_fit.io.files import Outputs, WriteError
 
 from .files import codes_bytes, exr_bytes, mask_bytes, sha256, sha256_bytes
 from .index import INDEX_NAME, build_index, read_index, write_index
-from .params import MODELS, SpecError
+from .params import MODELS, REFLECTANCE_SYNTH_MODELS, SpecError
 from .plan import SamplePlan, describe, noise_rng, plan_digest, plan_samples
 from .spec import DatasetSpec
 
@@ -88,17 +89,51 @@ class Report:
         return self.complete + len(self.failed) < self.total
 
 
-def render_model(model: str, scene: Any, material: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Render ``scene`` with a material of ``model`` (``"strauss"``: the full renderer,
-    global model included; ``"phong"``: the local Phong model): the linear radiance
-    (H, W, 3) float64 and the sphere mask (H, W), as numpy arrays."""
-    from strauss_fit.render.phong import render_phong
+def _render_strauss(scene: Any, material: Any) -> tuple[Any, Any]:
     from strauss_fit.render.strauss import render
 
-    if model == "phong":
-        image, mask = render_phong(scene, material)
-    else:
-        image, mask = render(scene, material)
+    return render(scene, material)
+
+
+def _render_phong(scene: Any, material: Any) -> tuple[Any, Any]:
+    from strauss_fit.render.phong import render_phong
+
+    return render_phong(scene, material)
+
+
+def _reflectance_renderer(name: str) -> Callable[[Any, Any], tuple[Any, Any]]:
+    """The renderer of the registry model ``name``: its material is the values dict."""
+
+    def render(scene: Any, values: Any) -> tuple[Any, Any]:
+        from strauss_fit.render.reflectance import render_model as render_reflectance
+
+        return render_reflectance(scene, name, values)
+
+    return render
+
+
+#: Every model's renderer by name (as colour-science's ``*_METHODS``): the classic ones
+#: (:data:`~data_synth.params.CLASSIC_MODELS`), then every registry model synth offers.
+RENDER_METHODS: MappingProxyType[str, Callable[[Any, Any], tuple[Any, Any]]] = MappingProxyType(
+    {
+        "strauss": _render_strauss,
+        "phong": _render_phong,
+        **{name: _reflectance_renderer(name) for name in REFLECTANCE_SYNTH_MODELS},
+    }
+)
+
+
+def render_model(model: str, scene: Any, material: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Render ``scene`` with a material of ``model`` (``"strauss"``: the full renderer,
+    global model included; ``"phong"``: the local classic Phong model; any other name of
+    :data:`~data_synth.params.MODELS`: that registry model, local and opaque, its material
+    the values dict): the linear radiance (H, W, 3) float64 and the sphere mask (H, W), as
+    numpy arrays."""
+    try:
+        renderer = RENDER_METHODS[model]
+    except (KeyError, TypeError):
+        raise SpecError(f"unknown model {model!r}; expected one of {', '.join(RENDER_METHODS)}") from None
+    image, mask = renderer(scene, material)
     return np.asarray(image, dtype=np.float64), np.asarray(mask)
 
 

@@ -79,8 +79,10 @@ EXTERNAL_MODELS = ("mitsuba",)
 class Sample(NamedTuple):
     """A sample read back: its sidecar, the scene and material it was rendered with (the
     scene's ``material`` is the sample's for Strauss), and the paths of its files. For a
-    Mitsuba sample (``sidecar["model"] == "mitsuba"``) ``material`` is None: no Strauss or
-    Phong material is the truth (the scene keeps its default material); the BSDF is
+    registry model (``"lambert"``, ``"cook-torrance"``, …) ``material`` is the checked
+    values dict that :func:`~data_synth.generate.render_model` takes. For a Mitsuba sample
+    (``sidecar["model"] == "mitsuba"``) ``material`` is None: no Strauss or Phong material
+    is the truth (the scene keeps its default material); the BSDF is
     ``sidecar["parameters"]`` and ``files`` holds ``exr``, ``coverage`` and ``mask``."""
 
     sidecar: dict[str, Any]
@@ -93,10 +95,10 @@ def load_sample(sidecar_path: str | Path, scene_dir: str | Path | None = None) -
     """Rebuild a sample from its sidecar. ``scene_dir`` resolves relative paths inside the
     scene definition (an environment image); by default the sidecar's folder.
 
-    Reads the sidecars of :func:`data_synth.generate` (models ``strauss`` and ``phong``) and
-    of the bundled Mitsuba targets (model ``mitsuba``: the BSDF is checked with
-    :func:`~data_synth.mitsuba_backend.validate_bsdf`, which needs no Mitsuba, and
-    ``material`` is None)."""
+    Reads the sidecars of :func:`data_synth.generate` (every model of
+    :data:`~data_synth.params.MODELS`) and of the bundled Mitsuba targets (model
+    ``mitsuba``: the BSDF is checked with :func:`~data_synth.mitsuba_backend.validate_bsdf`,
+    which needs no Mitsuba, and ``material`` is None)."""
     import equinox as eqx
 
     from strauss_fit.scene.loading import parse_scene

@@ -1,8 +1,19 @@
-r"""Parameter spaces of the two models and how a dataset spec samples them.
+r"""Parameter spaces of the models and how a dataset spec samples them.
 
 Each model (:data:`MODELS`) names its parameters, their shapes (a number, an RGB triple,
-either, or a bool) and their ranges. A dataset spec's ``[group.parameters]`` table gives
-each parameter as one *axis*:
+either, or a bool) and their ranges. The table is built from the registry of reflectance
+models (:data:`strauss_fit.models.reflectance.REFLECTANCE_MODELS`):
+
+- ``"strauss"``: the registry's Strauss parameters (colour, smoothness, metalness,
+  transparency, ior), rendered by the full (global) Strauss renderer;
+- ``"phong"``: the classic Phong material of :mod:`strauss_fit.models.phong` (ka, kd, ks,
+  exponent, diffuse_color, specular_color, blinn), rendered by its own renderer. The name
+  is taken by it, so the registry's unnormalised Phong is not offered;
+- every other registry model (``"lambert"``, ``"blinn-phong"``, ``"cook-torrance"``, and any
+  added later): its parameters as the registry declares them (size 3: an RGB triple, size
+  1: a number), rendered by :func:`strauss_fit.render.reflectance.render_model`.
+
+A dataset spec's ``[group.parameters]`` table gives each parameter as one *axis*:
 
 - a fixed value: ``smoothness = 0.5``, ``color = [0.8, 0.3, 0.2]``, ``blinn = true``;
 - a set of values: ``smoothness = [0.0, 0.5, 1.0]`` (scalars), ``color = [[1, 0, 0], [0, 1, 0]]``
@@ -24,7 +35,7 @@ Sampling:
   every corner of the parameters named in ``extremes`` (each at the low and the high end of
   its axis; the other parameters drawn as usual). For Strauss ``extremes`` defaults to the
   varying ones of smoothness, metalness and transparency, so a random Strauss dataset over
-  the full ranges always contains s, m, t at 0 and at 1; for Phong it defaults to none.
+  the full ranges always contains s, m, t at 0 and at 1; for the other models it defaults to none.
 """
 
 from __future__ import annotations
@@ -37,9 +48,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from strauss_fit import Material
 from strauss_fit.errors import StraussFitError
-from strauss_fit.models.material import Material
 from strauss_fit.models.phong import MAX_EXPONENT, PhongMaterial
+from strauss_fit.models.reflectance import REFLECTANCE_MODELS, reflectance_model
+from strauss_fit.models.reflectance import Parameter as RegistryParameter
 
 Shape = Literal["scalar", "rgb", "scalar_or_rgb", "bool"]
 Value = Any  # float | list[float] | bool
@@ -53,18 +66,29 @@ class SpecError(StraussFitError):
 
 @dataclass(frozen=True)
 class Parameter:
-    """One model parameter: its shape, its range [low, high] (``None``: unbounded) and its
-    default value."""
+    """One model parameter: its shape, its range [low, high] (``None``: unbounded on that
+    side) and its default value."""
 
     name: str
     shape: Shape
     default: Value
-    low: float = 0.0
+    low: float | None = 0.0
     high: float | None = 1.0
 
     @property
     def span(self) -> str:
-        return f"[{self.low:g}, {'inf' if self.high is None else f'{self.high:g}'}]"
+        low = "-inf" if self.low is None else f"{self.low:g}"
+        return f"[{low}, {'inf' if self.high is None else f'{self.high:g}'}]"
+
+    @classmethod
+    def from_registry(cls, p: RegistryParameter) -> Parameter:
+        """A registry parameter as synth reads it: size 3 an RGB triple, size 1 a number;
+        its range and default (a number default of an RGB parameter fills every channel)."""
+        if p.size == 3:
+            default: Value = [float(c) for c in np.broadcast_to(np.asarray(p.default, dtype=float), (3,))]
+        else:
+            default = float(p.default)
+        return cls(p.name, "rgb" if p.size == 3 else "scalar", default, p.low, p.high)
 
 
 @dataclass(frozen=True)
@@ -87,19 +111,39 @@ class Model:
         return tuple(p.name for p in self.parameters)
 
 
+def _registry_parameters(name: str) -> tuple[Parameter, ...]:
+    return tuple(Parameter.from_registry(p) for p in reflectance_model(name).parameters)
+
+
+def _reflectance_values(name: str) -> Callable[[dict[str, Value]], dict[str, Value]]:
+    """The "material" of a registry model: its values, checked by the model (every
+    parameter given, each within its range), as the plain numbers and lists that
+    :func:`~strauss_fit.render.reflectance.render_model` reads."""
+    model = reflectance_model(name)
+
+    def make(values: dict[str, Value]) -> dict[str, Value]:
+        model.from_dict(values)
+        return dict(values)
+
+    return make
+
+
+#: The models synth renders with their own renderers rather than the registry's local one:
+#: Strauss with the global renderer (transparency, refraction), Phong as the classic material.
+CLASSIC_MODELS = ("strauss", "phong")
+#: The registry models that synth renders with :func:`strauss_fit.render.reflectance.render_model`:
+#: every one whose name no classic model takes (the registry's own Phong is not offered).
+REFLECTANCE_SYNTH_MODELS = tuple(name for name in REFLECTANCE_MODELS if name not in CLASSIC_MODELS)
+
 MODELS: dict[str, Model] = {
     "strauss": Model(
         "strauss",
-        (
-            Parameter("color", "rgb", [1.0, 1.0, 1.0]),
-            Parameter("smoothness", "scalar", 0.5),
-            Parameter("metalness", "scalar", 0.0),
-            Parameter("transparency", "scalar", 0.0),
-            Parameter("ior", "scalar", 1.5, low=1.0, high=None),
-        ),
+        _registry_parameters("strauss"),
         Material.from_dict,
         ("smoothness", "metalness", "transparency"),
     ),
+    # A documented file format: existing specs and the bundled dataset name these
+    # parameters, so it stays the classic material rather than the registry's Phong.
     "phong": Model(
         "phong",
         (
@@ -114,6 +158,10 @@ MODELS: dict[str, Model] = {
         PhongMaterial.from_dict,
         (),
     ),
+    **{
+        name: Model(name, _registry_parameters(name), _reflectance_values(name), ())
+        for name in REFLECTANCE_SYNTH_MODELS
+    },
 }
 
 
@@ -165,7 +213,7 @@ def _check_value(p: Parameter, value: Any, where: str) -> Value:
         raise SpecError(f"{where}: {p.name} must be {allowed}, got {value!r}")
     numbers = [value] if _is_number(value) else value
     for x in numbers:
-        if not math.isfinite(x) or x < p.low or (p.high is not None and x > p.high):
+        if not math.isfinite(x) or (p.low is not None and x < p.low) or (p.high is not None and x > p.high):
             raise SpecError(f"{where}: {p.name} = {value!r} is outside its range {p.span}")
     return float(value) if _is_number(value) else [float(x) for x in value]
 

@@ -7,10 +7,11 @@
 
     [[group]]                         # one or more groups; each is a set of samples
     name = "strauss-extremes"         # letters, digits, '-', '_', '.'; unique; names the files
-    model = "strauss"                 # "strauss" or "phong"
+    model = "strauss"                 # a name of data_synth.params.MODELS: "strauss", "phong" (classic),
+                                      # or a registry model ("lambert", "blinn-phong", "cook-torrance", ...)
     scenes = ["../scenes/key_light.toml"]  # scene files, relative to this spec file
     size = [64, 64]                   # optional: override the scenes' camera width, height
-    depth = 2                         # optional (strauss): override the scenes' [render] depth
+    depth = 2                         # optional (strauss; the local models ignore it): override [render] depth
     sampling = "grid"                 # "grid" (default) or "random"
     count = 10                        # random only: number of draws (besides the extremes)
     formats = ["exr", "png"]          # any of exr (linear float32) and png (8-bit sRGB + clip mask)

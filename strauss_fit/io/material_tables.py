@@ -31,13 +31,15 @@ import io
 import json
 import math
 import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .. import Material  # the public name: of models.material only its parameter constants are used here
 from ..errors import MaterialError, StraussFitError
-from ..models import material as strauss_values
 from ..models import phong as phong_values
-from ..models.material import Material
+from ..models.material import COLOR_RANGE, PARAMETER_NAMES, PARAMETER_RANGES
 from ..models.phong import PhongMaterial
 from .files import Outputs
 from .mtl import decode_text, format_mtl, format_mtl_material, read_mtl
@@ -51,9 +53,9 @@ class Entry:
     makes it unusable.
 
     Read from a file, an entry holds its validated parameters as plain values
-    (``values``, of ``kind`` "phong" or "strauss"): :attr:`material` builds the JAX
-    material when it is first used, :meth:`release` drops it again (reading 50 000
-    materials builds no JAX array)."""
+    (``values``, of ``kind`` "phong" or "strauss", a key of :data:`KINDS`):
+    :attr:`material` builds the JAX material when it is first used, :meth:`release` drops
+    it again (reading 50 000 materials builds no JAX array)."""
 
     def __init__(
         self,
@@ -84,8 +86,7 @@ class Entry:
     def material(self) -> Any:
         """The material (built from :attr:`values` on first use)."""
         if self._material is None and self.values is not None:
-            make = PhongMaterial if self.kind == "phong" else Material
-            self._material = make(**self.values)
+            self._material = KINDS[self.kind].material(**self.values)
         return self._material
 
     @material.setter
@@ -141,7 +142,7 @@ STRAUSS_ALIASES = {
     "n": "ior",
 }
 PHONG_KEYS = ("ka", "kd", "ks", "exponent", "diffuse_color", "specular_color", "blinn")
-STRAUSS_KEYS = ("color", "smoothness", "metalness", "transparency", "ior")
+STRAUSS_KEYS = PARAMETER_NAMES
 RGB_KEYS = {"diffuse_color", "specular_color", "color"}
 MAYBE_RGB_KEYS = {"ka", "kd", "ks"}
 #: CSV input columns (an RGB key X may also be given as X_r, X_g, X_b).
@@ -226,11 +227,8 @@ def phong_entry(values: dict[str, Any], name: str, source: str) -> Entry:
             key = _canonical(raw_key, PHONG_ALIASES)
             if key == "name":
                 continue
-            if key not in PHONG_KEYS + ("opacity", "ior"):
-                raise MaterialError(
-                    f"unknown Phong key {raw_key!r}; expected {', '.join(PHONG_KEYS)}, opacity, ior "
-                    "(aliases: n/Ns for exponent, Cd, Cs, d for opacity, Ni for ior)"
-                )
+            if key not in PHONG.inputs:
+                raise PHONG.unknown_key(raw_key)
             if key in params:
                 raise MaterialError(f"{raw_key!r} given twice")
             params[key] = _value(key, raw, f"phong {key}")
@@ -257,20 +255,91 @@ def strauss_entry(values: dict[str, Any], name: str, source: str) -> Entry:
             key = _canonical(raw_key, STRAUSS_ALIASES)
             if key == "name":
                 continue
-            if key not in STRAUSS_KEYS:
-                raise MaterialError(
-                    f"unknown Strauss key {raw_key!r}; expected {', '.join(STRAUSS_KEYS)} (aliases: C, s, m, t, n)"
-                )
+            if key not in STRAUSS.inputs:
+                raise STRAUSS.unknown_key(raw_key)
             if key in params:
                 raise MaterialError(f"{raw_key!r} given twice")
             params[key] = _value(key, raw, f"material {key}")
-        strauss_values.check_values(**params)  # plain Python; the JAX material is built when converted
+        _check_strauss(params)  # plain Python; the JAX material is built when converted
         entry.values, entry.kind = params, "strauss"
         entry.opacity = 1.0 - float(params.get("transparency", 0.0))
         entry.ior = float(params.get("ior", 1.5))
     except MaterialError as exc:
         entry.error = str(exc)
     return entry
+
+
+def _check_strauss(params: dict[str, Any]) -> None:
+    """Check Strauss values as :func:`_value` gives them (finite floats; colours as 3 of
+    them) against the material's ranges, in parameter order, with the messages of the
+    material's own check, and without building a JAX array (a library of 50 000
+    materials)."""
+    for key in STRAUSS_KEYS:
+        if key not in params:
+            continue
+        value = params[key]
+        low, high = COLOR_RANGE if key in RGB_KEYS else PARAMETER_RANGES[key]
+        if all(x >= low and (high is None or x <= high) for x in (value if isinstance(value, list) else [value])):
+            continue
+        span = f"[{low:g}, {'inf' if high is None else f'{high:g}'}]"
+        per = " per channel" if key in RGB_KEYS else ""
+        raise MaterialError(f"material {key} = {value} is outside its range {span}{per}")
+
+
+@dataclass(frozen=True)
+class Kind:
+    """What reading one kind of material takes: the :class:`Entry` maker, the material class
+    built from an entry's values, the material's keys (in order) and the other keys an input
+    may give, the aliases of both, the file formats read, and whether a ``strauss-fit fit``
+    result is one such material."""
+
+    name: str
+    label: str
+    entry: Callable[[dict[str, Any], str, str], Entry]
+    material: Callable[..., Any]
+    keys: tuple[str, ...]
+    extra: tuple[str, ...]
+    aliases: Mapping[str, str]
+    alias_help: str
+    suffixes: tuple[str, ...]
+    fit_results: bool = False
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """Every key an input may give (aliases resolved)."""
+        return self.keys + self.extra
+
+    def unknown_key(self, raw_key: str) -> MaterialError:
+        return MaterialError(
+            f"unknown {self.label} key {raw_key!r}; expected {', '.join(self.inputs)} (aliases: {self.alias_help})"
+        )
+
+
+PHONG = Kind(
+    "phong",
+    "Phong",
+    phong_entry,
+    PhongMaterial,
+    PHONG_KEYS,
+    ("opacity", "ior"),  # a Phong material has neither; they become Strauss's transparency and n
+    PHONG_ALIASES,
+    "n/Ns for exponent, Cd, Cs, d for opacity, Ni for ior",
+    (".json", ".csv", ".mtl"),
+)
+STRAUSS = Kind(
+    "strauss",
+    "Strauss",
+    strauss_entry,
+    Material,
+    STRAUSS_KEYS,
+    (),
+    STRAUSS_ALIASES,
+    "C, s, m, t, n",
+    (".json", ".csv"),
+    fit_results=True,
+)
+#: The kinds of material read, by :attr:`Entry.kind`.
+KINDS: dict[str, Kind] = {kind.name: kind for kind in (PHONG, STRAUSS)}
 
 
 # --- inline ---------------------------------------------------------------------------------
@@ -340,9 +409,9 @@ def _json_items(path: Path) -> list[Any]:
 FIT_RESULT_KEYS = {"free", "held", "residual"}
 
 
-def _from_json(path: Path, kind: str) -> list[Entry]:
+def _from_json(path: Path, kind: Kind) -> list[Entry]:
     entries = []
-    make = phong_entry if kind == "phong" else strauss_entry
+    make = kind.entry
     for number, item in enumerate(_json_items(path), start=1):
         source = f"{path} #{number}"
         if not isinstance(item, dict):
@@ -360,13 +429,12 @@ def _from_json(path: Path, kind: str) -> list[Entry]:
                 )
             )
             continue
-        if isinstance(item.get(kind), dict):  # the output of the other direction
-            values = dict(item[kind])
-            if kind == "phong":
-                values.update({k: item[k] for k in ("opacity", "ior") if k in item})
+        if isinstance(item.get(kind.name), dict):  # the output of the other direction
+            values = dict(item[kind.name])
+            values.update({k: item[k] for k in kind.extra if k in item})
             entries.append(make(values, name, source))
-        elif kind == "strauss" and FIT_RESULT_KEYS <= set(item):  # a `strauss-fit fit` result
-            entries.append(make({k: item[k] for k in STRAUSS_KEYS if k in item}, name, source))
+        elif kind.fit_results and FIT_RESULT_KEYS <= set(item):  # a `strauss-fit fit` result
+            entries.append(make({k: item[k] for k in kind.keys if k in item}, name, source))
         else:
             entries.append(make({k: v for k, v in item.items() if k != "name"}, name, source))
     return entries
@@ -375,7 +443,7 @@ def _from_json(path: Path, kind: str) -> list[Entry]:
 # --- CSV --------------------------------------------------------------------------------------
 
 
-def _from_csv(path: Path, kind: str) -> list[Entry]:
+def _from_csv(path: Path, kind: Kind) -> list[Entry]:
     try:
         text = decode_text(path.read_bytes(), path, "material file")
     except OSError as exc:
@@ -385,8 +453,7 @@ def _from_csv(path: Path, kind: str) -> list[Entry]:
     if not rows:
         raise StraussFitError(f"{path}: the CSV file is empty (expected a header row and one row per material)")
     header = [h.strip() for h in rows[0]]
-    aliases = PHONG_ALIASES if kind == "phong" else STRAUSS_ALIASES
-    keys = PHONG_KEYS + ("opacity", "ior") if kind == "phong" else STRAUSS_KEYS
+    aliases, keys = kind.aliases, kind.inputs
     columns: dict[str, list[tuple[int, int | None]]] = {}
     for index, column in enumerate(header):
         lowered = column.lower()
@@ -406,7 +473,7 @@ def _from_csv(path: Path, kind: str) -> list[Entry]:
     name_index = lowered_header.index("name") if "name" in lowered_header else None
     status_index = lowered_header.index("status") if "status" in lowered_header else None
     entries = []
-    make = phong_entry if kind == "phong" else strauss_entry
+    make = kind.entry
     for number, row in enumerate(rows[1:], start=2):
         source = f"{path} line {number}"
         name = (
@@ -454,11 +521,9 @@ def _from_csv(path: Path, kind: str) -> list[Entry]:
 # --- entry points -----------------------------------------------------------------------------
 
 
-def _read_file(path: Path, kind: str) -> tuple[list[Entry], list[str]]:
+def _read_file(path: Path, kind: Kind) -> tuple[list[Entry], list[str]]:
     if not path.exists():
-        raise StraussFitError(
-            f"input not found: {path} (give a .json, .csv{', .mtl' if kind == 'phong' else ''} file or KEY=VALUE pairs)"
-        )
+        raise StraussFitError(f"input not found: {path} (give a {', '.join(kind.suffixes)} file or KEY=VALUE pairs)")
     if path.is_dir():
         raise StraussFitError(f"input is a directory: {path}")
     suffix = path.suffix.lower()
@@ -466,7 +531,7 @@ def _read_file(path: Path, kind: str) -> tuple[list[Entry], list[str]]:
         entries, notes = _from_json(path, kind), []
     elif suffix == ".csv":
         entries, notes = _from_csv(path, kind), []
-    elif suffix == ".mtl" and kind == "phong":
+    elif suffix == ".mtl" and suffix in kind.suffixes:  # a .mtl library holds Phong materials
         library = read_mtl(path)
         notes = list(library.notes)
         entries = []
@@ -480,12 +545,12 @@ def _read_file(path: Path, kind: str) -> tuple[list[Entry], list[str]]:
                     notes=list(material.notes),
                     error=material.error,
                     values=material.values,
-                    kind="phong" if material.values is not None else None,
+                    kind=PHONG.name if material.values is not None else None,
                     warnings=list(material.warnings),
                 )
             )
     else:
-        expected = ".json, .csv or .mtl" if kind == "phong" else ".json or .csv"
+        expected = f"{', '.join(kind.suffixes[:-1])} or {kind.suffixes[-1]}"
         raise StraussFitError(
             f"cannot read {path}: unknown input format {suffix or '(no extension)'}; expected {expected}"
         )
@@ -494,7 +559,7 @@ def _read_file(path: Path, kind: str) -> tuple[list[Entry], list[str]]:
     return entries, notes
 
 
-def _read(tokens: list[str], kind: str) -> tuple[list[Entry], list[str], str]:
+def _read(tokens: list[str], kind: Kind) -> tuple[list[Entry], list[str], str]:
     """Entries, file-level notes and a description of the input."""
     if not tokens:
         raise StraussFitError("no input given")
@@ -515,8 +580,7 @@ def _read(tokens: list[str], kind: str) -> tuple[list[Entry], list[str], str]:
         )
     values = parse_inline(tokens)
     name = str(values.pop("name", "material"))
-    make = phong_entry if kind == "phong" else strauss_entry
-    entry = make(values, name, "command line")
+    entry = kind.entry(values, name, "command line")
     if entry.error:  # a single material given by hand: say what is wrong, once
         raise MaterialError(entry.error)
     return [entry], [], "command line"
@@ -524,12 +588,12 @@ def _read(tokens: list[str], kind: str) -> tuple[list[Entry], list[str], str]:
 
 def read_phong_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
     """Phong materials from the command line, or JSON, CSV and ``.mtl`` files (one or more)."""
-    return _read(tokens, "phong")
+    return _read(tokens, PHONG)
 
 
 def read_strauss_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
     """Strauss materials from the command line, or JSON and CSV files (one or more)."""
-    return _read(tokens, "strauss")
+    return _read(tokens, STRAUSS)
 
 
 # --- outputs ----------------------------------------------------------------------------------
@@ -560,8 +624,7 @@ def csv_columns(direction: str) -> list[str]:
     if direction == "phong2strauss":
         return (
             head
-            + _rgb_columns("color")
-            + ["smoothness", "metalness", "transparency", "ior"]
+            + [column for key in STRAUSS_KEYS for column in (_rgb_columns(key) if key in RGB_KEYS else [key])]
             + _rgb_columns("sd_color")
             + ["sd_smoothness", "sd_metalness"]
             + tail
@@ -600,10 +663,11 @@ def _csv_row(result: dict[str, Any], direction: str) -> dict[str, Any]:
     uncertainty = result.get("uncertainty") or {}
     if direction == "phong2strauss":
         values = result["strauss"]
-        for c, v in zip("rgb", values["color"]):
-            row[f"color_{c}"] = f"{v:.6g}"
-        for key in ("smoothness", "metalness", "transparency", "ior"):
-            row[key] = f"{values[key]:.6g}"
+        for key in STRAUSS_KEYS:
+            if key in RGB_KEYS:
+                row.update({f"{key}_{c}": f"{v:.6g}" for c, v in zip("rgb", values[key])})
+            else:
+                row[key] = f"{values[key]:.6g}"
         if uncertainty:
             for c, v in zip("rgb", uncertainty["color"]):
                 row[f"sd_color_{c}"] = _sd_text(v)

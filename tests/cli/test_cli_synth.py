@@ -88,8 +88,12 @@ def test_force_replaces_only_the_old_dataset(tmp_path, capsys):
 
 BAD_SPECS = [
     (
+        SYNTH_SPEC.replace('model = "phong"', 'model = "ward"'),
+        "unknown model 'ward'; expected one of strauss, phong, lambert, blinn-phong, cook-torrance",
+    ),
+    (  # a registry model: its own parameters, not the classic Phong's
         SYNTH_SPEC.replace('model = "phong"', 'model = "cook-torrance"'),
-        "unknown model 'cook-torrance'; expected one of strauss, phong",
+        "unknown cook-torrance parameter(s) diffuse_color, exponent; expected kd, f0, roughness",
     ),
     (
         SYNTH_SPEC.replace("smoothness = { low = 0.0, high = 1.0 }", "smoothness = { low = 0.0, high = 1.5 }"),
