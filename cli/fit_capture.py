@@ -27,6 +27,10 @@ NOT_TAKEN = (
     "fix",
     "free",
 )
+#: What several targets fitted with another model than Strauss into a folder do not take:
+#: :data:`NOT_TAKEN` less what a folder of results does as a Strauss one does (``--resume``,
+#: ``--manifest``).
+BATCH_NOT_TAKEN = tuple(option for option in NOT_TAKEN if option not in ("resume", "manifest"))
 
 
 def add_capture_options(parser: argparse.ArgumentParser) -> None:
@@ -137,12 +141,46 @@ def run_capture(args: argparse.Namespace) -> int:
     return 0
 
 
+def scene_model_options(args: argparse.Namespace):
+    """The capture fitter's options of ``fit … --scene SCENE --model NAME``: the scene states
+    the light intensities, so no exposure is fitted unless ``--fit-exposure``."""
+    from strauss_fit.fit.capture import CaptureFitOptions
+
+    return CaptureFitOptions(
+        model=args.model, exposure="global" if args.fit_exposure else "fixed", ambient=args.ambient
+    )
+
+
+def model_batch(args: argparse.Namespace):
+    """How ``fit T1 T2 … --scene SCENE --model NAME -o OUTDIR/`` fits each target: as
+    :func:`run_scene_model` fits one (a :class:`strauss_fit.fit.folder.ModelFit`). An option
+    the capture fitter does not take is refused, naming it."""
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.fit.batch import DEFAULT_CHUNK
+    from strauss_fit.fit.folder import ModelFit
+
+    from .fit_cmd import equivalence_asked
+
+    for option in BATCH_NOT_TAKEN:
+        if getattr(args, option, None):
+            raise StraussFitError(f"--{option.replace('_', '-')} is not available with --model {args.model}")
+    # --chunk-size has a default, so only another value shows it was given: the targets of
+    # another model are fitted one after the other (those of one size share one compiled program)
+    if args.chunk_size != DEFAULT_CHUNK:
+        raise StraussFitError(
+            f"--chunk-size is not available with --model {args.model}: its targets are fitted one by one"
+        )
+    return ModelFit(
+        scene_model_options(args), equivalence=bool(equivalence_asked(args)), equivalence_de=args.equivalence_de
+    )
+
+
 def run_scene_model(args: argparse.Namespace) -> int:
     """``fit TARGET --scene SCENE --model NAME``: another reflectance model than Strauss on one
     target (:func:`strauss_fit.fit.scene_samples.samples_from_scene`, then the capture
-    fitter, which fits every model)."""
+    fitter, which fits every model). Several targets go to a folder
+    (:func:`strauss_fit_cli.fit_cmd.run_batch`)."""
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.capture import CaptureFitOptions
     from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
     from strauss_fit.fit.capture_result import format_capture_table
     from strauss_fit.fit.folder import sidecar_of
@@ -153,18 +191,14 @@ def run_scene_model(args: argparse.Namespace) -> int:
 
     from .fit_cmd import equivalence_asked
 
-    if len(args.target) != 1:
-        raise StraussFitError(f"--model {args.model} fits one target at a time (got {len(args.target)})")
     if args.scene is None:
         raise StraussFitError(f"--model {args.model} needs the target's scene (--scene SCENE.toml)")
     for option in NOT_TAKEN:
+        if getattr(args, option, None) and option not in BATCH_NOT_TAKEN:  # a folder's: --resume
+            raise StraussFitError(f"--{option} is for several targets fitted into a folder (-o OUTDIR)")
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --model {args.model}")
     target_path = args.target[0]
-    if target_path.startswith("@") or Path(target_path).is_dir():
-        raise StraussFitError(f"--model {args.model} fits one target image, not a folder or an @LIST: {target_path}")
-    if args.output.endswith(("/", "\\")):
-        raise StraussFitError(f"-o {args.output} names a folder: --model {args.model} writes one RESULT.json")
     check_distinct(
         {"-o": args.output},
         {
@@ -176,9 +210,7 @@ def run_scene_model(args: argparse.Namespace) -> int:
     )
     check_writable(args.output, args.force)
     samples = samples_from_scene(load_scene(args.scene), load_target(target_path, args.mask, args.encoding))
-    options = CaptureFitOptions(
-        model=args.model, exposure="global" if args.fit_exposure else "fixed", ambient=args.ambient
-    )
+    options = scene_model_options(args)
     log = progress_printer(args.quiet, "... ")
     result = fit_capture_api(
         samples,

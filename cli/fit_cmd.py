@@ -334,12 +334,12 @@ def run(args: argparse.Namespace) -> int:
             from strauss_fit.errors import StraussFitError
 
             raise StraussFitError(f"--{option.replace('_', '-')} is for captures (--capture)")
+    if is_batch(args):
+        return run_batch(args)
     if args.model != "strauss":
         from .fit_capture import run_scene_model
 
         return run_scene_model(args)
-    if is_batch(args):
-        return run_batch(args)
     compare_path = check_outputs(args)
     fixed = parse_fixed(args.fix)
     check_fixed_ranges(fixed)
@@ -395,22 +395,33 @@ def recorded(args: argparse.Namespace, target, scene, mask, encoding) -> dict:
 
 
 def run_batch(args: argparse.Namespace) -> int:
-    """Several targets into the folder ``-o`` (:func:`strauss_fit.fit.folder.fit_to_folder`)."""
+    """Several targets into the folder ``-o`` (:func:`strauss_fit.fit.folder.fit_to_folder`),
+    with the Strauss fit or, with ``--model NAME``, another reflectance model (each target as
+    :func:`strauss_fit_cli.fit_capture.run_scene_model` fits one)."""
     import sys
     import time
 
+    from strauss_fit import FitOptions
     from strauss_fit.errors import StraussFitError
     from strauss_fit.fit.folder import fit_to_folder, jobs_from_arguments
 
+    model = None
+    if args.model != "strauss":
+        from .fit_capture import model_batch
+
+        model = model_batch(args)  # refuses first what the capture fitter does not take
     if args.render_fit:
         raise StraussFitError("--render-fit writes one target's images; with several targets use --compare")
     if args.workers is not None and args.scheduler is not None:
         raise StraussFitError("give --workers or --scheduler, not both")
     if args.resume and args.force:
         raise StraussFitError("give --resume or --force, not both")
-    fixed = parse_fixed(args.fix)
-    check_fixed_ranges(fixed)
-    options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
+    if model is None:
+        fixed = parse_fixed(args.fix)
+        check_fixed_ranges(fixed)
+        options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
+    else:
+        options = FitOptions()  # the jobs' Strauss options, unused: ``model`` says how each is fitted
     jobs = jobs_from_arguments(args.target, args.scene, args.manifest, options, mask=args.mask, encoding=args.encoding)
     executor = None
     if args.workers is not None or args.scheduler is not None:
@@ -440,11 +451,13 @@ def run_batch(args: argparse.Namespace) -> int:
         resume=args.resume,
         force=args.force,
         compare=args.compare,
-        recorded=record,
+        # another model's result records its inputs itself, as the single --model fit writes it
+        recorded=record if model is None else None,
         progress=bar.update,
         on_result=announce,
         inputs=[*listed, *([args.manifest] if args.manifest else [])],
         log=log,
+        model=model,
     )
     bar.clear()
     elapsed = time.perf_counter() - started

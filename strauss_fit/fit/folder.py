@@ -38,31 +38,45 @@ before any work (:func:`jobs_from_arguments`): a missing or broken one would fai
 target, so it is bad input (one line, exit status 2), as with a single target. What
 belongs to one target — the image, a manifest row's own scene or mask — fails that target
 alone.
+
+**Another reflectance model** than Strauss (``fit … --model NAME -o OUTDIR``): ``model``
+(a :class:`ModelFit`) fits each target as ``fit TARGET --scene S --model NAME`` fits one
+(the target and its scene as a capture of one image, then the capture fitter), one target
+after the other in this process, and writes its result JSON unchanged but for its
+``provenance``. Everything above holds as it is; ``summary.csv`` then has the model's
+columns (:attr:`ModelFit.columns`), and there is no comparison image (no fitted image) and
+no executor.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import io
 import json
 import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..errors import OutputExistsError, StraussFitError
+from ..errors import CaptureError, OutputExistsError, StraussFitError
 from ..inference.noise import sidecar_path
 from ..io.files import Outputs, check_input_file, check_replaceable, read_json
 from ..io.images import read_image
 from ..io.journal import file_digest, pytree_digest, run_key
 from ..io.targets import Target
-from ..scene.loading import load_scene
-from .batch import DEFAULT_CHUNK, BatchProgress, FitFailure, FitJob, fit_many
+from ..runtime import release_compiled_code_if_needed
+from ..scene.loading import Scene, load_scene
+from .batch import DEFAULT_CHUNK, BatchProgress, FitFailure, FitJob, _failure, _loaded, fit_many
+from .capture import CaptureFitOptions, _parameters
+from .capture_result import check_capture_result, fit_capture, is_capture_result
 from .options import FitOptions
 from .result import FitResult
-from .summary import SUMMARY_COLUMNS, comparison_image, standardized_map, summary_row
+from .scene_samples import samples_from_scene
+from .summary import SUMMARY_COLUMNS, _number, comparison_image, standardized_map, summary_row
 
 #: File endings taken as images when a folder is given.
 IMAGE_SUFFIXES = (".exr", ".hdr", ".tif", ".tiff", ".pfm", ".png", ".jpg", ".jpeg", ".bmp", ".tga")
@@ -192,10 +206,27 @@ def sidecar_of(target: str | Path) -> Path | None:
     if Path(target).suffix.lower() == ".json" or not candidate.is_file():
         return None
     try:
-        FitResult.from_json(json.loads(candidate.read_text(encoding="utf-8")))
-        return None
+        data = json.loads(candidate.read_text(encoding="utf-8"))
     except Exception:
         return candidate
+    return None if is_result(data) else candidate
+
+
+def is_result(data: Any) -> bool:
+    """Whether ``data`` (a parsed JSON file) is a fit result: a Strauss fit's
+    (:class:`~strauss_fit.fit.result.FitResult`) or another model's (a capture's result,
+    :func:`~strauss_fit.fit.capture_result.is_capture_result`, as ``fit --model`` writes it)."""
+    if is_capture_result(data):
+        try:
+            check_capture_result(data)
+        except CaptureError:
+            return False
+        return True
+    try:
+        FitResult.from_json(data)
+    except Exception:
+        return False
+    return True
 
 
 def check_outputs_are_not_inputs(
@@ -235,11 +266,12 @@ CORE_KEYS: dict[str, dict[str, tuple[type, ...]]] = {
 }
 
 
-def provenance(job: FitJob) -> dict[str, Any] | None:
+def provenance(job: FitJob, model: ModelFit | None = None) -> dict[str, Any] | None:
     """What decides a target's result, as digests (``target_sha256`` of the image's bytes,
     ``scene_sha256``, ``mask_sha256``, ``settings_sha256`` of the options and encoding),
     strauss-fit's version, and ``key``, the run key of them all. None when an input cannot
-    be read (the fit then fails on it and says why)."""
+    be read (the fit then fails on it and says why). With ``model`` (another reflectance
+    model) the options are the model's (:meth:`ModelFit.as_dict`), not the job's."""
 
     def digest(value: Any) -> str | None:
         if value is None:
@@ -260,7 +292,8 @@ def provenance(job: FitJob) -> dict[str, Any] | None:
         }
     except (OSError, StraussFitError):
         return None
-    settings = json.dumps({"options": job.options.as_dict(), "encoding": job.encoding}, sort_keys=True, default=str)
+    options = job.options.as_dict() if model is None else model.as_dict()
+    settings = json.dumps({"options": options, "encoding": job.encoding}, sort_keys=True, default=str)
     parts["settings_sha256"] = hashlib.sha256(settings.encode("utf-8")).hexdigest()
     return {**parts, "strauss_fit": __version__, "key": run_key(parts)}
 
@@ -284,6 +317,133 @@ class FolderRun:
     skipped: int
     failed: int
     summary: Path
+
+
+#: The columns of a model's ``summary.csv`` before its values, and after their ``sd_*``.
+MODEL_SUMMARY_HEAD = ("target", "status", "error", "model", "verdict", "chi2_per_dof_at_floor", "chi2_per_dof_at_bound")
+MODEL_SUMMARY_TAIL = ("free", "rms", "relative_rms", "delta_e2000_mean", "solver_status", "warnings", "result")
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """Another reflectance model than Strauss fitted to every target of a folder, each as
+    ``fit TARGET --scene S --model NAME`` fits one: the target and its scene as a capture of
+    one image (:func:`~strauss_fit.fit.scene_samples.samples_from_scene`), then
+    :func:`~strauss_fit.fit.capture_result.fit_capture` with ``options`` and the equivalence
+    ranges asked for."""
+
+    options: CaptureFitOptions
+    equivalence: bool = False
+    equivalence_de: float | None = None
+
+    @property
+    def model(self) -> str:
+        return self.options.model
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every setting that decides a result (for its provenance)."""
+        return {
+            **dataclasses.asdict(self.options),
+            "equivalence": self.equivalence,
+            "equivalence_de": self.equivalence_de,
+        }
+
+    def _values(self) -> list[tuple[str, list[str]]]:
+        """Each fitted parameter (the registry's, less those a capture holds, and the
+        capture's own, e.g. a fitted exposure) and its columns: the name, or for an RGB
+        triple ``NAME_r``, ``NAME_g``, ``NAME_b`` (as ``color_r`` … in a Strauss summary)."""
+        out = []
+        for parameter in _parameters(self.options, 1):
+            if parameter.size == 1:
+                names = [parameter.name]
+            elif parameter.size == 3:
+                names = [f"{parameter.name}_{channel}" for channel in "rgb"]
+            elif parameter.name == "white_balance":  # the red and blue gains (green is 1)
+                names = [f"{parameter.name}_r", f"{parameter.name}_b"]
+            else:
+                names = [f"{parameter.name}_{i + 1}" for i in range(parameter.size)]
+            out.append((parameter.name, names))
+        return out
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The columns of this model's ``summary.csv`` (see docs/formats.md): the same for
+        every run of the model and its options."""
+        values = [name for _, names in self._values() for name in names]
+        return (*MODEL_SUMMARY_HEAD, *values, *(f"sd_{name}" for name in values), *MODEL_SUMMARY_TAIL)
+
+    def row(self, target: str, result: dict[str, Any] | None, *, error: str | None = None, path: str = "") -> dict:
+        """One row of ``summary.csv`` for a fitted target (its result JSON) or a failed one."""
+        row = dict.fromkeys(self.columns, "")
+        row.update(target=target, model=self.model)
+        if result is None:
+            row.update(status="failed", error=error or "")
+            return row
+        residual = result.get("residual") or {}
+        row.update(
+            status="ok",
+            verdict=residual.get("verdict") or "",
+            chi2_per_dof_at_floor=_number(residual.get("chi2_per_dof_at_floor")),
+            chi2_per_dof_at_bound=_number(residual.get("chi2_per_dof_at_bound")),
+            free=" ".join(result.get("free") or []),
+            rms=_number(residual.get("rms")),
+            relative_rms=_number(residual.get("relative_rms")),
+            delta_e2000_mean=_number(residual.get("delta_e2000_mean")),
+            solver_status=(result.get("solver") or {}).get("status", ""),
+            warnings=" ".join(w["code"] for w in result.get("warnings") or []),
+            result=path,
+        )
+        values, deviations = result.get("values") or {}, result.get("uncertainty") or {}
+        for name, columns in self._values():
+            for prefix, source in (("", values), ("sd_", deviations)):
+                given = source.get(name)
+                for column, value in zip(columns, given if isinstance(given, list) else [given]):
+                    row[prefix + column] = _number(value)
+        return row
+
+    def fit(self, job: FitJob, scenes: dict[str, Scene]) -> dict[str, Any]:
+        """The result of one target, as ``fit TARGET --scene S --model NAME -o R.json`` writes
+        it (``scenes``: the scenes loaded so far, by path)."""
+        scene, target = _loaded(job, scenes)
+        return fit_capture(
+            samples_from_scene(scene, target),
+            self.options,
+            inputs={
+                "target": job.name,
+                "scene": str(job.scene) if isinstance(job.scene, (str, Path)) else None,
+                "mask": None if job.mask is None else str(job.mask),
+                "encoding": job.encoding,
+            },
+            equivalence=self.equivalence,
+            equivalence_de=self.equivalence_de,
+        )
+
+    def fit_all(
+        self,
+        jobs: Sequence[FitJob],
+        *,
+        progress: Callable[[BatchProgress], None] | None = None,
+        on_result: Callable[[int, dict[str, Any] | FitFailure], None] | None = None,
+    ) -> None:
+        """Fit ``jobs`` one after the other in this process; ``on_result(index, result)``
+        with each result (a result JSON, or a :class:`~strauss_fit.fit.batch.FitFailure`),
+        then ``progress``, as :func:`~strauss_fit.fit.batch.fit_many` calls them. The
+        capture fitter compiles its program once per data shape: the targets of one scene,
+        size and mask reuse it."""
+        scenes: dict[str, Scene] = {}
+        started = time.perf_counter()
+        failed = 0
+        for index, job in enumerate(jobs):
+            release_compiled_code_if_needed()
+            try:
+                result: dict[str, Any] | FitFailure = self.fit(job, scenes)
+            except Exception as error:  # a target that cannot be read or fitted fails alone
+                result = _failure(job, error)
+            failed += isinstance(result, FitFailure)
+            if on_result is not None:
+                on_result(index, result)
+            if progress is not None:
+                progress(BatchProgress(index + 1, len(jobs), failed, time.perf_counter() - started))
 
 
 def _is_number(value: Any) -> bool:
@@ -317,9 +477,12 @@ def _kept(path: Path, expected: dict[str, Any] | None) -> tuple[dict[str, Any] |
     another configuration, or one without provenance)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        FitResult.from_json(data)
     except Exception:
+        return None, None  # not JSON (a half-written file): nothing to keep
+    if not is_result(data):
         return None, None  # not a result (a half-edited file): nothing to keep
+    # a result of another model is a result too: its provenance key (the settings name the
+    # model) refuses it below, rather than letting this run overwrite it unasked
     if not _complete(data):
         return None, None
     recorded = data.get("provenance")
@@ -345,19 +508,26 @@ def fit_to_folder(
     compare: bool = False,
     recorded: Callable[[FitJob], dict[str, Any]] | None = None,
     progress: Callable[[BatchProgress], None] | None = None,
-    on_result: Callable[[int, FitResult | FitFailure], None] | None = None,
+    on_result: Callable[[int, FitResult | dict[str, Any] | FitFailure], None] | None = None,
     inputs: Sequence[str | Path] = (),
     log: Callable[[str], None] | None = None,
+    model: ModelFit | None = None,
 ) -> FolderRun:
     """Fit ``jobs`` into ``folder`` (see the module docstring for the rules). ``recorded(job)``
     gives the extra keys each result JSON records (the command line's target, scene, mask,
     encoding, quality); ``inputs`` names further input files no output may replace (a
     manifest, target lists); ``log`` receives a line about results fitted again. Existing
     results are refused unless ``resume`` (keep those of this run, fit the rest) or
-    ``force`` (fit everything again), all before any work."""
+    ``force`` (fit everything again), all before any work. ``model`` fits another
+    reflectance model than Strauss (the jobs' own options are then unused)."""
     folder = Path(folder)
     if resume and force:
         raise StraussFitError("give --resume or --force, not both")
+    if model is not None and compare:
+        raise StraussFitError(f"the {model.model} model's fit draws no comparison image: fit without compare")
+    if model is not None and executor is not None:
+        raise StraussFitError(f"the {model.model} model's targets are fitted in this process: give no executor")
+    row_of = summary_row if model is None else model.row
     if folder.exists() and not folder.is_dir():
         raise StraussFitError(f"the output {folder} is a file; several targets need an output folder")
     if not folder.exists():
@@ -385,7 +555,7 @@ def fit_to_folder(
                 f"{folder} already holds a {SUMMARY_NAME} from an earlier run; pass --resume to keep its results "
                 "and fit the rest, or --force to replace it"
             )
-    keys = [provenance(job) for job in jobs]
+    keys = [provenance(job, model) for job in jobs]
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
     todo, incomplete, uncompared = [], 0, 0
     for index, (job, path) in enumerate(zip(jobs, paths)):
@@ -400,7 +570,7 @@ def fit_to_folder(
         elif done is None:
             incomplete += resume and path.exists()
         if done is not None:
-            rows[index] = summary_row(job.name, done, path=path.name)
+            rows[index] = row_of(job.name, done, path=path.name)
         else:
             todo.append(index)
     if log is not None and incomplete:
@@ -416,14 +586,15 @@ def fit_to_folder(
                 stale.unlink(missing_ok=True)
     counts = {"failed": 0}
 
-    def arrived(position: int, result: FitResult | FitFailure) -> None:
+    def arrived(position: int, result: FitResult | dict[str, Any] | FitFailure) -> None:
         index = todo[position]
         job, path = jobs[index], paths[index]
         if isinstance(result, FitFailure):
-            rows[index] = summary_row(job.name, None, error=result.message)
+            rows[index] = row_of(job.name, None, error=result.message)
             counts["failed"] += 1
         else:
-            payload = result.to_json()
+            # another model's result is already its JSON (what ``fit --model`` writes)
+            payload = result if isinstance(result, dict) else result.to_json()
             for key, value in (recorded(job) if recorded else {}).items():
                 if isinstance(value, dict) and isinstance(payload.get(key), dict):
                     payload[key].update(value)  # e.g. settings: the quality preset's name
@@ -441,11 +612,13 @@ def fit_to_folder(
                     )
                     out.add_image(folder / f"{names[index]}.compare.png", image)
                 out.commit()
-            rows[index] = summary_row(job.name, payload, path=path.name)
+            rows[index] = row_of(job.name, payload, path=path.name)
         if on_result is not None:
             on_result(index, result)
 
-    if todo:
+    if todo and model is not None:
+        model.fit_all([jobs[i] for i in todo], progress=progress, on_result=arrived)
+    elif todo:
         fit_many(
             [jobs[i] for i in todo],
             [jobs[i].scene for i in todo],
@@ -457,7 +630,7 @@ def fit_to_folder(
         )
     final_rows = [row for row in rows if row is not None]
     _create(folder)
-    write_summary(summary, final_rows)
+    write_summary(summary, final_rows, SUMMARY_COLUMNS if model is None else model.columns)
     return FolderRun(final_rows, len(todo) - counts["failed"], len(jobs) - len(todo), counts["failed"], summary)
 
 
@@ -474,10 +647,11 @@ def _create(folder: Path) -> None:
         raise StraussFitError(f"cannot create the output folder {folder}: {exc.strerror or exc}") from None
 
 
-def write_summary(path: Path, rows: list[dict[str, Any]]) -> None:
-    """``summary.csv``: the rows under :data:`SUMMARY_COLUMNS` (written atomically)."""
+def write_summary(path: Path, rows: list[dict[str, Any]], columns: Sequence[str] = SUMMARY_COLUMNS) -> None:
+    """``summary.csv``: the rows under ``columns`` (:data:`SUMMARY_COLUMNS`, or another
+    model's :attr:`ModelFit.columns`; written atomically)."""
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
     with Outputs(force=True) as out:

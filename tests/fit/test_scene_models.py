@@ -85,4 +85,5 @@ def test_cli_model_on_one_target_and_back(tmp_path):
          "--model", "phong", "-o", str(tmp_path / "p/"), "--quiet"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
-    assert two.returncode == 2 and len(two.stderr.strip().splitlines()) == 1 and "one target" in two.stderr
+    # the same target twice into one folder: refused before any work (each would overwrite the other)
+    assert two.returncode == 2 and len(two.stderr.strip().splitlines()) == 1 and "given twice" in two.stderr
