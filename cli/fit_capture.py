@@ -33,6 +33,38 @@ NOT_TAKEN = (
 BATCH_NOT_TAKEN = tuple(option for option in NOT_TAKEN if option not in ("resume", "manifest"))
 
 
+def refuse_ignored(args: argparse.Namespace, how: str, *, scene: bool = True) -> None:
+    """Refuse (one line, naming the option) an option of ``fit`` that has a default and that
+    the capture fitter does not take (it is least squares by projected Levenberg–Marquardt,
+    in float64, with the model's exact formulas, on the pixels the sphere covers fully),
+    when given another value than its default (only that shows it was given); and, for one
+    scene's targets (``scene``), ``--fit-exposure`` with a model whose scale is unbounded
+    (its own parameters absorb an exposure; a capture's per-image exposures are relative and
+    do apply). ``how`` ends the message."""
+    from strauss_fit.errors import StraussFitError
+    from strauss_fit.fit.options import DEFAULT_QUALITY
+    from strauss_fit.models.modes import DEFAULT_TABLE_SIZE
+    from strauss_fit.models.reflectance import reflectance_model
+
+    defaults = {
+        "solver": "lm",
+        "loss": "auto",
+        "edge_pixels": "auto",
+        "quality": DEFAULT_QUALITY,
+        "mode": "exact",
+        "table_size": DEFAULT_TABLE_SIZE,
+        "precision": "float64",
+    }
+    for option, default in defaults.items():
+        if getattr(args, option, default) != default:
+            raise StraussFitError(f"--{option.replace('_', '-')} is not available {how}")
+    if scene and getattr(args, "fit_exposure", False) and not reflectance_model(args.model).bounded_scale:
+        raise StraussFitError(
+            f"--fit-exposure is not available with --model {args.model}: its scale is unbounded, so its own "
+            "parameters absorb an exposure"
+        )
+
+
 def add_capture_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("captures (many photographs of one sphere, docs/captures.md)")
     group.add_argument(
@@ -99,6 +131,7 @@ def run_capture(args: argparse.Namespace) -> int:
     for option in NOT_TAKEN:
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --capture")
+    refuse_ignored(args, "with --capture", scene=False)
     if args.output.endswith(("/", "\\")):
         raise StraussFitError(f"-o {args.output} names a folder: a capture's fit writes one RESULT.json")
     paths = args.capture
@@ -164,6 +197,7 @@ def model_batch(args: argparse.Namespace):
     for option in BATCH_NOT_TAKEN:
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --model {args.model}")
+    refuse_ignored(args, f"with --model {args.model}")
     # --chunk-size has a default, so only another value shows it was given: the targets of
     # another model are fitted one after the other (those of one size share one compiled program)
     if args.chunk_size != DEFAULT_CHUNK:
@@ -198,6 +232,7 @@ def run_scene_model(args: argparse.Namespace) -> int:
             raise StraussFitError(f"--{option} is for several targets fitted into a folder (-o OUTDIR)")
         if getattr(args, option, None):
             raise StraussFitError(f"--{option.replace('_', '-')} is not available with --model {args.model}")
+    refuse_ignored(args, f"with --model {args.model}")
     target_path = args.target[0]
     check_distinct(
         {"-o": args.output},

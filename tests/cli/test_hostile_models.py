@@ -316,3 +316,27 @@ def test_report_of_a_capture_chain_with_damaged_metadata(folder):
     run = strauss_fit("report", "--chain", "c.h5", "-o", "rep.html", cwd=folder)
     assert_refused(run, "metadata is damaged ('x_hat'")
     assert listing(folder) == before
+
+
+@pytest.mark.parametrize(
+    "extra, fragment",
+    [
+        (["--loss", "huber"], "--loss is not available with --model lambert"),
+        (["--solver", "bfgs"], "--solver is not available with --model lambert"),
+        (["--edge-pixels", "include"], "--edge-pixels is not available with --model lambert"),
+        (["--precision", "float32"], "--precision is not available with --model lambert"),
+        (["--fit-exposure"], "--fit-exposure is not available with --model lambert: its scale is unbounded"),
+    ],
+)
+def test_model_fit_refuses_defaulted_options_it_would_ignore(folder, extra, fragment, capsys, monkeypatch):
+    # each was accepted and silently ignored: the fit written was the default one
+    before = listing(folder)
+    args = ["fit", "t.exr", "--scene", "scene.toml", "--model", "lambert", *extra, "-o", "r.json"]
+    assert_refused(in_process(*args, cwd=folder, capsys=capsys, monkeypatch=monkeypatch), fragment)
+    assert listing(folder) == before
+
+
+def test_capture_fit_refuses_a_loss_it_would_ignore(capture, tmp_path, capsys, monkeypatch):
+    args = ["fit", "--capture", capture, "--model", "lambert", "--loss", "cauchy", "-o", "r.json"]
+    assert_refused(in_process(*args, cwd=tmp_path, capsys=capsys, monkeypatch=monkeypatch), "--loss is not available")
+    assert listing(tmp_path) == {}
