@@ -64,6 +64,14 @@ TILE_PX = 8
 
 #: Levenberg–Marquardt steps per start on the subsample, before the projected steps.
 START_STEPS = 40
+#: :func:`projected_lm` stops once this many accepted steps in a row have together lowered
+#: the cost by less than :data:`STALL_FRACTION` of it: the steps are then creeping along a
+#: valley the data hardly constrain (Cook–Torrance's kd·E and F0·E with a free exposure,
+#: anchored only by the Fresnel rise at grazing angles), where hundreds of damped steps would
+#: move the values along the valley without changing the fit. A converging fit ends earlier,
+#: on the 1e-9 rule.
+STALL_STEPS = 5
+STALL_FRACTION = 1e-6
 
 UNIT, POSITIVE, FREE = "unit", "positive", "free"
 
@@ -258,63 +266,64 @@ def _subsample(samples: CaptureSamples, values: int, seed: int) -> CaptureSample
 # --- starts: the linear parameters solved exactly on a grid of the non-linear ones ---------
 
 
-def _least_squares_linear(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:
-    solution, *_ = np.linalg.lstsq(design, target, rcond=None)
-    return solution, float(np.sum((design @ solution - target) ** 2))
-
-
-def _channel_design(
-    per_channel: np.ndarray, shared: np.ndarray, observed: np.ndarray, weight: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The linear system Î_c = X_c · per_channel_c + Y · shared_c over the usable values of
-    all three channels (unknowns X_r, X_g, X_b, Y), as (design, target)."""
-    rows, target = [], []
-    for c in range(3):
-        design = np.zeros(per_channel.shape[:2] + (4,))
-        design[..., c] = per_channel[..., c]
-        design[..., 3] = shared[..., c]
-        rows.append((design * weight[..., c : c + 1]).reshape(-1, 4))
-        target.append((observed[..., c] * weight[..., c]).ravel())
-    return np.concatenate(rows), np.concatenate(target)
-
-
-def _start_cost(
-    problem: _Problem, values: dict[str, np.ndarray], scale: float | None
-) -> tuple[float, dict[str, np.ndarray]]:
-    """The cost of a start (weighted sum of squares over the subsample); for a model whose
-    scale is an exposure, that exposure re-solved for the clipped values (one linear
-    unknown)."""
-    x = {name: jnp.asarray(np.atleast_1d(v), dtype=jnp.float64) for name, v in values.items()}
-    reflected, ambient = _reflected(problem.model, x, problem.terms)
-    if "ambient_light" in problem.terms:
-        reflected = reflected + problem.terms["ambient_light"][:, None, :] * ambient
-    column = (np.asarray(reflected) * np.asarray(problem.weight)).ravel()
-    target = (np.asarray(problem.observed) * np.asarray(problem.weight)).ravel()
-    if scale is None:
-        return float(np.sum((column - target) ** 2)), values
-    exposure = max(float(column @ target / max(column @ column, 1e-300)), 1e-6)
-    return float(np.sum((exposure * column - target) ** 2)), values | {"exposure": np.array([exposure])}
-
-
 def _model_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
     """For each point of the model's grid of non-linear values
     (:meth:`~strauss_fit.models.reflectance.ReflectanceModel.start_grid`), the linear unknowns
     (a per-channel one and a shared one, :meth:`~strauss_fit.models.reflectance.ReflectanceModel.linear_parts`)
-    solved exactly by linear least squares over the subsample; the ``keep`` best."""
+    solved exactly by linear least squares over the subsample; the ``keep`` best (the
+    earlier grid point first among equal costs)."""
     model = reflectance_model(problem.model)
-    rgb = np.asarray(problem.terms["light_rgb"])
-    observed, weight = np.asarray(problem.observed), np.asarray(problem.weight)
-    found = []
-    for nonlinear in model.start_grid() or [{}]:
-        per_channel, shared = (np.asarray(v) for v in model.linear_parts(nonlinear, problem.terms))
-        per_channel = np.sum(per_channel * rgb, axis=1)  # (L, P, 3)
-        shared = np.sum(shared * rgb, axis=1)
-        solution, _ = _least_squares_linear(*_channel_design(per_channel, shared, observed, weight))
-        values, scale = model.from_linear(nonlinear, solution[:3], solution[3])
-        values = {k: np.atleast_1d(np.asarray(v, dtype=np.float64)) for k, v in values.items() if k not in HELD}
-        found.append(_start_cost(problem, values, scale if model.bounded_scale else None))
-    found.sort(key=lambda item: item[0])
-    return [values for _, values in found[:keep]]
+    grid = model.start_grid() or [{}]
+    stacked = {name: jnp.asarray([point[name] for point in grid], dtype=jnp.float64) for name in grid[0]}
+    costs, values = _grid_starts(problem.model, stacked, len(grid), problem.terms, problem.observed, problem.weight)
+    costs = np.asarray(costs)
+    best = np.argsort(costs, kind="stable")[:keep]
+    values = {name: np.asarray(v) for name, v in values.items()}
+    return [{name: np.atleast_1d(v[i]) for name, v in values.items()} for i in best]
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def _grid_starts(
+    name: str,
+    grid: dict[str, jax.Array],
+    points: int,
+    terms: dict[str, jax.Array],
+    observed: jax.Array,
+    weight: jax.Array,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Every start of :func:`_model_starts` in one compiled call (vmapped over the ``points``
+    grid points; an eager loop spent more time dispatching than computing): per point the
+    cost and the values (for a model whose scale is an exposure, the exposure re-solved for
+    the clipped values: one linear unknown)."""
+    model = reflectance_model(name)
+    rgb = terms["light_rgb"]
+    target = (observed * weight).ravel()
+
+    def one(index):
+        nonlinear = {key: values[index] for key, values in grid.items()}
+        per_channel, shared = model.linear_parts(nonlinear, terms)
+        per_channel = jnp.sum(per_channel * rgb, axis=1)  # (L, P, 3)
+        shared = jnp.sum(shared * rgb, axis=1)
+        # Î_c = X_c · per_channel_c + Y · shared_c over the usable values of all three
+        # channels: unknowns X_r, X_g, X_b, Y
+        design = jnp.zeros((3,) + per_channel.shape[:2] + (4,), dtype=per_channel.dtype)
+        for c in range(3):
+            design = design.at[c, ..., c].set(per_channel[..., c] * weight[..., c])
+            design = design.at[c, ..., 3].set(shared[..., c] * weight[..., c])
+        rhs = jnp.stack([observed[..., c] * weight[..., c] for c in range(3)])
+        solution = jnp.linalg.lstsq(design.reshape(-1, 4), rhs.reshape(-1))[0]
+        found, scale = model.from_linear(nonlinear, solution[:3], solution[3])
+        found = {k: jnp.atleast_1d(v).astype(jnp.float64) for k, v in found.items() if k not in HELD}
+        reflected, ambient = _reflected(name, found, terms)
+        if "ambient_light" in terms:
+            reflected = reflected + terms["ambient_light"][:, None, :] * ambient
+        column = (reflected * weight).ravel()
+        if not model.bounded_scale or scale is None:
+            return jnp.sum((column - target) ** 2), found
+        exposure = jnp.maximum(column @ target / jnp.maximum(column @ column, 1e-300), 1e-6)
+        return jnp.sum((exposure * column - target) ** 2), found | {"exposure": exposure[None]}
+
+    return jax.vmap(one)(jnp.arange(points))
 
 
 def _starts(problem: _Problem) -> list[np.ndarray]:
@@ -494,13 +503,16 @@ def projected_lm(
     the covariances; from the subsample's optimum they converge in a few steps. And in the
     physical values a value can sit exactly on its bound (an active set), where the θ
     transform only creeps toward it. A step that does not lower the cost is retried with
-    10× the damping. Returns the values, the Jacobian and the residual at them, and
+    10× the damping. The steps stop at ``max_steps``, when a step lowers the cost by less than
+    1e-9 of it, or when :data:`STALL_STEPS` steps together lowered it by less than
+    :data:`STALL_FRACTION` of it (a flat valley). Returns the values, the Jacobian and the residual at them, and
     the steps taken."""
     x = np.clip(physical, low, high)
     r = np.asarray(residual_fn(jnp.asarray(x), data))
     cost = float(r @ r)
     jac = np.asarray(jacobian_fn(jnp.asarray(x), data))
     steps, damping = 0, 1e-4
+    recent: list[float] = []  # the cost decreases of the last STALL_STEPS accepted steps
     for _ in range(max_steps):
         steps += 1
         gradient = jac.T @ r
@@ -522,6 +534,9 @@ def projected_lm(
         x, r, cost = trial, r_trial, cost_trial
         jac = np.asarray(jacobian_fn(jnp.asarray(x), data))
         if change <= 1e-9 * max(cost, 1e-300):
+            break
+        recent = [*recent[1 - STALL_STEPS :], change]
+        if len(recent) == STALL_STEPS and sum(recent) <= STALL_FRACTION * max(cost, 1e-300):
             break
     return x, jac, r, steps
 

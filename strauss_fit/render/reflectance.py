@@ -15,11 +15,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..models.reflectance import reflectance_model
+from ..models.reflectance import ReflectanceModel, reflectance_model
 from ..precision import uses_float64
 from ..scene.background import background_radiance
 from ..scene.camera import intersect_unit_sphere, primary_rays
@@ -37,6 +38,13 @@ def render_model(scene: Scene, model: str, values: Mapping[str, Any] | None = No
     given = dict(values or {})
     defaults = {p.name: np.asarray(p.default_value()).tolist() for p in reflectance.parameters}
     x = reflectance.from_dict({**defaults, **given})
+    return _render_local(scene, reflectance, x)
+
+
+@eqx.filter_jit
+def _render_local(scene: Scene, reflectance: ReflectanceModel, x: dict[str, Array]) -> tuple[Array, Array]:
+    """The compiled core of :func:`render_model` (the model is a field-less module, so each
+    model and image size compiles once; a whole render is one call, as Strauss's is)."""
     dtype = jnp.float64
     rays = primary_rays(scene.camera, dtype)
     hits = intersect_unit_sphere(rays)
