@@ -79,7 +79,7 @@ from ..io.files import check_distinct, check_writable
 from ..io.journal import Journal, run_key
 from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
 from ..io.targets import Target
-from ..models.material import Material
+from ..models.material import OPAQUE_NAMES, Material
 from ..models.phong import MAX_EXPONENT, PhongMaterial
 from ..models.strauss import K_J, fresnel, shadow
 from ..precision import uses_float64
@@ -97,7 +97,7 @@ from .phong_fit import (
 )
 
 #: Strauss parameters the conversion fits (t and n are carried over, see the module docstring).
-STRAUSS_FREE = ("color", "smoothness", "metalness")
+STRAUSS_FREE = OPAQUE_NAMES
 #: Materials converted together (:meth:`Converter._stream`): their kernel calls run as one
 #: compiled call each (:func:`strauss_fit.engine.run_batched`).
 CHUNK = 64

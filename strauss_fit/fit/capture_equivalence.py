@@ -33,8 +33,10 @@ import numpy as np
 
 from ..capture._samples import CaptureSamples
 from ..errors import CaptureError
+from ..models.reflectance import REFLECTANCE_MODELS
 from ..precision import float64
 from .capture import (
+    HELD,
     CaptureFit,
     _bounds,
     _labels,
@@ -55,13 +57,10 @@ EQUIVALENCE_VALUES = 60_000
 BISECTIONS = 8
 #: Upper end for a positive parameter without one, as a multiple of its fitted value.
 SCALE_MAX = 10.0
-#: The material's parameters, per model (the others describe the camera and the room).
+#: The material's parameters the capture fitter fits, per model: the model's own less those
+#: it holds (:data:`~strauss_fit.fit.capture.HELD`); the others describe the camera and the room.
 MATERIAL = {
-    "strauss": ("color", "smoothness", "metalness"),
-    "lambert": ("albedo",),
-    "phong": ("diffuse", "specular", "exponent"),
-    "blinn-phong": ("diffuse", "specular", "exponent"),
-    "cook-torrance": ("kd", "f0", "roughness"),
+    name: tuple(p.name for p in model.parameters if p.name not in HELD) for name, model in REFLECTANCE_MODELS.items()
 }
 #: Offset of the cube root, as a fraction of the best prediction's 98th percentile (as for
 #: single images, :data:`strauss_fit.fit.problem.PERCEPTUAL_OFFSET`).

@@ -33,10 +33,12 @@ from ..capture._samples import CaptureSamples, load_samples
 from ..color import delta_e_2000
 from ..errors import CaptureError
 from ..inference.noise import binned_laplacian_bound
+from ..models.material import PARAMETER_NAMES
 from ..precision import float64
 from . import capture_stability
 from .capture import (
     BOUND_FACTOR,
+    HELD,
     MIN_IMAGE_CLUSTERS,
     MODELS,
     TILE_PX,
@@ -249,13 +251,8 @@ def predict(samples: CaptureSamples, fit: CaptureFit) -> tuple[np.ndarray, list[
 def _material(fit: CaptureFit) -> dict[str, Any]:
     values = fit.values()
     if fit.model == "strauss":
-        return {
-            "color": values["color"],
-            "smoothness": values["smoothness"],
-            "metalness": values["metalness"],
-            "transparency": 0.0,
-            "ior": 1.5,
-        }
+        # every Strauss parameter, as a scene file's material: the fitted ones and those held
+        return {name: HELD[name] if name in HELD else values[name] for name in PARAMETER_NAMES}
     return {k: v for k, v in values.items() if k in ("albedo", "diffuse", "specular", "exponent")}
 
 
@@ -264,12 +261,12 @@ def _held(model: str) -> dict[str, Any]:
         return {}
     return {
         "transparency": {
-            "value": 0.0,
+            "value": HELD["transparency"],
             "reason": "a capture of an opaque sample against a dark background: t only dims the surface "
             "and trades off with C",
         },
         "ior": {
-            "value": 1.5,
+            "value": HELD["ior"],
             "reason": "nothing is seen through the sphere: refraction has no effect on the photographs",
         },
     }

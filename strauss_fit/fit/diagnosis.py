@@ -71,6 +71,7 @@ from ..inference.noise import (
     noise_bound,
     one_sided_verdict,
 )
+from ..models.material import REFLECTION_NAMES
 from .parameters import Layout
 
 #: z of χ²/dof above which the model is said not to reproduce the target.
@@ -173,7 +174,7 @@ def reachable_maximum_steps(problem: Any) -> Steps:
     colours do not exist (C ≤ 1) and every term grows with C; transparency only trades
     reflected light for what is seen through the sphere: where the scene traces
     transmission, the brightest background radiance is added."""
-    layout = Layout(("color", "smoothness", "metalness", "transparency"))
+    layout = Layout(REFLECTION_NAMES)
     probe = dataclasses.replace(
         problem, layout=layout, pinned=np.zeros(layout.size, dtype=bool), pinned_values=np.zeros(layout.size)
     )

@@ -41,7 +41,7 @@ import numpy as np
 from ..engine import Steps, run
 from ..inference import laplace
 from ..io.targets import Target
-from ..models.material import Material
+from ..models.material import FRACTION_NAMES, Material
 from ..render.strauss import plan_render
 from ..scene.lights import Lights
 from ..scene.loading import Scene
@@ -247,7 +247,7 @@ def decide_free_steps(
         return Decision(free=[], held=held)
     plan = plan_render(scene, material, transparent="transparency" in names or transparency_may_vary)
     probe_values = dict(guess)
-    for key in ("smoothness", "metalness", "transparency"):
+    for key in FRACTION_NAMES:
         probe_values[key] = float(np.clip(probe_values[key], margin, 1 - margin))
     probe_values["color"] = np.clip(np.asarray(probe_values["color"], dtype=float), margin, 1 - margin)
     problem, _, _ = yield from build_problem_steps(scene, target, names, material, plan, options, cache=cache, pad=True)
@@ -374,7 +374,7 @@ def hold_ior_without_significant_transparency_steps(again: Decision, solved: Sol
     Updates ``again`` in place."""
     layout = solved.problem.layout
     numerically_held = "ior" in again.held and "ior" in again.partner
-    if not ("ior" in again.free or numerically_held) or not {"ior", "transparency"} <= set(layout.names):
+    if not ("ior" in again.free or numerically_held) or not ("ior" in layout.names and "transparency" in layout.names):
         return
     transparency = float(solved.x[layout.offsets[layout.names.index("transparency")]])
     uncertainty, _, _ = yield from laplace.problem_laplace_steps(

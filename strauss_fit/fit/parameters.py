@@ -22,10 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..models.material import Material
+from ..models.material import STRAUSS_PARAMETERS, Material
 from ..scene.lights import Lights
 
-MATERIAL_SIZES = {"color": 3, "smoothness": 1, "metalness": 1, "transparency": 1, "ior": 1}
+#: The material parameters a fit can free, and their entries in the vector θ (the colour 3).
+MATERIAL_SIZES = {p.name: p.size for p in STRAUSS_PARAMETERS}
 UNIT_INTERVAL = "unit"
 LOWER_BOUNDED = "lower"
 

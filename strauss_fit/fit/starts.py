@@ -15,10 +15,12 @@ from typing import Any
 import numpy as np
 
 from ..engine import Steps, run
+from ..models.material import FRACTION_NAMES
 from .parameters import Layout
 from .problem import Problem, costs
 
-#: Fixed starting points (smoothness, metalness, transparency) tried besides the guess.
+#: Fixed starting points tried besides the guess: values of the fractions s, m, t
+#: (:data:`~strauss_fit.models.material.FRACTION_NAMES`, in that order).
 START_GRID = ((0.3, 0.1, 0.2), (0.8, 0.1, 0.6), (0.6, 0.9, 0.4), (0.2, 0.6, 0.8), (0.9, 0.5, 0.1), (0.5, 0.3, 0.5))
 #: Unit-interval starts are kept this far inside the bounds (the transform is flat there).
 START_MARGIN = 0.02
@@ -44,8 +46,8 @@ def starts(
     for ior in ior_candidates or [guess.get("ior")]:
         base = dict(guess, ior=ior)
         rows.append(layout.join(base))
-        for s, m, t in START_GRID[: max(count - 1, 0)]:
-            rows.append(layout.join(dict(base, smoothness=s, metalness=m, transparency=t)))
+        for point in START_GRID[: max(count - 1, 0)]:
+            rows.append(layout.join(dict(base, **dict(zip(FRACTION_NAMES, point)))))
     thetas = layout.to_unconstrained(np.stack(rows), margin=START_MARGIN)
     if exact_first:
         thetas[0] = layout.to_unconstrained(rows[0])

@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from ..models.material import PARAMETER_NAMES, SCALAR_NAMES
+
 #: Columns of a batch's ``summary.csv`` (see docs/formats.md).
 SUMMARY_COLUMNS = (
     "target",
@@ -20,21 +22,11 @@ SUMMARY_COLUMNS = (
     "verdict",
     "chi2_per_dof",
     "noise_source",
-    "color_r",
-    "color_g",
-    "color_b",
-    "smoothness",
-    "metalness",
-    "transparency",
-    "ior",
+    *(f"color_{channel}" for channel in "rgb"),
+    *SCALAR_NAMES,
     "exposure",
-    "sd_color_r",
-    "sd_color_g",
-    "sd_color_b",
-    "sd_smoothness",
-    "sd_metalness",
-    "sd_transparency",
-    "sd_ior",
+    *(f"sd_color_{channel}" for channel in "rgb"),
+    *(f"sd_{name}" for name in SCALAR_NAMES),
     "sd_exposure",
     "free",
     "rms",
@@ -112,7 +104,7 @@ def format_fit_table(result: dict[str, Any]) -> str:
     rows = [tuple(header)]
     uncertainty = result.get("uncertainty", {})
     lights = result.get("lights", {})
-    names = ("color", "smoothness", "metalness", "transparency", "ior", "exposure", *lights)
+    names = (*PARAMETER_NAMES, "exposure", *lights)
     for name in names:
         value = result.get(name, lights.get(name))
         if value is None or (name not in result["free"] and name not in result["held"]):
@@ -216,10 +208,6 @@ def summary_row(target: str, result: dict[str, Any] | None, *, error: str | None
         verdict=residual.get("verdict") or "",
         chi2_per_dof=_number(residual.get("chi2_per_dof")),
         noise_source=residual.get("noise_source") or "",
-        smoothness=_number(result.get("smoothness")),
-        metalness=_number(result.get("metalness")),
-        transparency=_number(result.get("transparency")),
-        ior=_number(result.get("ior")),
         exposure=_number(result.get("exposure", 1.0)),
         free=" ".join(result.get("free", [])),
         rms=_number(residual.get("rms")),
@@ -231,7 +219,9 @@ def summary_row(target: str, result: dict[str, Any] | None, *, error: str | None
     )
     for channel, value in zip("rgb", result.get("color", [])):
         row[f"color_{channel}"] = _number(value)
-    for name in ("smoothness", "metalness", "transparency", "ior", "exposure"):
+    for name in SCALAR_NAMES:
+        row[name] = _number(result.get(name))
+    for name in (*SCALAR_NAMES, "exposure"):
         if name in uncertainty and name in result.get("free", []):
             row[f"sd_{name}"] = _number(uncertainty[name])
     if "color" in uncertainty and "color" in result.get("free", []):

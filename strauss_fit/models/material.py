@@ -14,17 +14,78 @@ from jax import Array
 from ..errors import MaterialError
 from ..numerics import is_traced
 from ..precision import uses_float64
+from ._parameter import Parameter
 
+#: The Strauss parameters, in the order used by fits and reports: the one place they are
+#: written. The reflectance registry's Strauss model (:mod:`strauss_fit.models.reflectance`)
+#: holds these very objects; every name list and range below is derived from them.
+STRAUSS_PARAMETERS: tuple[Parameter, ...] = (
+    Parameter(
+        "color",
+        3,
+        low=0.0,
+        high=1.0,
+        default=1.0,
+        doc="the base colour C (linear RGB)",
+        needs="a lit surface in view; its absolute value also a highlight (which fixes the exposure)",
+    ),
+    Parameter(
+        "smoothness",
+        1,
+        low=0.0,
+        high=1.0,
+        default=0.5,
+        doc="s: 0 matte, 1 a mirror (highlight exponent h = 3/(1 − s))",
+        needs="a highlight in view (its width and its strength against the diffuse part)",
+    ),
+    Parameter(
+        "metalness",
+        1,
+        low=0.0,
+        high=1.0,
+        default=0.0,
+        doc="m: 0 a dielectric, 1 a metal (the highlight takes the colour C)",
+        needs="a highlight on a coloured surface (its tint), or the diffuse part's (1 − ms) dimming",
+    ),
+    Parameter(
+        "transparency",
+        1,
+        low=0.0,
+        high=1.0,
+        default=0.0,
+        doc="t: 0 opaque, 1 fully transparent",
+        needs="light through the sphere (a global render); in reflection alone 1 − t scales nearly "
+        "everything, as an exposure would",
+    ),
+    Parameter(
+        "ior",
+        1,
+        low=1.0,
+        high=None,
+        default=1.5,
+        doc="n: the index of refraction (transmission only)",
+        needs="a background seen through a transparent sphere (refraction); no effect on reflection",
+    ),
+)
+#: Names of all material parameters, in the order used by fits and reports.
+PARAMETER_NAMES = tuple(p.name for p in STRAUSS_PARAMETERS)
 #: Ranges of the scalar parameters, (low, high); ``None`` means unbounded.
 PARAMETER_RANGES: dict[str, tuple[float, float | None]] = {
-    "smoothness": (0.0, 1.0),
-    "metalness": (0.0, 1.0),
-    "transparency": (0.0, 1.0),
-    "ior": (1.0, None),
+    p.name: (p.low, p.high) for p in STRAUSS_PARAMETERS if p.size == 1
 }
-COLOR_RANGE = (0.0, 1.0)
-#: Names of all material parameters, in the order used by fits and reports.
-PARAMETER_NAMES = ("color", "smoothness", "metalness", "transparency", "ior")
+#: Range of each channel of the colour, (low, high).
+COLOR_RANGE = next((p.low, p.high) for p in STRAUSS_PARAMETERS if p.size == 3)
+#: s, m, t, n: the parameters that are one number each (a column each in tables and CSVs).
+SCALAR_NAMES = tuple(PARAMETER_RANGES)
+#: s, m, t: the scalars that are fractions in [0, 1], treated alike by a fit's starts and
+#: probes, and the Strauss radiance's non-linear parameters (it is linear in C once they are fixed).
+FRACTION_NAMES = tuple(name for name, span in PARAMETER_RANGES.items() if span == (0.0, 1.0))
+#: C, s, m, t: what the reflected light depends on (n acts only on light refracted through
+#: the sphere), the parameters of a fit of the local model.
+REFLECTION_NAMES = tuple(name for name in PARAMETER_NAMES if name != "ior")
+#: C, s, m: what a fit of an opaque material frees by default (t = 0, and n then has nothing
+#: to act on).
+OPAQUE_NAMES = tuple(name for name in REFLECTION_NAMES if name != "transparency")
 
 
 def _plain_within(value: Any, low: float, high: float | None, sizes: tuple[int, ...]) -> bool:
@@ -146,7 +207,7 @@ class Material(eqx.Module):
     def to_dict(self) -> dict[str, Any]:
         """Plain Python values (lists and floats), e.g. for JSON."""
         out: dict[str, Any] = {"color": [float(c) for c in np.asarray(self.color)]}
-        for name in PARAMETER_NAMES[1:]:
+        for name in SCALAR_NAMES:
             value = float(np.asarray(getattr(self, name)))
             out[name] = value if math.isfinite(value) else None
         return out

@@ -37,6 +37,7 @@ from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings, loss_warning
 from ..io.files import Outputs, check_writable, read_json
 from ..io.targets import Target, load_target, match_scene
+from ..models.material import FRACTION_NAMES
 from ..models.strauss import DEFAULT_TABLE_SIZE
 from ..precision import uses_float64
 from ..scene.loading import Scene, load_scene
@@ -569,7 +570,7 @@ def _verdict_text(fit: FitResult) -> str:
 
 
 def _unit(label: str) -> bool:
-    return label.startswith("color_") or label in ("smoothness", "metalness", "transparency")
+    return label.startswith("color_") or label in FRACTION_NAMES
 
 
 def _equivalence_bands(fit: FitResult, labels: Sequence[str]) -> dict[str, tuple[float, float]]:

@@ -69,7 +69,7 @@ from ..fit.problem import build_problem
 from ..inference import laplace
 from ..io.targets import Target
 from ..models.albedo import DEFAULT_NODES, phong_reflectance, quadrature_error, strauss_reflectance
-from ..models.material import Material
+from ..models.material import FRACTION_NAMES, REFLECTION_NAMES, Material
 from ..models.phong import PhongMaterial
 from ..precision import uses_float64
 from ..render.strauss import plan_render
@@ -265,7 +265,7 @@ def consistency(config: StudyConfig, rng: np.random.Generator, say: Callable[[st
     over_p = rho_p[:, within].max(axis=(1, 2)) > 1 + tolerance
     over_pl = rho_pl[:, within].max(axis=(1, 2)) > 1 + tolerance
     result["strauss"]["offenders"] = _describe(
-        strauss, over_s, ("smoothness", "metalness", "transparency"), {"max_color": strauss["color"].max(axis=1)}
+        strauss, over_s, FRACTION_NAMES, {"max_color": strauss["color"].max(axis=1)}
     )
     result["phong"]["offenders"] = _describe(
         phong,
@@ -479,7 +479,7 @@ def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, A
     with_t, _, _ = build_problem(
         converter.scene,
         dummy,
-        ["color", "smoothness", "metalness", "transparency"],
+        list(REFLECTION_NAMES),
         base,
         plan_render(converter.scene, base, transparent=True),
         FitOptions(edge_pixels="exclude"),  # the pixels the conversions fit
@@ -645,7 +645,7 @@ def uniformity(config: StudyConfig, rng: np.random.Generator, say: Callable[[str
     s_problem, _, _ = build_problem(
         scene,
         dummy,
-        ["color", "smoothness", "metalness", "transparency"],
+        list(REFLECTION_NAMES),
         base,
         plan_render(scene, base, transparent=True),
         FitOptions(edge_pixels="exclude"),  # the pixels the conversions fit
@@ -658,7 +658,7 @@ def uniformity(config: StudyConfig, rng: np.random.Generator, say: Callable[[str
     unit = np.linspace(0.0, 1.0, k)
     low, high = PHONG_EXPONENT_RANGE
     sweeps = {
-        "strauss": {"smoothness": unit, "metalness": unit, "transparency": unit},
+        "strauss": dict.fromkeys(FRACTION_NAMES, unit),
         "phong": {
             "kd": unit,
             "ks": unit,

@@ -17,7 +17,7 @@ from jax.typing import ArrayLike
 
 from ...numerics import safe_divide
 from ...precision import uses_float64
-from ..material import COLOR_RANGE, PARAMETER_RANGES
+from ..material import FRACTION_NAMES, STRAUSS_PARAMETERS
 from ..strauss import AngularTerms, angular_terms, combine_rgb, weights_of
 from ._base import Parameter, ReflectanceModel, channels, power_lobe_width, scalar
 
@@ -41,51 +41,9 @@ class Strauss(ReflectanceModel):
     """
 
     name: ClassVar[str] = "strauss"
-    parameters: ClassVar[tuple[Parameter, ...]] = (
-        Parameter(
-            "color",
-            3,
-            *COLOR_RANGE,
-            1.0,
-            "the base colour C (linear RGB)",
-            "a lit surface in view; its absolute value also a highlight (which fixes the exposure)",
-        ),
-        Parameter(
-            "smoothness",
-            1,
-            *PARAMETER_RANGES["smoothness"],
-            0.5,
-            "s: 0 matte, 1 a mirror (highlight exponent h = 3/(1 − s))",
-            "a highlight in view (its width and its strength against the diffuse part)",
-        ),
-        Parameter(
-            "metalness",
-            1,
-            *PARAMETER_RANGES["metalness"],
-            0.0,
-            "m: 0 a dielectric, 1 a metal (the highlight takes the colour C)",
-            "a highlight on a coloured surface (its tint), or the diffuse part's (1 − ms) dimming",
-        ),
-        Parameter(
-            "transparency",
-            1,
-            *PARAMETER_RANGES["transparency"],
-            0.0,
-            "t: 0 opaque, 1 fully transparent",
-            "light through the sphere (a global render); in reflection alone 1 − t scales nearly "
-            "everything, as an exposure would",
-        ),
-        Parameter(
-            "ior",
-            1,
-            *PARAMETER_RANGES["ior"],
-            1.5,
-            "n: the index of refraction (transmission only)",
-            "a background seen through a transparent sphere (refraction); no effect on reflection",
-        ),
-    )
+    parameters: ClassVar[tuple[Parameter, ...]] = STRAUSS_PARAMETERS
     bounded_scale: ClassVar[bool] = True
-    nonlinear: ClassVar[tuple[str, ...]] = ("smoothness", "metalness", "transparency")
+    nonlinear: ClassVar[tuple[str, ...]] = FRACTION_NAMES
 
     @uses_float64
     def terms(self, normal: ArrayLike, to_light: ArrayLike, view: ArrayLike) -> dict[str, Array]:
@@ -95,7 +53,7 @@ class Strauss(ReflectanceModel):
 
     def _weights(self, x: Mapping[str, ArrayLike], terms: Mapping[str, Array]):
         angular = AngularTerms(*(terms[k] for k in AngularTerms._fields))
-        s, m, t = (scalar(x[k]) for k in ("smoothness", "metalness", "transparency"))
+        s, m, t = (scalar(x[k]) for k in FRACTION_NAMES)
         return weights_of(s, m, t, angular)
 
     @uses_float64
