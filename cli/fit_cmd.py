@@ -262,12 +262,9 @@ def parse_noise(text: str | None) -> float | tuple[float, float, float] | None:
 
 def check_fixed_ranges(fixed) -> None:
     from strauss_fit import Material
+    from strauss_fit.models.material import PARAMETER_NAMES
 
-    material_values = {
-        k: (list(v) if k == "color" else v)
-        for k, v in fixed
-        if k in ("color", "smoothness", "metalness", "transparency", "ior")
-    }
+    material_values = {k: (list(v) if k == "color" else v) for k, v in fixed if k in PARAMETER_NAMES}
     Material.from_dict(material_values)  # raises a one-line MaterialError naming field and range
     for name, value in fixed:
         if "intensity" in name and value < 0:

@@ -280,15 +280,15 @@ def _material_values(spec: CaptureSpec) -> dict[str, Any] | None:
     checked (None for a mirror ball)."""
     if spec.chrome:
         return None
-    from strauss_fit.models.material import check_values
+    from strauss_fit.models.material import OPAQUE_NAMES, PARAMETER_NAMES, check_values
 
     material = spec.material
     if not isinstance(material, dict):
         raise SpecError(f"capture material must be a table, got {material!r}")
-    unknown = sorted(set(material) - {"color", "smoothness", "metalness", "transparency", "ior"})
+    unknown = sorted(set(material) - set(PARAMETER_NAMES))
     if unknown:
-        raise SpecError(f"capture material: unknown key {unknown[0]!r} (expected color, smoothness, metalness)")
-    missing = [key for key in ("color", "smoothness", "metalness") if key not in material]
+        raise SpecError(f"capture material: unknown key {unknown[0]!r} (expected {', '.join(OPAQUE_NAMES)})")
+    missing = [key for key in OPAQUE_NAMES if key not in material]
     if missing:
         raise SpecError(f"capture material needs {', '.join(missing)}")
     if material.get("transparency", 0.0) != 0:

@@ -50,6 +50,7 @@ import numpy as np
 
 from strauss_fit import Material
 from strauss_fit.errors import StraussFitError
+from strauss_fit.models.material import FRACTION_NAMES
 from strauss_fit.models.phong import MAX_EXPONENT, PhongMaterial
 from strauss_fit.models.reflectance import REFLECTANCE_MODELS, reflectance_model
 from strauss_fit.models.reflectance import Parameter as RegistryParameter
@@ -140,7 +141,7 @@ MODELS: dict[str, Model] = {
         "strauss",
         _registry_parameters("strauss"),
         Material.from_dict,
-        ("smoothness", "metalness", "transparency"),
+        FRACTION_NAMES,
     ),
     # A documented file format: existing specs and the bundled dataset name these
     # parameters, so it stays the classic material rather than the registry's Phong.
