@@ -632,7 +632,8 @@ def render(
     ``material`` defaults to the scene file's. ``dtype`` (``jnp.float32`` or
     ``jnp.float64``; default float64) sets the precision of the whole computation.
     Differentiable in the material and in the light intensities (``scene.lights``).
-    ``plan`` overrides :func:`plan_render`. ``mode`` and ``table_size`` select the
+    ``plan`` overrides :func:`plan_render` (transmission is never traced for a material
+    that is concretely opaque, t = 0, whatever the plan says). ``mode`` and ``table_size`` select the
     evaluator (see :func:`strauss_fit.models.strauss.shade`).
 
     The global model is traced to :func:`effective_depth` (at most ``scene.depth``): the
@@ -650,6 +651,10 @@ def render(
     material = scene.material if material is None else material
     dtype = jnp.dtype(dtype or jnp.float64)
     plan = plan or plan_render(scene, material)
+    if plan.transmit and _is_zero(material.transparency):
+        # a plan made without the material (plan_render(scene)) traces transmission in case
+        # it is transparent; an opaque one transmits nothing: the same image at half the cost
+        plan = plan._replace(transmit=False)
     if plan.transmit and scene.depth > 2:  # otherwise the depth changes nothing
         tolerance = unit_roundoff(dtype) if depth_tolerance is None else float(depth_tolerance)
         depth = _effective_depth(scene.depth, material, peak, tolerance)

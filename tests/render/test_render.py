@@ -171,3 +171,28 @@ def test_light_intensities_are_differentiable_through_render():
     g = jax.grad(total)(jnp.array([1.5]))
     # the image is linear in the intensity: d(sum)/dI = sum / I
     np.testing.assert_allclose(float(g[0]), float(total(jnp.array([1.5]))) / 1.5, rtol=1e-12)
+
+
+def test_a_plan_made_without_the_material_does_not_trace_transmission_of_an_opaque_one(monkeypatch):
+    # plan_render(scene) plans transmission in case the material is transparent; rendering an
+    # opaque one with that plan traced the global model for nothing (twice the time)
+    from strauss_fit.render import strauss
+
+    scene = scene_from(DIRECTIONAL, background='[background]\nkind = "checkerboard"', extra="[render]\ndepth = 4")
+    plan = plan_render(scene)
+    assert plan == RenderPlan(reflect=True, transmit=True)
+    with sf.float64():  # the global model traced in full, as the plan said before
+        reference, _ = strauss.render_jit(scene, scene.material, plan, "exact", 64, jnp.float64)
+    used = []
+    real = strauss.render_jit
+    monkeypatch.setattr(
+        strauss,
+        "render_jit",
+        lambda scene, material, plan, *rest: used.append(plan) or real(scene, material, plan, *rest),
+    )
+    image, _ = sf.render(scene, plan=plan)
+    assert used == [RenderPlan(reflect=True, transmit=False)]
+    np.testing.assert_array_equal(np.asarray(image), np.asarray(reference))
+    transparent = eqx.tree_at(lambda m: m.transparency, scene.material, jnp.asarray(0.5))
+    sf.render(scene, transparent, plan=plan)
+    assert used[-1] == plan  # a transparent material keeps the plan's transmission
