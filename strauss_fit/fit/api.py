@@ -48,7 +48,14 @@ from ..precision import uses_float64
 from ..render.strauss import Prepared, RenderPlan, plan_render
 from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene
-from .diagnosis import Diagnosis, diagnose, reachable_maximum_steps, uncertainty_warnings
+from .diagnosis import (
+    REACH_MARGIN,
+    Diagnosis,
+    diagnose,
+    reachable_floor_steps,
+    reachable_maximum_steps,
+    uncertainty_warnings,
+)
 from .guess import initial_guess
 from .identifiability import (
     MAX_DECISIONS,
@@ -424,7 +431,11 @@ def _conclude(
     say("comparing the fit with the target's noise")
     free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
     pinned = np.asarray(problem.pinned)
-    reach = None if free_lights else problem.real((yield from reachable_maximum_steps(problem)))
+    reach = None
+    if not free_lights:
+        floor = np.maximum(model, problem.real((yield from reachable_floor_steps(problem))))
+        if _may_be_out_of_reach(problem.real(problem.target), floor, noise, model):
+            reach = problem.real((yield from reachable_maximum_steps(problem)))
     diagnosis = diagnose(
         problem,
         model,
@@ -437,6 +448,18 @@ def _conclude(
         index=kept.index,
     )
     return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis)
+
+
+def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, noise: NoiseModel, model: np.ndarray) -> bool:
+    """Whether the out-of-reach check needs the reachable maximum (88 renders of the used
+    pixels: a fifth of a warm fit): only where the target exceeds, by the check's margin
+    (:func:`~strauss_fit.fit.diagnosis.diagnose`'s: 2 % and 3 σ of the noise at the fitted
+    ``model`` when it is known, 2 % alone otherwise), a ``floor`` of values that Strauss
+    materials reach: the fit itself and a white matte plastic. A pixel within the margin of
+    a reachable value is not out of reach (were the envelope's sampling of s ever below the
+    floor, flagging such a pixel would be a false alarm)."""
+    margin = 3.0 * np.nan_to_num(noise.sigma_at(model)) if noise.known else 0.0
+    return bool(np.any(target > floor * REACH_MARGIN + margin))
 
 
 def _result(

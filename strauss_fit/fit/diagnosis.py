@@ -174,18 +174,30 @@ def reachable_maximum_steps(problem: Any) -> Steps:
     colours do not exist (C ≤ 1) and every term grows with C; transparency only trades
     reflected light for what is seen through the sphere: where the scene traces
     transmission, the brightest background radiance is added."""
-    layout = Layout(REFLECTION_NAMES)
-    probe = dataclasses.replace(
-        problem, layout=layout, pinned=np.zeros(layout.size, dtype=bool), pinned_values=np.zeros(layout.size)
-    )
     rows = [[1.0, 1.0, 1.0, s, m, 0.0] for s in _ENVELOPE_SMOOTHNESS for m in (0.0, 1.0)]
-    maximum = np.asarray((yield brightest.call(probe, np.asarray(rows))))
+    maximum = np.asarray((yield brightest.call(_white_probe(problem), np.asarray(rows))))
     if problem.plan.transmit:
         # light through a transparent sphere is the background's, weighted by at most 1
         # and added to what the surface reflects: bounded by the brightest background
         seen = [problem.prepared.miss_radiance, problem.prepared.reflected_radiance]
         maximum = maximum + max(float(np.max(np.asarray(v))) for v in seen if v is not None)
     return maximum
+
+
+def reachable_floor_steps(problem: Any) -> Steps:
+    """(N, 3): what a white matte plastic (C = 1, s = m = t = 0) reflects at each used pixel:
+    a value some Strauss material reaches, so a floor of :func:`reachable_maximum_steps`'s
+    maximum, for one render instead of its 88."""
+    row = np.asarray([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]])
+    return np.asarray((yield brightest.call(_white_probe(problem), row)))
+
+
+def _white_probe(problem: Any) -> Any:
+    """``problem`` with the reflection parameters (C, s, m, t) as its only, free, values."""
+    layout = Layout(REFLECTION_NAMES)
+    return dataclasses.replace(
+        problem, layout=layout, pinned=np.zeros(layout.size, dtype=bool), pinned_values=np.zeros(layout.size)
+    )
 
 
 def pixel_regions(prepared: Any) -> dict[str, np.ndarray]:

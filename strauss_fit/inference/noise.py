@@ -81,8 +81,12 @@ is uncorrelated with the residual, so the selection does not bias it) is within
 
 from __future__ import annotations
 
+import copy
 import functools
+import hashlib
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -1579,7 +1583,9 @@ def describe_noise(
     any, else the ``sidecar``'s (read beside ``path`` when not passed; pass ``{}`` to
     ignore it), else estimated from the image over the ``usable`` pixels (the sphere's
     fully covered ones), signal-dependent when the estimate finds shot noise. An 8-bit sRGB
-    target (``encoding="srgb"``) adds its quantisation; a float file its precision."""
+    target (``encoding="srgb"``) adds its quantisation; a float file its precision. An
+    estimate is computed once per image content and reused (a copy) when the same image is
+    described again."""
     pixels = np.asarray(pixels, dtype=np.float64)
     quantised = encoding == "srgb"
     storage = 0.0 if quantised else storage_precision(path)
@@ -1592,6 +1598,43 @@ def describe_noise(
     if described is not None:
         a, b, note = described
         return NoiseModel("sensor", a, b, quantised, storage, notes=[note])
+    usable = np.asarray(usable, dtype=bool)
+    key = _image_key(pixels, usable, quantised, storage)
+    with _ESTIMATED_LOCK:
+        known = _ESTIMATED.get(key)
+        if known is not None:
+            _ESTIMATED.move_to_end(key)
+            return copy.deepcopy(known)
+    described = _estimated_noise(pixels, usable, quantised, storage)
+    with _ESTIMATED_LOCK:
+        _ESTIMATED[key] = copy.deepcopy(described)
+        while len(_ESTIMATED) > ESTIMATED_KEPT:
+            _ESTIMATED.popitem(last=False)
+    return described
+
+
+#: Noise models estimated from images, by the image's content (:func:`_image_key`): a
+#: target fitted again (another loss, other free parameters, a batch's retry, a benchmark)
+#: is the same image with the same noise, and estimating it costs a third of a warm fit.
+_ESTIMATED: OrderedDict[bytes, NoiseModel] = OrderedDict()
+_ESTIMATED_LOCK = threading.Lock()  # fits may describe targets from several threads
+#: How many estimates :data:`_ESTIMATED` keeps (the least recently used go first).
+ESTIMATED_KEPT = 32
+
+
+def _image_key(pixels: np.ndarray, usable: np.ndarray, quantised: bool, storage: float) -> bytes:
+    """What decides an image's estimated noise: its values, the pixels used, the 8-bit
+    quantisation and the file's precision (a 256² image hashes in about 2 ms)."""
+    digest = hashlib.blake2b(digest_size=20)
+    for array in (pixels, usable):
+        digest.update(repr((array.shape, array.dtype.str)).encode())
+        digest.update(np.ascontiguousarray(array).data)
+    digest.update(repr((quantised, storage)).encode())
+    return digest.digest()
+
+
+def _estimated_noise(pixels: np.ndarray, usable: np.ndarray, quantised: bool, storage: float) -> NoiseModel:
+    """The noise model estimated from the image itself (:func:`describe_noise`'s last case)."""
     try:
         estimate = estimate_noise(pixels, usable, censor=(0.0, 1.0) if quantised else None)
     except NoiseEstimationError as exc:

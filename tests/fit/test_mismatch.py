@@ -368,3 +368,27 @@ def test_an_image_too_large_for_the_memory_is_refused_before_it_is_read(tmp_path
     monkeypatch.setattr(runtime, "available_memory", lambda: 1000)
     with pytest.raises(sf.ImageError, match="64x64: reading it needs about .* GB of memory"):
         sf.load_target(path)
+
+
+def test_the_reachable_maximum_is_rendered_only_where_a_pixel_may_be_out_of_reach(monkeypatch):
+    # the 88-material envelope cost a fifth of a warm fit; a target that nowhere exceeds
+    # a reachable value (the fit's own, a white matte plastic's) by the check's margin
+    # cannot be out of reach, and its verdict is the same without it
+    import importlib
+
+    api = importlib.import_module("strauss_fit.fit.api")
+    envelopes = []
+    real = api.reachable_maximum_steps
+
+    def counted(problem):
+        envelopes.append(1)
+        return (yield from real(problem))
+
+    monkeypatch.setattr(api, "reachable_maximum_steps", counted)
+    scene = sf.load_scene(support.SCENES / "two_lights.toml")
+    target = sf.load_target(support.SCENES.parent / "bundled" / "strauss-noisy-0000.exr")
+    consistent = sf.fit(scene, target)
+    assert envelopes == [] and "highlight-out-of-reach" not in codes(consistent)
+    gold_scene, gold, _ = mitsuba_case("mitsuba-roughconductor-0000")
+    assert "highlight-out-of-reach" in codes(sf.fit(gold_scene, gold))
+    assert envelopes  # once per round concluded (least squares, then Huber on the visible mismatch)

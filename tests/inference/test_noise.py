@@ -437,3 +437,33 @@ def test_the_noise_model_stops_at_its_fixed_point_with_what_all_passes_give(monk
         np.testing.assert_allclose(np.concatenate([early.a, early.b]), np.concatenate([every.a, every.b]), rtol=1e-11)
         np.testing.assert_allclose(early.a_stderr, every.a_stderr, rtol=1e-11)
         assert early.n_pixels == every.n_pixels
+
+
+def test_describe_noise_estimates_an_image_once(monkeypatch):
+    # fitting a target again (another loss, a retry, a benchmark) reuses its noise estimate;
+    # a changed pixel or another set of used pixels is another image
+    image, cover = sphere(64)
+    noisy = image + np.random.default_rng(3).normal(size=image.shape) * SIGMA
+    usable = cover == 1
+    calls = []
+    real = ne.estimate_noise
+    monkeypatch.setattr(ne, "estimate_noise", lambda *a, **k: calls.append(1) or real(*a, **k))
+    first = ne.describe_noise(noisy, usable, sidecar={})
+    again = ne.describe_noise(noisy.copy(), usable.copy(), sidecar={})
+    assert len(calls) == 1
+    np.testing.assert_array_equal(first.b, again.b)
+    assert first.source == again.source == "image" and first.notes == again.notes
+    again.b[:] = 0.0  # the caller's copy: the memory keeps its own
+    again.notes.append("changed by the caller")
+    third = ne.describe_noise(noisy, usable, sidecar={})
+    np.testing.assert_array_equal(third.b, first.b)
+    assert third.notes == first.notes and len(calls) == 1
+    changed = noisy.copy()
+    changed[32, 32, 0] += 1e-9
+    ne.describe_noise(changed, usable, sidecar={})
+    fewer = usable.copy()
+    fewer[usable.nonzero()[0][0], usable.nonzero()[1][0]] = False
+    ne.describe_noise(noisy, fewer, sidecar={})
+    assert len(calls) == 3
+    # a given level or a sidecar's sensor is not an estimate
+    assert ne.describe_noise(noisy, usable, given=0.01).source == "given" and len(calls) == 3
