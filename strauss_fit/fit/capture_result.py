@@ -110,6 +110,8 @@ def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], 
     dof = max(count - len(fit.physical), 1)
     bound, bins = noise_bound(samples, samples.values)
     bound_used = bound[usable]
+    # one target fitted with --model is an image of one scene, not a capture's photographs
+    subject, images = ("this capture", "the photographs allow") if samples.count > 1 else ("this image", "it allows")
     finite = np.isfinite(bound_used) & (bound_used > 0)
     floor = np.sqrt(
         (samples.background_noise if samples.background_noise is not None else np.zeros(3)) ** 2
@@ -135,9 +137,9 @@ def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], 
         warnings.append(
             {
                 "code": "model-mismatch",
-                "message": f"the residual's RMS is {ratio:.1f} times the largest noise the photographs allow "
-                f"(a bound from their pixel-to-pixel differences; a mismatch above {BOUND_FACTOR:g} times): "
-                f"the {fit.model} model does not reproduce this capture, whatever its noise",
+                "message": f"the residual's RMS is {ratio:.1f} times the largest noise {images} "
+                f"(a bound from the pixel-to-pixel differences; a mismatch above {BOUND_FACTOR:g} times): "
+                f"the {fit.model} model does not reproduce {subject}, whatever its noise",
             }
         )
     elif chi2_low is not None and chi2_low <= 1 + 3 * expected_sd:
@@ -148,7 +150,7 @@ def _verdict(samples: CaptureSamples, fit: CaptureFit) -> tuple[dict[str, Any], 
             {
                 "code": "noise-unknown",
                 "message": "the residual lies between the noise floor (background, quantisation) and the largest "
-                "noise the photographs allow: no verdict",
+                f"noise {images}: no verdict",
             }
         )
     out["verdict"] = verdict

@@ -92,11 +92,11 @@ RELOAD_TOLERANCE = 1e-6
 CHAIN_TOLERANCE = 1e-6
 
 _VERDICTS = {
-    "consistent": "the {model} model reproduces the photographs within their noise",
-    "mismatch": "the {model} model does not reproduce this capture, whatever its noise: the residual's RMS is "
-    "more than {factor:g} times the largest noise the photographs allow",
+    "consistent": "the {model} model reproduces the {photographs} within their noise",
+    "mismatch": "the {model} model does not reproduce {subject}, whatever its noise: the residual's RMS is "
+    "more than {factor:g} times the largest noise the {photographs} allow",
     "undetermined": "the residual lies between the noise floor (background, quantisation) and the largest noise "
-    "the photographs allow, so whether the {model} model reproduces them cannot be said",
+    "the {photographs} allow, so whether the {model} model reproduces them cannot be said",
 }
 
 
@@ -428,7 +428,7 @@ def build_capture_report(
     doc.heading("Verdict and warnings")
     if verdict:
         doc.para(
-            _verdict_text(str(verdict), model, residual),
+            _verdict_text(str(verdict), model, residual, _image_count(result)),
             "ok" if verdict == "consistent" else "bad" if verdict == "mismatch" else None,
         )
     if warnings:
@@ -981,8 +981,20 @@ def _percent(value: Any) -> str:
     return f"{100 * value:.3g} %"
 
 
-def _verdict_text(verdict: str, model: str, residual: dict[str, Any]) -> str:
-    meaning = _VERDICTS.get(verdict, "").format(model=model, factor=BOUND_FACTOR)
+def _image_count(result: dict[str, Any]) -> int:
+    """How many images the fit used (a result without the count: a capture's several)."""
+    images = result.get("images")
+    return images if isinstance(images, int) and not isinstance(images, bool) else 2
+
+
+def _verdict_text(verdict: str, model: str, residual: dict[str, Any], images: int = 2) -> str:
+    # one target fitted with --model is one image of a scene, not a capture's photographs
+    words = (
+        {"subject": "this capture", "photographs": "photographs"}
+        if images > 1
+        else {"subject": "this image", "photographs": "image's values"}
+    )
+    meaning = _VERDICTS.get(verdict, "").format(model=model, factor=BOUND_FACTOR, **words)
     against = []
     up, low = residual.get("chi2_per_dof_at_bound"), residual.get("chi2_per_dof_at_floor")
     if isinstance(up, (int, float)):

@@ -87,3 +87,12 @@ def test_cli_model_on_one_target_and_back(tmp_path):
     )  # fmt: skip
     # the same target twice into one folder: refused before any work (each would overwrite the other)
     assert two.returncode == 2 and len(two.stderr.strip().splitlines()) == 1 and "given twice" in two.stderr
+
+
+def test_one_image_is_not_called_a_capture_in_the_verdict():
+    from strauss_fit.reporting.capture_report import _verdict_text
+
+    one = _verdict_text("mismatch", "lambert", {}, 1)
+    many = _verdict_text("mismatch", "lambert", {}, 96)
+    assert "this image" in one and "capture" not in one and "photographs" not in one
+    assert "this capture" in many and "photographs" in many
