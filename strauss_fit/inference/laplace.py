@@ -148,18 +148,28 @@ def by_parameter(layout: Any, cov: np.ndarray) -> tuple[dict[str, Any], dict[str
 # --- under misspecification: the noise sandwich ------------------------------------------
 
 
-def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array]:
+def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array, Array, Array]:
     residual = problem.objective_residual
 
     def half_cost(z):
         r = residual(z)
         return 0.5 * jnp.sum(r * r)
 
-    def of_target(target):
-        return type(problem).objective_residual(eqx.tree_at(lambda p: p.target, problem, target), x)
+    def with_target(target):
+        return eqx.tree_at(lambda p: p.target, problem, target)
 
-    _, slope = jax.jvp(of_target, (problem.target,), (jnp.ones_like(problem.target),))
-    return jax.jacfwd(residual)(x), jax.hessian(half_cost)(x), slope
+    def of_target(target):
+        return type(problem).objective_residual(with_target(target), x)
+
+    def jacobian_of_target(target):
+        return jax.jacfwd(type(problem).objective_residual, argnums=1)(with_target(target), x)
+
+    ones = jnp.ones_like(problem.target)
+    values, slope = jax.jvp(of_target, (problem.target,), (ones,))
+    # each gᵢ depends on its own yᵢ alone, so the derivative along "every target value + 1"
+    # is, row by row, ∂Jᵢ/∂yᵢ
+    _, jacobian_slope = jax.jvp(jacobian_of_target, (problem.target,), (ones,))
+    return jax.jacfwd(residual)(x), jax.hessian(half_cost)(x), slope, values, jacobian_slope
 
 
 #: :func:`objective_terms` as a :class:`~strauss_fit.engine.Kernel`.
@@ -167,14 +177,27 @@ objective_terms_kernel = Kernel(_objective_terms, "objective_terms")
 
 
 @uses_float64
-def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """At physical ``x``, for the residuals g the solver minimises
+def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    r"""At physical ``x``, for the residuals g the solver minimises
     (``problem.objective_residual``, the loss applied): their Jacobian J (M, P), the
-    Hessian H of ½Σg² (P, P: JᵀJ plus the curvature of each residual times its value) and
-    ∂gᵢ/∂yᵢ (M,), the slope of each residual in its own target value (each gᵢ depends on
-    yᵢ alone), which carries the noise of the data into g."""
-    j, h, slope = objective_terms_kernel(problem, jnp.asarray(x, dtype=jnp.float64))
-    return np.asarray(j), np.asarray(h), np.asarray(slope)
+    Hessian H of ½Σg² (P, P: JᵀJ plus the curvature of each residual times its value),
+    D = ∂gᵢ/∂yᵢ (M,), the slope of each residual in its own target value (each gᵢ depends on
+    yᵢ alone), and the rows C (M, P) of the cross derivative of the cost's gradient,
+    :math:`C_i = \partial(g_i \nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`:
+    how the value yᵢ's noise moves the optimum (:func:`problem_sandwich_steps`)."""
+    j, h, slope, values, jacobian_slope = (
+        np.asarray(v) for v in objective_terms_kernel(problem, jnp.asarray(x, dtype=jnp.float64))
+    )
+    return j, h, slope, _cross_rows(j, slope, values, jacobian_slope)
+
+
+def _cross_rows(
+    j: np.ndarray, slope: np.ndarray, values: np.ndarray, jacobian_slope: np.ndarray, scale: float = 1.0
+) -> np.ndarray:
+    """C = D J + g ∂J/∂y (see :func:`objective_terms`), divided by ``scale``² — each factor by
+    ``scale`` before the product, so that neither overflows when the residuals were divided
+    by a tiny reference noise."""
+    return (slope / scale)[:, None] * (j / scale) + (values / scale)[:, None] * (jacobian_slope / scale)
 
 
 def _positive_part(matrix: np.ndarray) -> np.ndarray:
@@ -208,18 +231,37 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     r"""The noise-sandwich covariance of a fit at its optimum ``x``: how far the fitted
     values would move if the image were taken again with fresh noise.
 
-    For the estimator :math:`\hat\theta = \arg\min \tfrac12\sum g_i(\theta, y_i)^2` at a
-    fixed image with noise ε of standard deviations ``noise_sd`` (per residual value, (M,)),
-    :math:`\hat\theta - \theta^* \approx -H^{-1} J^\top D\,\varepsilon`, so
+    For the estimator :math:`\hat\theta = \arg\min L(\theta, y)`,
+    :math:`L = \tfrac12\sum g_i(\theta, y_i)^2`, at a fixed image with noise ε of standard
+    deviations ``noise_sd`` (per residual value, (M,)), the optimum moves with the noise as
+    :math:`\hat\theta - \theta^* \approx -H^{-1} C^\top \varepsilon`, C the rows
+    :math:`\partial(g_i\nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`
+    of the derivative of ∇L in the data, so
 
-    .. math:: V = H^{-1}\,(J^\top \mathrm{diag}(D^2\sigma^2)\,J)\,H^{-1},
+    .. math:: V = H^{-1}\,(C^\top \mathrm{diag}(\sigma^2)\,C)\,H^{-1},
 
-    with J, H and D = ∂g/∂y from :func:`objective_terms`. θ* is the *pseudo-true* value:
-    the best fit to the noise-free image, whether or not the model can reproduce it. When
-    the model is right and the loss linear, H = JᵀJ/s² (s the residual scale), D = 1/s and
-    V is the Laplace covariance σ²(JᵀJ)⁻¹ with the known σ. When it is wrong, the
-    misfit's curvature enters H, and the misfit — the same in every retake — does not count
-    as noise, as it does in RSS/(N − P): on targets the model cannot reproduce this
+    with J, H, D = ∂g/∂y and C from :func:`objective_terms`. For the linear and perceptual
+    losses ∂J/∂y = 0 and C = DJ. For Huber and Cauchy, whose residuals are
+    :math:`g = \operatorname{sign}(z)\sqrt{2\rho(z)}` of the noise-scaled residual z (so that
+    ½Σg² = Σρ), :math:`C_i \propto \psi'(z_i)\nabla_\theta z_i` with ψ = ρ′: a value beyond
+    Huber's threshold moves the optimum by nothing (ψ is flat there), where DJ alone gave it
+    the weight :math:`(k^2/g_i^2)^2` and widened the ± (by 1.2–1.35 times on a Phong target,
+    see docs/uncertainty.md). For Gaussian noise the per-value weight E[ψ′(z + ε)²] is at
+    least Var ψ(z + ε) (the Gaussian Poincaré inequality, Var h(ε) ≤ E h′(ε)²): the robust
+    ± errs on the wide side where the noise straddles the threshold (on the Phong target,
+    1.1–1.16 times the exact sandwich's).
+
+    θ* is the *pseudo-true* value: the value the fit converges to as its noise averages out
+    (the mean over retakes at the same noise level), whether or not the model can reproduce
+    the image. For the linear loss it is the best fit to the noise-free image. For a robust
+    loss it minimises the *expected* loss E Σρ((f(θ) − g − ε)/σ): the noise smooths ρ where the misfit is near
+    the threshold, so under a mismatch θ* is not the robust fit to the noise-free image
+    (on a Phong target 1.5–2.5 deviations from it in s and m) — nor the least-squares one.
+
+    When the model is right and the loss linear, H = JᵀJ/s² (s the residual scale),
+    D = 1/s and V is the Laplace covariance σ²(JᵀJ)⁻¹ with the known σ. When it is wrong,
+    the misfit's curvature enters H, and the misfit — the same in every retake — does not
+    count as noise, as it does in RSS/(N − P): on targets the model cannot reproduce this
     covered the pseudo-true values at 92–97 % for a nominal 95 %, where the Laplace
     interval from RSS was 2.5–12 times too wide and residual-based (Huber–White, cluster)
     sandwiches 1.1–270 times (measured on Phong and Mitsuba targets, 300 noise draws
@@ -228,20 +270,22 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     Returns the deviations by name, the correlation, V, and the eigenvalues of
     (JᵀJ)⁻¹H on the free entries (1 when the model fits; far from 1: the misfit's curvature
     matters)."""
-    j, h, slope = (np.asarray(v) for v in (yield objective_terms_kernel.call(problem, np.asarray(x, dtype=np.float64))))
-    # V is the same with J and D divided by any c and H by c²: with c the largest slope
+    j, h, slope, values, jacobian_slope = (
+        np.asarray(v) for v in (yield objective_terms_kernel.call(problem, np.asarray(x, dtype=np.float64)))
+    )
+    # V is the same with C divided by any c² and H by c²: with c the largest slope
     # (1/the residual scale, for the linear loss) the products below stay of the image's
     # own magnitude whatever scale the residuals were divided by (a reference noise of
     # 1e-100 made the meat overflow to NaN)
     scale = float(np.max(np.abs(slope))) if slope.size else 0.0
-    if math.isfinite(scale) and scale > 0:
-        j, h, slope = j / scale, h / scale / scale, slope / scale
+    scale = scale if math.isfinite(scale) and scale > 0 else 1.0
+    cross = _cross_rows(j, slope, values, jacobian_slope, scale)
+    j, h = j / scale, h / scale / scale
     free = ~np.asarray(problem.pinned)
     noise_sd = np.asarray(noise_sd, dtype=np.float64)
     # a padded pixel set (strauss_fit.fit.problem.pixel_bucket): its padding has slope 0
     noise_sd = np.concatenate([noise_sd, np.zeros(slope.size - noise_sd.size)])
-    weight = (slope * noise_sd) ** 2
-    meat = j.T @ (j * weight[:, None])
+    meat = cross.T @ (cross * (noise_sd**2)[:, None])
     cov = sandwich(h, meat, free)
     uncertainty, corr = by_parameter(problem.layout, cov)
     gauss_newton = information(j)[np.ix_(free, free)]
