@@ -514,6 +514,12 @@ def _result(
                     if diagnosis.verdict == "mismatch"
                     else ""
                 )
+                + (
+                    f"; for the {problem.loss} loss that approximation is the value its fit converges to at this "
+                    "noise level (the minimiser of the expected loss), not its fit of the noise-free image"
+                    if problem.loss in ("huber", "cauchy")  # the robust losses (docs/uncertainty.md)
+                    else ""
+                )
             ),
             **extra,
         }

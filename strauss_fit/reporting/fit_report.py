@@ -538,6 +538,12 @@ def _statistical_meaning(fit: FitResult) -> str:
             f"± (noise sandwich, the target's noise from: {source}): how far the fitted values would move if the "
             "image were taken again with fresh noise — an interval for the best Strauss approximation of this image"
         )
+        loss = (fit.solver or {}).get("loss")
+        if loss in ("huber", "cauchy"):  # a robust loss's pseudo-truth (docs/uncertainty.md)
+            text += (
+                f" (with the {loss} loss: the value its fit converges to at this noise level, the minimiser of the "
+                "expected loss, not its fit of the noise-free image)"
+            )
         if fit.verdict == "mismatch":
             return text + ", not for the true material, since the model cannot reproduce the target."
         return text + "; with a model that reproduces the target, as here, that is the material's value."

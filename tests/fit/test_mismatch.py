@@ -175,6 +175,9 @@ def test_rough_gold_is_out_of_reach_and_the_exposure_brings_it_back():
     assert {"model-mismatch", "highlight-out-of-reach"} <= set(codes(result))
     message = next(w["message"] for w in result.warnings if w["code"] == "highlight-out-of-reach")
     assert "--fit-exposure" in message
+    # auto refits a visible mismatch with Huber: its ± is about Huber's own pseudo-truth
+    assert result.solver["loss"] == "huber"
+    assert "minimiser of the expected loss" in result.uncertainty_method["meaning"]
     exposed = sf.fit(scene, target, sf.FitOptions(fit_exposure=True, loss="linear"))
     assert "highlight-out-of-reach" not in codes(exposed)
     assert exposed.exposure > 1.5
