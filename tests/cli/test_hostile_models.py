@@ -147,9 +147,7 @@ def test_model_fit_never_replaces_the_targets_sidecar(folder):
 def test_model_fit_refuses_what_it_would_ignore(folder, extra, fragment, capsys, monkeypatch):
     before = listing(folder)
     args = ["fit", "t.exr", "--scene", "scene.toml", "--model", "lambert", *extra]
-    run = in_process(
-        *args, "-o", "r.json", cwd=folder, capsys=capsys, monkeypatch=monkeypatch
-    )
+    run = in_process(*args, "-o", "r.json", cwd=folder, capsys=capsys, monkeypatch=monkeypatch)
     assert_refused(run, fragment)
     assert listing(folder) == before
 
