@@ -11,30 +11,39 @@ Jacobian, a render). The fit is written once, as a generator of *steps*
 - :func:`run_batched` drives many at once: it collects the pending calls of all of them,
   groups the calls of the same kernel whose arguments have the same structure (the same
   static settings, the same array shapes and dtypes — the targets of one scene and image
-  size), stacks their arrays and runs each group as *one* compiled call over the batch,
-  then hands every generator its own slice of the result. That is
+  size) and runs each group, then hands every generator its own result. That is
   :func:`strauss_fit.fit_many`: the per-target Python decisions stay exactly those of a
-  single fit, while the compiled work, its dispatch and its compilation are shared.
+  single fit, while the compiled programs, and their compilation, are shared.
 
-How a batch runs: on a CPU one item after the other inside the compiled program
-(``jax.lax.map``): under ``vmap`` every iteration of a solver's loop would run every item's
-branches and continue until the slowest item converged, which on two cores cost five
-times more (36 ms against 7 ms per 64² target, measured). On an accelerator the items run
-side by side (``jax.vmap``), each stopping at its own convergence (a finished item's state
-is carried unchanged by the batched loop), which is where the batch fills the device.
+Compiled once, whatever the batch: a kernel's program depends on the structure of its
+arguments only, never on how many targets a batch has or how they diverge. On a CPU every
+call of a group runs alone, as the single-item program a single fit uses
+(:data:`SEQUENTIAL_BATCH`): a CPU runs a batch's items one after the other anyway, and
+JAX dispatches each call without waiting. On an accelerator the group's items run side by
+side (``jax.vmap``), each stopping at its own convergence (a finished item's state is
+carried unchanged by the batched loop), in a batch padded to a power of four
+(:func:`batch_bucket`): a few programs per kernel, whatever the group's size. (Under
+``vmap`` on a CPU every iteration of a solver's loop would run every item's branches until
+the slowest item converged: five times slower on two cores, measured.) An argument may
+fold what varies between calls into data (``kernel_form``, :func:`split_arguments`): a
+fit's problem holds its loss as data, so that least squares, Huber and Cauchy share their
+programs. And all kernels run on one device (:func:`compute_device`), a single fit's as a
+batch's: a program belongs to its device, in memory and in the persistent compilation
+cache.
 
 While compiled work runs, Python runs too: the generators are split into *cohorts*
 (:func:`cohort_devices`), and one cohort's decisions are taken while the others' compiled
 calls run, JAX dispatching a call and returning at once (:class:`Pending`). On a CPU the
 compiled calls go to CPU devices other than the first
 (:func:`strauss_fit.runtime.use_cpu_cores`), since a device runs its work in order and
-the small eager operations of the Python would otherwise wait behind a whole batch; with
-cores to spare, cohorts run on several devices at once. Which cohort a generator belongs
-to is fixed by its position, so that a run is repeatable.
+the small eager operations of the Python would otherwise wait behind the kernels; with
+cores to spare and many items, cohorts run on several devices at once. Which cohort a
+generator belongs to is fixed by its position, so that a run is repeatable.
 
 A failure stays with its target: an exception raised inside one generator ends that
 target only (its slot holds the exception), and a batched call that fails is retried item
-by item, so that the item that broke it fails alone.
+by item, so that the item that broke it fails alone (a single call's error reaches its own
+generator when it reads the result).
 """
 
 from __future__ import annotations
@@ -47,6 +56,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from equinox.internal import Static
 
@@ -58,9 +68,9 @@ Steps = Generator["Call", Any, Any]
 
 
 class Kernel:
-    """A numeric function of array pytrees, run directly (``kernel(*args)``, jitted with
-    equinox's filtered jit: arrays are traced, everything else is static) or over a batch
-    of argument tuples of identical structure (:meth:`run_many`)."""
+    """A numeric function of array pytrees, run directly (``kernel(*args)``, jitted: arrays
+    are traced, everything else is static) or over a batch of argument tuples of identical
+    structure (:meth:`run_many`), on :func:`compute_device` unless a device was chosen."""
 
     def __init__(self, fn: Callable[..., Any], name: str | None = None):
         self.fn = fn
@@ -73,22 +83,44 @@ class Kernel:
         return f"Kernel({self.name})"
 
     def __call__(self, *args: Any) -> Any:
-        return self._one(*args)
+        with on_compute_device():
+            return self._one(*args)
 
     def run_call(self, call: Call) -> Any:
         """``self(*call.args)``, reusing the call's partition of its arguments."""
-        return self._one.call_parts(call.args, call.parts)
+        with on_compute_device():
+            return self._one.call_parts(call.args, call.parts)
 
     def call(self, *args: Any) -> Call:
         """The request to run this kernel on ``args`` (what a step yields)."""
         return Call(self, args)
 
-    def _batched(self, stacked: list, shared: list, static: StaticPart, sequential: bool) -> Any:
-        def one(item: list) -> Any:
-            arrays = [own if own is not None else common for own, common in zip(item, shared)]
-            return self.fn(*static.rebuild(arrays))
+    def _batched(self, stacked: list, shared: list, static: StaticPart, sequential: bool, count: Any) -> Any:
+        def arguments(item: list) -> list:
+            return [own if own is not None else common for own, common in zip(item, shared)]
 
-        return jax.lax.map(one, stacked) if sequential else jax.vmap(one)(stacked)
+        def one(item: list) -> Any:
+            return self.fn(*static.rebuild(arguments(item)))
+
+        if not sequential:
+            return jax.vmap(one)(stacked)
+        # One item after the other, the first ``count`` rows only: a batch padded to its
+        # bucket (:func:`batch_bucket`) spends nothing on the padding, and one program
+        # serves every count up to the bucket's size. The results' shapes come from the
+        # single-item program (``jax.jit``'s trace cache: usually traced already, by the
+        # calls of one item, and reused by them otherwise), not from tracing ``fn`` again.
+        size = next(x.shape[0] for x in stacked if x is not None)
+        first = [None if x is None else jax.ShapeDtypeStruct(x.shape[1:], x.dtype) for x in stacked]
+        shapes, rest = self._one.jitted.eval_shape(arguments(first), static)
+        buffers = jax.tree.map(lambda leaf: jnp.zeros((size, *leaf.shape), leaf.dtype), shapes)
+
+        def body(index: Any, buffers: Any) -> Any:
+            item = [None if x is None else jax.lax.dynamic_index_in_dim(x, index, keepdims=False) for x in stacked]
+            values, _ = eqx.partition(one(item), eqx.is_array)
+            return jax.tree.map(lambda b, v: jax.lax.dynamic_update_index_in_dim(b, v, index, 0), buffers, values)
+
+        # the non-array part of the results is the same for every item: returned once
+        return eqx.combine(jax.lax.fori_loop(0, count, body, buffers), rest.value)
 
     def run_many(self, argument_lists: list[tuple], sequential: bool | None = None) -> list[Any]:
         """The kernel on every argument tuple (all of one structure, see :func:`batch_key`),
@@ -96,46 +128,124 @@ class Kernel:
         return self.start_many(argument_lists, sequential)()
 
     def start_many(
-        self, argument_lists: list[tuple], sequential: bool | None = None, parts: list[tuple] | None = None
+        self,
+        argument_lists: list[tuple],
+        sequential: bool | None = None,
+        parts: list[tuple] | None = None,
+        size: int | None = None,
     ) -> Pending:
         """:meth:`run_many` started: JAX dispatches the compiled call and returns at once
         (see :class:`Pending`). ``parts``: the argument tuples already partitioned
-        (:attr:`Call.parts`)."""
+        (:attr:`Call.parts`). ``size``: the batch's compiled size, at least the number of
+        tuples (default :func:`batch_bucket`): the tuples are padded to it, so that every
+        count up to it shares one program."""
         if sequential is None:
             sequential = jax.default_backend() == "cpu"
         if parts is None:
             parts = [split_arguments(args) for args in argument_lists]
+        count = len(argument_lists)
         static = parts[0][1]
-        if static is None:  # a static part that cannot be hashed: one call each
-            outputs = [self._one.call_parts(args, part) for args, part in zip(argument_lists, parts)]
-            return Pending(lambda: jax.device_get(outputs), outputs)
-        stacked, shared = _stack_items([p[0] for p in parts])
-        running = self._many(stacked, shared, static, bool(sequential))
+        with on_compute_device():
+            if static is None:  # a static part that cannot be hashed: one call each
+                outputs = [self._one.call_parts(args, part) for args, part in zip(argument_lists, parts)]
+                return Pending(lambda: jax.device_get(outputs), outputs)
+            size = batch_bucket(count) if size is None else max(size, count)
+            # sequentially the padding is never run (see _batched): any values do; side by
+            # side it is, so it holds copies of the first item (finite values, no spurious errors)
+            stacked, shared = _stack_items([p[0] for p in parts], size, pad_with_first=not sequential)
+            running = self._many(stacked, shared, static, bool(sequential), np.asarray(count, np.int32))
 
         def results() -> list[Any]:
             out = jax.device_get(running)
-            return [jax.tree.map(lambda leaf, i=i: leaf[i], out) for i in range(len(argument_lists))]
+            return [jax.tree.map(lambda leaf, i=i: leaf[i] if _is_array(leaf) else leaf, out) for i in range(count)]
 
         return Pending(results, running)
 
 
-def _stack_items(items: list[list]) -> tuple[list, list]:
-    """The array lists ``items`` (one per call, of one structure) as one batch: each array
-    stacked along a new first axis, except an array that is the same object in every
-    item, which is passed once, unstacked (in ``shared``; None in ``stacked``, and the
-    other way round). Why: the items of a conversion share their problem's prepared
-    geometry (a megabyte per item at the default scene), which stacking would copy for
-    every item and the batched program would slice again per item."""
+def compute_device() -> Any:
+    """The device kernels run on: on a CPU with several devices
+    (:func:`strauss_fit.runtime.use_cpu_cores`) the second, else None (JAX's default).
+
+    Why not the first: a device runs its work in order, and the small eager operations of
+    the Python around the kernels (``jnp.asarray``, ``.at[].set``) run on the first; they
+    then never wait behind a kernel (see :func:`cohort_devices`). Why one device for every
+    kernel, a single fit's as a batch's: a compiled program belongs to its device, in memory
+    and in the persistent compilation cache (whose key holds the device on a CPU). With
+    single fits on the first device and batches on the second, a process (or a cache) that
+    had seen one compiled everything again for the other."""
+    if jax.default_backend() != "cpu":
+        return None
+    devices = jax.local_devices()
+    return devices[1] if len(devices) > 1 else None
+
+
+def on_compute_device() -> contextlib.AbstractContextManager:
+    """The context in which a kernel call runs on :func:`compute_device`, unless a device
+    was chosen already (``jax.default_device``: a cohort's, or the caller's)."""
+    if jax.config.jax_default_device is not None:
+        return contextlib.nullcontext()
+    device = compute_device()
+    return jax.default_device(device) if device is not None else contextlib.nullcontext()
+
+
+def _is_array(leaf: Any) -> bool:
+    return isinstance(leaf, (np.ndarray, jax.Array))
+
+
+#: The compiled sizes of a batched call (:func:`batch_bucket`): powers of four, so that a
+#: kernel has few programs whatever its batches' sizes, with at most 4x padding.
+_BUCKET_BASE = 4
+#: Calls per compiled call on a CPU (:func:`_start_group`): 1, every call runs alone, as
+#: the single-item program — a single fit's. Measured on 2 cores (2026-12-03, 40 targets
+#: of 64², in one process, alternated): batches of up to 64 (padded to 4, 16 or 64, the
+#: padding not run) compiled 31 programs cold where single calls compiled 18 (61 s against
+#: 31 s for the batch), and were no faster warm (7.9 against 9.3 targets/s consistent,
+#: 3.7 against 4.3 mismatched; conversions 15.4 against 15.3 materials/s): on a CPU the
+#: items of a batch run one after the other anyway, and JAX dispatches single calls without
+#: waiting. Above 1, groups run as batches of up to this many.
+SEQUENTIAL_BATCH = 1
+
+
+def batch_bucket(count: int) -> int:
+    """The compiled size of a batch of ``count`` (≥ 2) items: the smallest power of four
+    that holds them (4, 16, 64, 256, …). A batch is padded to it (:meth:`Kernel.start_many`),
+    so that a kernel has a handful of batched programs, the same whatever sizes its batches
+    come in. Sequentially (a CPU) the padding costs nothing but its rows' memory (it is not
+    run); side by side (an accelerator) it costs idle lanes."""
+    size = _BUCKET_BASE
+    while size < count:
+        size *= _BUCKET_BASE
+    return size
+
+
+def _stack_items(items: list[list], size: int | None = None, pad_with_first: bool = True) -> tuple[list, list]:
+    """The array lists ``items`` (one per call, of one structure) as one batch of ``size``
+    rows (default: as many as items): each array stacked along a new first axis, then
+    padded with copies of the first item's (``pad_with_first``) or with zeros, except an
+    array that is the same object in every item, which is passed once, unstacked (in
+    ``shared``; None in ``stacked``, and the other way round). Why: the items of a
+    conversion share their problem's prepared geometry (a megabyte per item at the default
+    scene), which stacking would copy for every item and the batched program would slice
+    again per item."""
     first, others = items[0], items[1:]
+    size = len(items) if size is None else size
     stacked: list = []
     shared: list = []
     for i, array in enumerate(first):
         if all(other[i] is array for other in others):
             stacked.append(None)
             shared.append(array)
+            continue
+        rows = [np.asarray(item[i]) for item in items]
+        if size == len(rows):
+            block = np.stack(rows)
         else:
-            stacked.append(np.stack([np.asarray(item[i]) for item in items]))
-            shared.append(None)
+            block = np.zeros((size, *rows[0].shape), np.result_type(*rows))
+            np.stack(rows, out=block[: len(rows)])
+            if pad_with_first:
+                block[len(rows) :] = rows[0]
+        stacked.append(block)
+        shared.append(None)
     return stacked, shared
 
 
@@ -178,7 +288,8 @@ class _DispatchingJit:
             return out_arrays, Static(rest)
 
         arrays_only.__name__ = getattr(fn, "__name__", "kernel")
-        self._jitted = jax.jit(arrays_only, static_argnums=1)
+        #: ``(arrays, static) -> (output arrays, Static(output rest))``, jitted.
+        self.jitted = jax.jit(arrays_only, static_argnums=1)
 
     def __call__(self, *args: Any) -> Any:
         return self.call_parts(args, split_arguments(args))
@@ -192,7 +303,7 @@ class _DispatchingJit:
             result = self._exported.call(arrays, static)
             if result is not None:
                 return result
-        out_arrays, rest = self._jitted(arrays, static)
+        out_arrays, rest = self.jitted(arrays, static)
         return eqx.combine(out_arrays, rest.value)
 
 
@@ -265,7 +376,11 @@ class StaticPart:
 
 def split_arguments(args: tuple) -> tuple[list, StaticPart | None]:
     """``args`` as their array leaves (in order) and their :class:`StaticPart` (None when a
-    leaf cannot be hashed)."""
+    leaf cannot be hashed), each argument with a ``kernel_form()`` method replaced by what
+    it returns: the form a compiled program takes it in, which may hold as data what the
+    object holds as structure, so that its variants share one program (a fit's problem
+    and its loss: :meth:`strauss_fit.fit.problem.Problem.kernel_form`)."""
+    args = tuple(_kernel_form(argument) for argument in args)
     leaves, treedef = jax.tree.flatten(args)
     arrays = [x for x in leaves if isinstance(x, _ARRAY_TYPES)]
     try:
@@ -273,6 +388,11 @@ def split_arguments(args: tuple) -> tuple[list, StaticPart | None]:
     except TypeError:
         static = None
     return arrays, static
+
+
+def _kernel_form(argument: Any) -> Any:
+    form = None if isinstance(argument, type) else getattr(argument, "kernel_form", None)
+    return form() if callable(form) else argument
 
 
 #: What ``eqx.is_array`` counts as an array.
@@ -400,18 +520,22 @@ def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool
     the batches therefore run on the devices after the first, which is left to the eager
     operations, one cohort per device: as many devices as there are cores less the one
     the Python needs (``python_bound``, a fit's case), or as cores (a conversion's, almost
-    all compiled work). Each device compiles its own programs (and holds them: memory
-    mappings, :mod:`strauss_fit.runtime`), so a batch uses a device only from
-    :data:`ITEMS_PER_DEVICE` items per device on; a smaller batch runs on the default
-    device, as a single fit does, sharing its programs."""
+    all compiled work). A batch runs on the first of them whatever its size, and on one
+    more per :data:`ITEMS_PER_DEVICE` items. Why not the default device for a small batch
+    (which would share a single fit's programs): a compiled program belongs to its device,
+    in memory and in the persistent compilation cache (whose key holds the device on a
+    CPU), so a batch that moved between devices with its size would compile everything
+    again — a run of 13 targets after one of 40 compiled 29 programs in 65 s, against none.
+    Each further device compiles its own programs (and holds them: memory mappings,
+    :mod:`strauss_fit.runtime`), hence only for large batches."""
     devices = jax.local_devices() if jax.default_backend() == "cpu" else []
     if cohorts is None:
         cohorts = 2
         cores = usable_cores() - 1 if python_bound else usable_cores()
-        wanted = min(len(devices) - 1, max(cores, 1), items // ITEMS_PER_DEVICE)
+        wanted = min(len(devices) - 1, max(cores, 1), max(1, items // ITEMS_PER_DEVICE))
         if wanted >= 1:
             compute = devices[1 : 1 + wanted]
-            cohorts = max(cohorts, len(compute))
+            cohorts = max(min(cohorts, items), len(compute))
             return [compute[c % len(compute)] for c in range(cohorts)]
     return [None] * max(1, min(cohorts, items))
 
@@ -426,21 +550,17 @@ def _chunks(items: list[int], size: int | None) -> list[list[int]]:
     return [items[i : i + size] for i in range(0, len(items), size)]
 
 
-def _power_of_two_parts(count: int) -> list[int]:
-    """``count`` as a sum of distinct powers of two, largest first (37 → 32, 4, 1)."""
-    return [1 << bit for bit in range(count.bit_length() - 1, -1, -1) if count >> bit & 1]
-
-
 def _start_group(calls: list[Call], sequential: bool | None, device: Any = None) -> Pending:
     """Start the calls of one structure on ``device`` (None: the default): their results
     come from batched calls, or, for a single call or when a batch fails, from one call
     each (each failure then goes to its own target).
 
-    Batches come in power-of-two sizes only, so that the programs compiled per kernel
-    stay few (at most seven up to 64 items) however the targets split up as their fits
-    diverge: sequentially (a CPU) a group of 37 runs as 32 + 4 + 1 items, side by side (an
-    accelerator) it is padded to 64 with copies of its first item, whose results are
-    dropped."""
+    The programs compiled per kernel are few and the same however the targets split up as
+    their fits diverge: on a CPU (``sequential``) every call runs alone, as the
+    single-item program (:data:`SEQUENTIAL_BATCH`), all of them dispatched before any is
+    waited for; on an accelerator the group runs side by side as one batch padded to its
+    :func:`batch_bucket` (4, 16, 64, … items) with copies of its first item, whose results
+    are dropped."""
     if sequential is None:
         sequential = jax.default_backend() == "cpu"
     placed = jax.default_device(device) if device is not None else contextlib.nullcontext()
@@ -455,33 +575,27 @@ def _start_group(calls: list[Call], sequential: bool | None, device: Any = None)
                     outputs.append(_Failed(error))
         return outputs
 
-    if len(calls) == 1:
+    step = SEQUENTIAL_BATCH if sequential else len(calls)
+    if len(calls) == 1 or step <= 1:
         outputs = one_by_one()
         return Pending(lambda: outputs, outputs)
     try:
         with placed:
-            if not sequential:
-                size = 1 << (len(calls) - 1).bit_length()
-                padded = calls + [calls[0]] * (size - len(calls))
-                parts = [calls[0].kernel.start_many([c.args for c in padded], sequential, [c.parts for c in padded])]
-            else:
-                parts, first = [], 0
-                for part in _power_of_two_parts(len(calls)):
-                    chunk = calls[first : first + part]
-                    if part == 1:
-                        single = chunk[0].kernel.run_call(chunk[0])
-                        parts.append(Pending(lambda single=single: [single], single))
-                    else:
-                        parts.append(
-                            chunk[0].kernel.start_many([c.args for c in chunk], sequential, [c.parts for c in chunk])
-                        )
-                    first += part
+            parts = []
+            for first in range(0, len(calls), step):
+                chunk = calls[first : first + step]
+                if len(chunk) == 1:
+                    single = chunk[0].kernel.run_call(chunk[0])
+                    parts.append(Pending(lambda single=single: [single], single))
+                else:
+                    kernel = chunk[0].kernel
+                    parts.append(kernel.start_many([c.args for c in chunk], sequential, [c.parts for c in chunk]))
     except Exception:  # one item broke the batch: find it by running them alone
         return Pending(one_by_one)
 
     def results() -> list[Any]:
         try:
-            return [output for part in parts for output in part()][: len(calls)]
+            return [output for part in parts for output in part()]
         except Exception:  # it broke while running
             return one_by_one()
 

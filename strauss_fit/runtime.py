@@ -26,13 +26,15 @@ does nothing.
 
 CPU devices (:func:`use_cpu_cores`): XLA:CPU runs the work of one device in order, on
 one core for the small programs of a fit, and a small eager operation waits for the
-program before it. A batch of targets (:mod:`strauss_fit.engine`) therefore runs its
-compiled calls on devices other than the first, which is left to the eager operations of
-the fits' Python, and on several of them where there are cores to spare. Importing
-:mod:`strauss_fit` asks JAX for one CPU device per usable core (at most eight) and one
-more through ``JAX_NUM_CPU_DEVICES``, unless it is already set (``JAX_NUM_CPU_DEVICES=1``
-keeps JAX's single CPU device: batches then run on it, slower) or ``XLA_FLAGS`` chooses a
-device count. A single fit uses the first device only, as before.
+program before it. The compiled kernels (:mod:`strauss_fit.engine`) therefore run on a
+device other than the first, which is left to the eager operations of the fits' Python —
+a single fit's kernels as a batch's, so that both share their programs
+(:func:`strauss_fit.engine.compute_device`: a program belongs to its device, in memory
+and in the compilation cache) — and a large batch on several of them where there are
+cores to spare. Importing :mod:`strauss_fit` asks JAX for one CPU device per usable core
+(at most eight) and one more through ``JAX_NUM_CPU_DEVICES``, unless it is already set
+(``JAX_NUM_CPU_DEVICES=1`` keeps JAX's single CPU device: everything then runs on it,
+batches slower) or ``XLA_FLAGS`` chooses a device count.
 """
 
 from __future__ import annotations

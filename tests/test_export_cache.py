@@ -236,13 +236,70 @@ def test_a_large_batch_runs_kept_programs_on_its_cpu_devices(cache, x64):
 def test_one_kept_program_serves_every_cpu_device(cache, x64):
     import jax
 
-    if jax.local_device_count() < 2:
-        pytest.skip("one CPU device")
+    if jax.local_device_count() < 3:
+        pytest.skip("no CPU device besides the default and the kernels' own")
     kernel = Kernel(_probe)
     args = [(np.full(3, float(i)), np.arange(3.0), None) for i in range(4)]
-    expected = kernel.run_many(args)
-    with jax.default_device(jax.devices()[1]):
+    expected = kernel.run_many(args)  # on the kernels' device (strauss_fit.engine.compute_device)
+    with jax.default_device(jax.devices()[2]):
         elsewhere = Kernel(_probe).run_many(args)
     assert len(_programs(cache)) == 1
     for result, wanted in zip(elsewhere, expected):
         np.testing.assert_array_equal(result["value"], wanted["value"])
+
+
+_SECOND_PROCESS = """
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import jax
+import strauss_fit as sf
+import support
+from strauss_fit.runtime import enable_compilation_cache
+
+enable_compilation_cache()
+misses = []
+jax.monitoring.register_event_listener(
+    lambda event, **details: misses.append(event) if event == "/jax/compilation_cache/cache_misses" else None
+)
+scene = support.key_and_fill_scene(24, source="second-process")
+data = support.key_and_fill_data(24)
+data["light"][0]["direction"] = [0.0, 0.8, 1.0]  # the key light moved: a mismatch, refitted with Huber
+targets = []
+for index, where in enumerate((scene, sf.parse_scene(data, source="moved"))):
+    image, _ = sf.render(where, sf.Material(color=(0.6, 0.4, 0.3), smoothness=0.6, metalness=0.3))
+    image = np.asarray(image) + np.random.default_rng(index).normal(0.0, 0.005, np.shape(image))
+    targets.append(sf.Target(image, np.ones(image.shape[:2], dtype=bool), f"t{index}.exr", "linear", 0, 0))
+order = [int(i) for i in sys.argv[2].split(",")]
+results = sf.fit_many([targets[i] for i in order], scene, sf.FitOptions(free=("color", "smoothness", "metalness")))
+print(json.dumps({"misses": len(misses), "losses": [r.solver["loss"] for r in results]}))
+"""
+
+
+def test_a_second_process_compiles_nothing_whatever_its_batch_size(tmp_path):
+    """Every program of a batch is kept on disk (the XLA program in the compilation cache,
+    the traced one here): a later process fitting the same kind of targets compiles nothing
+    and exports nothing, in a batch of another size than the first process's."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "STRAUSS_FIT_CACHE_DIR": str(tmp_path / "jax")}
+    env.pop("STRAUSS_FIT_EXPORT_CACHE", None)
+
+    def run(order: str) -> dict:
+        command = [sys.executable, "-c", _SECOND_PROCESS, str(Path(__file__).resolve().parent), order]
+        done = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
+        return json.loads(done.stdout.strip().splitlines()[-1])
+
+    def kept() -> set[str]:
+        return {p.name for folder in (tmp_path / "jax", tmp_path / "jax-export") for p in folder.iterdir()}
+
+    first = run("0,1")
+    assert first["losses"] == ["linear", "huber"] and first["misses"] > 0
+    before = kept()
+    second = run("1,0,0,1,0")
+    assert second == {"misses": 0, "losses": ["huber", "linear", "linear", "huber", "linear"]}
+    assert kept() == before

@@ -71,7 +71,7 @@ from ..fit.identifiability import (
 from ..fit.options import DEFAULT_QUALITY, VISIBLE_DELTA_E, FitOptions, quality_preset
 from ..fit.parameters import jsonable, material_with
 from ..fit.problem import build_problem, physical_values, render_at, take_pixels_jit
-from ..fit.solvers import polish_steps, solve_starts
+from ..fit.solvers import STRICT_REJECT_RATIO, polish_steps, solve_starts
 from ..fit.starts import START_MARGIN, starts
 from ..inference.laplace import covariance, deviations, jacobian_kernel, problem_laplace_steps
 from ..inference.laplace import information as information_of
@@ -614,6 +614,7 @@ class Converter:
                         self.settings.atol,
                         self.settings.start_steps,
                         self.batched,
+                        STRICT_REJECT_RATIO,
                     )
                 )
             )[:3]
@@ -623,7 +624,7 @@ class Converter:
             raise StraussFitError("every start of the fit diverged to non-finite values")
         best = int(np.argmin(np.where(finite, costs_, np.inf)))
         theta, cost, polish_count, status, pinned, information = yield from polish_steps(
-            problem, values[best], self.options
+            problem, values[best], self.options, reject_ratio=STRICT_REJECT_RATIO
         )
         x = physical_values(pinned, theta)
         if not np.all(np.isfinite(x)):
@@ -826,7 +827,9 @@ class Converter:
         held = {name: values.get(name, fitted[name]) for name in STRAUSS_FREE if name not in free}
         problem = self._problem(self._template(free), target, scale, material_with(self.base, held))
         start = problem.layout.to_unconstrained(problem.layout.join({**fitted, **held}))
-        theta, cost, steps_, status, pinned, information = yield from polish_steps(problem, start, self.options)
+        theta, cost, steps_, status, pinned, information = yield from polish_steps(
+            problem, start, self.options, reject_ratio=STRICT_REJECT_RATIO
+        )
         x = physical_values(pinned, theta)
         if not np.all(np.isfinite(x)):
             raise StraussFitError("the refit with the held parameters ended at non-finite parameters")

@@ -35,7 +35,7 @@ from jax import Array
 
 from ..engine import Kernel
 from ..fit.parameters import Layout
-from ..fit.solvers import levenberg_marquardt
+from ..fit.solvers import STRICT_REJECT_RATIO, levenberg_marquardt
 from ..inference import laplace
 from ..models.phong import MAX_EXPONENT, PhongMaterial, coefficient, highlight_power, phong_angles
 from ..scene.camera import intersect_unit_sphere, primary_rays
@@ -205,7 +205,7 @@ def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, m
     start to its own convergence: one after the other (``lax.map``) on a CPU, vectorised
     (``vmap``) when ``batched``. Returns θ (S, P), the normalised cost Σr² (S,), the step
     counts and whether each solve succeeded."""
-    solver = levenberg_marquardt(rtol, atol)
+    solver = levenberg_marquardt(rtol, atol, reject_ratio=STRICT_REJECT_RATIO)
 
     def one(theta0):
         solution = optx.least_squares(problem.residual, solver, theta0, max_steps=max_steps, throw=False)

@@ -41,7 +41,7 @@ from ..errors import CaptureError
 from ..inference.laplace import sandwich
 from ..models.reflectance import REFLECTANCE_MODELS, reflectance_model
 from ..precision import float64
-from .solvers import _result_code, levenberg_marquardt, status_name
+from .solvers import STRICT_REJECT_RATIO, _result_code, levenberg_marquardt, status_name
 
 #: The reflectance models a capture can be fitted with: every registered one.
 MODELS = tuple(REFLECTANCE_MODELS)
@@ -247,7 +247,7 @@ def _solve(
     import optimistix as optx
 
     residuals = _residual_function(problem.model, problem.params)
-    solver = levenberg_marquardt(rtol, atol, normal_equations=True)
+    solver = levenberg_marquardt(rtol, atol, normal_equations=True, reject_ratio=STRICT_REJECT_RATIO)
     solution = optx.least_squares(
         residuals, solver, jnp.asarray(theta0), args=problem.data, max_steps=max_steps, throw=False
     )

@@ -69,6 +69,9 @@ MISMATCH_LOSS = "huber"
 VISIBLE_DELTA_E = 1.0
 #: What ``FitOptions.edge_pixels`` accepts.
 EDGE_PIXELS = ("auto", "exclude", "include")
+#: What ``FitOptions.search`` accepts (see :mod:`strauss_fit.fit.search`, which decides
+#: what ``"auto"`` means).
+SEARCHES = ("auto", "grid", "starts")
 #: The preset settings that are fit settings (the others are sampling settings).
 FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol", "equivalence")
 
@@ -131,6 +134,14 @@ class FitOptions:
     equivalence: bool = bool(_BALANCED["equivalence"])
     #: Its threshold, a mean CIEDE2000 (1: one just-noticeable difference).
     equivalence_de: float = 1.0
+    #: Where the solves start (:data:`SEARCHES`): ``"grid"``, a global search over
+    #: smoothness and metalness with the colour solved in closed form, its best distinct
+    #: minima the starts, where that projection holds (an opaque material fitted by least
+    #: squares, no light or exposure free), the multi-start elsewhere; ``"starts"``, the
+    #: multi-start (the closed-form guess and fixed points) always; ``"auto"``: the grid
+    #: wherever it applies (measured by ``benchmarks/search.py``, see
+    #: :mod:`strauss_fit.fit.search`).
+    search: str = "auto"
 
     @classmethod
     def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> FitOptions:
@@ -161,6 +172,7 @@ class FitOptions:
             "edge_pixels": self.edge_pixels,
             "equivalence": self.equivalence,
             "equivalence_de": self.equivalence_de,
+            "search": self.search,
             "precision": "float64",
         }
 
@@ -171,6 +183,8 @@ class FitOptions:
 
         if self.loss not in ("auto", *LOSSES):
             raise StraussFitError(f"unknown loss {self.loss!r}; expected one of auto, {', '.join(LOSSES)}")
+        if self.search not in SEARCHES:
+            raise StraussFitError(f"search must be one of {', '.join(SEARCHES)}, got {self.search!r}")
         if self.edge_pixels not in EDGE_PIXELS:
             raise StraussFitError(f"edge_pixels must be one of {', '.join(EDGE_PIXELS)}, got {self.edge_pixels!r}")
         if self.noise is not None:  # within NOISE_RANGE: beyond, σ² or 1/σ² leaves float64's range

@@ -14,13 +14,18 @@ cost to the reduction the linearisation predicted:
   have raised λ, ρ settles between 0.75 and 0.99 for many steps; with a 0.99 cutoff λ
   then never shrinks and the solver creeps towards the optimum (17 steps against 12 on
   the 256² benchmark fit of C, s, m, with the same optimum to 1e-14 in cost);
-- a step with ρ < 0.1 (:data:`REJECT_RATIO`) is rejected and shrinks the step size (×0.25),
-  where optimistix's default rejects only below 0.01. Why: where the model cannot match
-  the target (a large residual, whose curvature JᵀJ leaves out), undamped Gauss–Newton
-  steps overshoot along a valley; with ρ around 0.05 they were all accepted and the solver
-  zig-zagged about the optimum, its amplitude shrinking by 11 % a step (49 steps for one
-  polish of a Phong → Strauss conversion that takes 10 with this cutoff, ending at the
-  same cost within 1e-12).
+- a step with ρ below a cutoff is rejected and shrinks the step size (×0.25). The cutoff
+  depends on the use, each measured: a fit of an image rejects below 0.01
+  (:data:`REJECT_RATIO`, optimistix's default), a conversion between models and a capture
+  below 0.1 (:data:`STRICT_REJECT_RATIO`). Why the strict cutoff there: where the model
+  cannot match the target by construction (a Phong lobe fitted by Strauss's), undamped
+  Gauss–Newton steps overshoot along a valley; with ρ around 0.05 they were all accepted
+  and the solver zig-zagged about the optimum, its amplitude shrinking by 11 % a step (49
+  steps for one polish of a Phong → Strauss conversion that takes 10 with it, ending at
+  the same cost within 1e-12). Why not for images: over the recovery set of
+  ``benchmarks/recovery.py`` (48 fits) the two cutoffs took the same steps (385 against
+  387) and 0.01 once reached a 58 % lower cost; over the bundled Mitsuba renders 0.01 took
+  501 steps against 569, and the README's example 17 against 41 (2026-12-02).
 
 Solving (:func:`solve`). Every start runs :attr:`~strauss_fit.fit.options.FitOptions.start_steps`
 steps (:func:`solve_starts`: one after another with ``lax.map`` on a CPU, vectorised with
@@ -50,7 +55,7 @@ from ..precision import uses_float64
 from .options import FitOptions
 from .parameters import Layout, jsonable
 from .problem import Problem, costs, physical_values
-from .starts import scan_ior_steps, starts
+from .starts import scan_ior_steps, start_points_steps
 
 if TYPE_CHECKING:
     import optimistix as optx
@@ -61,14 +66,21 @@ if TYPE_CHECKING:
 SOLVERS = ("lm", "gauss-newton", "bfgs")
 #: Actual-to-predicted reduction ratio above which the trust region grows.
 GROW_RATIO = 0.75
-#: Actual-to-predicted reduction ratio below which a step is rejected and the region shrinks.
-REJECT_RATIO = 0.1
+#: Actual-to-predicted reduction ratio below which a step of a fit of an image is rejected
+#: and the region shrinks (see the module).
+REJECT_RATIO = 0.01
+#: The same for a conversion between models and a capture, where the model cannot match its
+#: target by construction and accepted poor steps zig-zag (see the module).
+STRICT_REJECT_RATIO = 0.1
 
 
-def levenberg_marquardt(rtol: float, atol: float, *, normal_equations: bool = False) -> optx.LevenbergMarquardt:
-    """:class:`optimistix.LevenbergMarquardt` with the textbook cutoffs :data:`GROW_RATIO`
-    and :data:`REJECT_RATIO` in its trust region (see the module). The one Levenberg–Marquardt
-    of the package: the fits, the Phong → Strauss conversions and the Phong fitter use it.
+def levenberg_marquardt(
+    rtol: float, atol: float, *, normal_equations: bool = False, reject_ratio: float = REJECT_RATIO
+) -> optx.LevenbergMarquardt:
+    """:class:`optimistix.LevenbergMarquardt` with the textbook cutoff :data:`GROW_RATIO` and
+    ``reject_ratio`` (:data:`REJECT_RATIO` or :data:`STRICT_REJECT_RATIO`) in its trust
+    region (see the module). The one Levenberg–Marquardt of the package: the fits, the
+    captures, the Phong → Strauss conversions and the Phong fitter use it.
 
     ``normal_equations``: solve each damped step from the normal equations (Cholesky of
     JᵀJ + λI) instead of a QR of the stacked Jacobian. Why: with millions of residuals and a
@@ -79,16 +91,19 @@ def levenberg_marquardt(rtol: float, atol: float, *, normal_equations: bool = Fa
 
     linear_solver = lx.Normal(lx.Cholesky()) if normal_equations else lx.QR()
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=linear_solver)
-    search = optx.ClassicalTrustRegion(high_cutoff=GROW_RATIO, low_cutoff=REJECT_RATIO)
+    search = optx.ClassicalTrustRegion(high_cutoff=GROW_RATIO, low_cutoff=reject_ratio)
     return eqx.tree_at(lambda s: s.search, solver, search)
 
 
-def make_solver(name: str, rtol: float, atol: float) -> optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser:
-    """The solver called ``name`` (one of :data:`SOLVERS`) with the given tolerances."""
+def make_solver(
+    name: str, rtol: float, atol: float, reject_ratio: float = REJECT_RATIO
+) -> optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser:
+    """The solver called ``name`` (one of :data:`SOLVERS`) with the given tolerances (and,
+    for ``lm``, ``reject_ratio``: see :func:`levenberg_marquardt`)."""
     import optimistix as optx
 
     if name == "lm":
-        return levenberg_marquardt(rtol, atol)
+        return levenberg_marquardt(rtol, atol, reject_ratio=reject_ratio)
     if name == "gauss-newton":
         return optx.GaussNewton(rtol=rtol, atol=atol)
     if name == "bfgs":
@@ -121,7 +136,14 @@ def _result_code(result: Any) -> Array:
 
 
 def _solve_starts(
-    problem: Problem, thetas: Array, solver_name: str, rtol: float, atol: float, max_steps: int, batched: bool
+    problem: Problem,
+    thetas: Array,
+    solver_name: str,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    batched: bool,
+    reject_ratio: float = REJECT_RATIO,
 ):
     """Solve from every row of ``thetas``: vectorised (``vmap``) when ``batched``, else one
     after the other (``lax.map``). Why both: under ``vmap`` the solver's branches (step
@@ -129,10 +151,11 @@ def _solve_starts(
     pixels already fill the cores, costs about twice a sequential solve (measured:
     53 ms against 102 ms for one start at 256², 211 ms against 392 ms for four); on a
     GPU the batch fills the device instead. Returns θ, the normalised cost, the step count
-    and the result code (:func:`status_name`) per start."""
+    and the result code (:func:`status_name`) per start. ``reject_ratio``: see
+    :func:`levenberg_marquardt`."""
     import optimistix as optx
 
-    solver = make_solver(solver_name, rtol, atol)
+    solver = make_solver(solver_name, rtol, atol, reject_ratio)
 
     def one(theta0):
         solution = optx.least_squares(problem.residual, solver, theta0, max_steps=max_steps, throw=False)
@@ -157,12 +180,20 @@ def near_bounds(layout: Layout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x - layout.lower_bounds() < BOUND_SNAP, layout.upper_bounds() - x < BOUND_SNAP
 
 
-def _polish_solve(problem: Problem, theta: Array, rtol: float, atol: float, max_steps: int, solver_name: str):
+def _polish_solve(
+    problem: Problem,
+    theta: Array,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    solver_name: str,
+    reject_ratio: float = REJECT_RATIO,
+):
     """One solve of the polish: θ, the normalised cost, the steps, the result code, and
     the gradient Jᵀr and curvature JᵀJ of the normalised cost in physical units."""
     import optimistix as optx
 
-    solver = make_solver(solver_name, rtol, atol)
+    solver = make_solver(solver_name, rtol, atol, reject_ratio)
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
     code = _result_code(solution.result)
     x = problem.physical(solution.value)
@@ -201,7 +232,13 @@ def polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool 
     return run(polish_steps(problem, theta, options, near))
 
 
-def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool = False) -> Steps:
+def polish_steps(
+    problem: Problem,
+    theta: np.ndarray,
+    options: FitOptions,
+    near: bool = False,
+    reject_ratio: float = REJECT_RATIO,
+) -> Steps:
     """Continue the best start with an active set. Entries within :data:`BOUND_SNAP` of a
     bound are pinned to it and the rest re-solved (Levenberg–Marquardt, whatever the
     solver of the starts; Gauss–Newton when ``near``, i.e. the start converged on the
@@ -213,6 +250,7 @@ def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near:
     tolerance — and entries that reach a bound are pinned, unless released before (an entry
     that a round released and the next pulled back towards its bound would otherwise
     alternate). At most three rounds; the cheapest round stands (ties go to the later).
+    ``reject_ratio``: Levenberg–Marquardt's (:func:`levenberg_marquardt`).
 
     Why: the smooth transforms reach a bound only with zero slope, so an optimum on a bound
     (m = 0, say, or a noisy fit pulling past it) is approached ever more slowly; pinning
@@ -247,6 +285,7 @@ def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near:
                     options.atol,
                     options.max_steps,
                     "gauss-newton" if gauss_newton else "lm",
+                    reject_ratio,
                 )
             )
         )
@@ -254,7 +293,11 @@ def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near:
         if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and status_name(int(code)) == "successful"):
             theta, cost, more, code, gradient, information = (
                 np.asarray(v)
-                for v in (yield polish_solve.call(trial, start, options.rtol, options.atol, options.max_steps, "lm"))
+                for v in (
+                    yield polish_solve.call(
+                        trial, start, options.rtol, options.atol, options.max_steps, "lm", reject_ratio
+                    )
+                )
             )
             steps = steps + more
         total_steps += int(steps)
@@ -281,7 +324,13 @@ def polish_steps(problem: Problem, theta: np.ndarray, options: FitOptions, near:
             np.asarray(v)
             for v in (
                 yield polish_solve.call(
-                    problem, np.asarray(start_theta), options.rtol, options.atol, options.max_steps, "lm"
+                    problem,
+                    np.asarray(start_theta),
+                    options.rtol,
+                    options.atol,
+                    options.max_steps,
+                    "lm",
+                    reject_ratio,
                 )
             )
         )
@@ -350,7 +399,7 @@ def solve_steps(
     if "ior" in layout.names:
         say("scanning the index of refraction for starting points")
         ior_candidates = yield from scan_ior_steps(screen, guess)
-    thetas = starts(layout, guess, options.starts, ior_candidates, exact_first and ior_candidates is None)
+    thetas, sources = yield from start_points_steps(screen, guess, options, ior_candidates, exact_first, say)
     say(
         f"fitting {', '.join(layout.names)} from {thetas.shape[0]} start(s) with {options.solver}"
         + (f" on {screen.value_count() // 3} of {problem.value_count() // 3} pixels" if coarse is not None else "")
@@ -386,6 +435,7 @@ def solve_steps(
             "cost": float(costs_[i]),
             "steps": int(steps[i]),
             "status": statuses[i],
+            "source": sources[i],
         }
         for i in range(len(costs_))
     ]

@@ -6,18 +6,25 @@ transforms of :mod:`strauss_fit.fit.parameters` are flat. When the index of refr
 fitted, a patterned background seen through the sphere makes the cost oscillate in n, so
 the best local minima of a scan over :data:`IOR_SCAN` (:func:`scan_ior`) each get their
 own copy of the starts.
+
+Where the colour can be projected out (an opaque material fitted by least squares), the
+starts come instead from a global search over smoothness and metalness
+(:mod:`strauss_fit.fit.search`), per ``FitOptions.search`` (:func:`start_points_steps`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from ..engine import Steps, run
 from ..models.material import FRACTION_NAMES
+from .options import FitOptions
 from .parameters import Layout
 from .problem import Problem, costs
+from .search import SMOOTH_EDGE, grid_applies, grid_search_steps
 
 #: Fixed starting points tried besides the guess: values of the fractions s, m, t
 #: (:data:`~strauss_fit.models.material.FRACTION_NAMES`, in that order).
@@ -73,3 +80,58 @@ def scan_ior_steps(problem: Problem, guess: dict[str, Any], keep: int = 3) -> St
     interior = np.r_[True, values[1:] <= values[:-1]] & np.r_[values[:-1] <= values[1:], True]
     minima = sorted(np.flatnonzero(interior), key=lambda i: values[i])[:keep]
     return [float(IOR_SCAN[i]) for i in minima]
+
+
+def uses_grid(problem: Problem, options: FitOptions) -> bool:
+    """Whether ``problem``'s starts come from the grid search: ``options.search`` is
+    ``"grid"`` or ``"auto"`` (:data:`~strauss_fit.fit.options.SEARCHES`) and the colour
+    can be projected out (:func:`strauss_fit.fit.search.grid_applies`)."""
+    return options.search in ("auto", "grid") and grid_applies(problem) is None
+
+
+def start_points_steps(
+    problem: Problem,
+    guess: dict[str, Any],
+    options: FitOptions,
+    ior_candidates: list[float] | None = None,
+    exact_first: bool = False,
+    say: Callable[[str], None] | None = None,
+) -> Steps:
+    """The unconstrained starts of a fit on ``problem`` (the coarse one, where there is one)
+    and where each came from (``"guess"``, ``"fixed"`` or ``"grid"``): the grid search's
+    best distinct minima (:func:`strauss_fit.fit.search.grid_search_steps`, up to
+    ``options.starts``) where :func:`uses_grid`, else :func:`starts`. With ``exact_first``
+    the guess, exactly, comes first in either case (a refit from the optimum before it).
+    ``say``, if given, is told when the grid is searched."""
+    layout = problem.layout
+    if not uses_grid(problem, options):
+        thetas = starts(layout, guess, options.starts, ior_candidates, exact_first and ior_candidates is None)
+        per_copy = ["guess"] + ["fixed"] * (thetas.shape[0] // max(len(ior_candidates or [None]), 1) - 1)
+        return thetas, per_copy * len(ior_candidates or [None])
+    wanted = options.starts - 1 if exact_first else options.starts
+    rows, sources = [], []
+    if exact_first:
+        rows.append(layout.to_unconstrained(layout.join(guess)))
+        sources.append("guess")
+    if wanted > 0:
+        if say is not None:
+            say("searching smoothness and metalness on a grid, the colour in closed form")
+        found = yield from grid_search_steps(problem, guess, wanted)
+        rows.extend(grid_thetas(layout, found.starts))
+        sources.extend(["grid"] * found.starts.shape[0])
+    return np.stack(rows), sources
+
+
+def grid_thetas(layout: Layout, points: np.ndarray) -> np.ndarray:
+    """θ of the grid's physical ``points`` (rows): kept :data:`START_MARGIN` inside the
+    bounds, where the transforms are flat, except the upper bound of s, kept only
+    :data:`~strauss_fit.fit.search.SMOOTH_EDGE` below 1 — the grid resolves 1 − s down to
+    1e-5 (a highlight a few pixels wide), and a margin of 0.02 would put every start near a
+    mirror at s = 0.98. Near 1 the transform's flatness is no obstacle: the image's
+    sensitivity to s grows as 1/(1 − s)² there, faster than the slope of the transform
+    shrinks."""
+    lower = np.full(layout.size, START_MARGIN)
+    upper = np.full(layout.size, 1.0 - START_MARGIN)
+    if "smoothness" in layout.names:
+        upper[layout.offsets[layout.names.index("smoothness")]] = 1.0 - SMOOTH_EDGE
+    return layout.to_unconstrained(np.clip(points, lower, upper))

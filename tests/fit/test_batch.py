@@ -35,6 +35,122 @@ def _same(a: sf.FitResult, b: sf.FitResult) -> None:
     np.testing.assert_allclose(a.residual["rms"], b.residual["rms"], rtol=1e-12)
 
 
+def _identical(a: sf.FitResult, b: sf.FitResult) -> None:
+    """The same fit bit for bit: every number it reports (the times aside), its parameters
+    and its fitted image."""
+    ja, jb = a.to_json(), b.to_json()
+    for data in (ja, jb):
+        del data["wall_time_s"], data["timing"]
+    assert ja == jb
+    np.testing.assert_array_equal(np.asarray(a.x), np.asarray(b.x))
+    np.testing.assert_array_equal(a.fitted_image, b.fitted_image)
+
+
+def _compiled_during(action) -> list[str]:
+    """The programs JAX compiled while ``action()`` ran (its log of compilations)."""
+    import logging
+
+    import jax
+
+    messages: list[str] = []
+
+    class Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            messages.append(record.getMessage())
+
+    handler = Collect()
+    logger = logging.getLogger("jax")
+    logger.addHandler(handler)
+    jax.config.update("jax_log_compiles", True)
+    try:
+        action()
+    finally:
+        jax.config.update("jax_log_compiles", False)
+        logger.removeHandler(handler)
+    return [m for m in messages if m.startswith("Compiling")]
+
+
+def test_a_targets_fit_is_the_same_in_any_batch_and_compiles_nothing_new():
+    """A target's fit does not depend on the batch it runs in: alone (``fit``) or among 1,
+    3 or 7 targets, consistent or mismatched (refitted with the Huber loss), bit for bit —
+    and once single fits have run, batches of any size compile nothing: every call runs a
+    program of its kernel and problem shape, whatever the batch's size, the targets'
+    divergence or the loss (:mod:`strauss_fit.engine`)."""
+    scene = support.key_and_fill_scene(24, source="batch-sizes")
+    data = support.key_and_fill_data(24)
+    data["light"][0]["direction"] = [0.0, 0.8, 1.0]  # the key light moved: the model cannot match
+    moved = sf.parse_scene(data, source="batch-sizes-moved")
+    consistent, mismatched = _targets(scene, 5, seed=4), _targets(moved, 2, seed=5)
+    targets = [consistent[0], mismatched[0], consistent[1], consistent[2], mismatched[1], *consistent[3:]]
+    options = sf.FitOptions(free=FREE, noise=0.005)
+    alone = [sf.fit(scene, target, options) for target in targets]
+    assert [r.solver["loss"] for r in alone] == ["linear", "huber", "linear", "linear", "huber", "linear", "linear"]
+    batches = {}
+
+    def batched() -> None:
+        for count in (1, 3, 7):
+            batches[count] = fit_many(targets[:count], scene, options)
+
+    assert _compiled_during(batched) == []
+    for count, results in batches.items():
+        assert len(results) == count
+        for result, single in zip(results, alone):
+            _identical(result, single)
+
+
+def test_a_batch_is_padded_to_its_bucket_and_the_padding_of_a_sequential_one_never_runs(x64):
+    """:meth:`Kernel.run_many` pads a batch to a power of four (one program for 2 to 4
+    items, one for 5 to 16, …); run one item after the other (a CPU), the padding rows are
+    not run at all (a kernel that refuses them does not fail); side by side (vmap), they
+    are copies of the first item. Either way each item gets what a call of its own gives."""
+    import collections
+
+    import equinox as eqx
+    import jax
+
+    from strauss_fit.engine import batch_bucket
+
+    assert [batch_bucket(n) for n in (2, 3, 4, 5, 16, 17, 64, 65)] == [4, 4, 4, 16, 16, 64, 64, 256]
+    traced = collections.Counter()
+
+    def on_duration(event: str, seconds: float, **details) -> None:
+        if event == "/jax/core/compile/jaxpr_trace_duration":
+            traced[details.get("fun_name")] += 1
+
+    kernel = Kernel(lambda a, b: eqx.error_if(a, a == 0.0, "a padding row ran") * b, "toy_padding")
+    args = [(np.full(3, float(i)), np.arange(3.0)) for i in range(1, 8)]
+    alone = [np.asarray(kernel(*a)) for a in args]
+    jax.monitoring.register_event_duration_secs_listener(on_duration)
+    try:
+        for sequential in (True, False):
+            for count in (2, 3, 4, 5, 7):
+                for one, expected in zip(kernel.run_many(args[:count], sequential=sequential), alone):
+                    np.testing.assert_array_equal(one, expected)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_duration)
+    assert traced["_batched"] == 4  # sizes 4 and 16, each sequential and side by side
+
+
+def test_kernels_run_on_the_compute_device_unless_one_was_chosen(x64):
+    """Every kernel runs on one device (:func:`strauss_fit.engine.compute_device`: on a CPU
+    with several devices the second, the first being left to the eager operations), a
+    single call as a batch's, so that they share their programs; a device chosen with
+    ``jax.default_device`` is kept."""
+    import jax
+
+    from strauss_fit.engine import compute_device
+
+    kernel = Kernel(lambda a: a + 1.0, "toy_where")
+    devices = jax.local_devices()
+    if jax.default_backend() != "cpu" or len(devices) < 2:
+        assert compute_device() is None
+        pytest.skip("one device: everything runs on it")
+    assert compute_device() == devices[1]
+    assert kernel(np.ones(3)).devices() == {devices[1]}
+    with jax.default_device(devices[0]):
+        assert kernel(np.ones(3)).devices() == {devices[0]}
+
+
 def test_kernels_give_the_same_values_alone_and_in_a_batch(x64):
     import jax.numpy as jnp
 
@@ -157,9 +273,10 @@ def test_an_error_raised_while_a_batch_runs_fails_its_item_alone(x64):
 def test_cohorts_run_on_cpu_devices_after_the_first(monkeypatch):
     """On a CPU with several devices the batches go to the devices after the first (left
     to the eager operations of the Python): as many as the cores less one for a fit's batch
-    (its Python needs a core), one per core for a conversion's, a device only from 16 items
-    per device on (smaller batches: the default device, sharing a single fit's programs),
-    two cohorts at least; with one device, two cohorts on the default device."""
+    (its Python needs a core), one per core for a conversion's, one more device per 16
+    items, two cohorts at least (as many as items, when fewer); a batch of any size uses
+    the first of them, so that its programs do not depend on its size; with one device,
+    two cohorts on the default device."""
     import jax
 
     from strauss_fit import engine
@@ -176,8 +293,8 @@ def test_cohorts_run_on_cpu_devices_after_the_first(monkeypatch):
     assert engine.cohort_devices(64, python_bound=False) == ["d1", "d2", "d3", "d4"]
     assert engine.cohort_devices(40, python_bound=False) == ["d1", "d2"]
     assert engine.cohort_devices(16, python_bound=False) == ["d1", "d1"]
-    assert engine.cohort_devices(8) == [None, None]  # small batches: the default device
-    assert engine.cohort_devices(1) == [None]
+    assert engine.cohort_devices(8) == ["d1", "d1"]  # small batches too: the same device
+    assert engine.cohort_devices(1) == ["d1"]
     monkeypatch.setattr(jax, "local_devices", lambda: ["d0"])
     assert engine.cohort_devices(64) == [None, None]
     assert engine.cohort_devices(64, cohorts=3) == [None, None, None]

@@ -7,6 +7,7 @@ import importlib
 import logging
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -107,6 +108,62 @@ def test_targets_with_other_pixel_counts_compile_nothing_new(scene_and_image):
     counts = {rows: int(_target(image, rows).usable.sum()) for rows in (1, 2, 4)}
     assert len(set(counts.values())) == 3 and len({pixel_bucket(c) for c in counts.values()}) == 1
     sf.fit(scene, _target(image, 1), options)
+
+    def fewer_pixels() -> None:
+        for rows in (2, 4):  # fewer usable pixels, the same bucket
+            sf.fit(scene, _target(image, rows), options)
+
+    assert _compiled_during(fewer_pixels) == []
+
+
+def test_least_squares_huber_and_cauchy_share_one_program_with_each_losss_own_values(scene_and_image):
+    """A problem's loss is data in the programs it runs (:meth:`Problem.kernel_form`):
+    problems of the linear, Huber and Cauchy losses batch together and compile one program,
+    whose residuals, costs, Jacobians and Hessians are each loss's own (the loss as
+    structure, compiled on its own, to 1e-12)."""
+    from strauss_fit.engine import batch_key
+    from strauss_fit.fit.problem import LOSS_BY_CODE, costs
+    from strauss_fit.inference.laplace import _objective_terms, objective_terms_kernel
+
+    scene, image = scene_and_image
+    target = _target(image, 3)
+    material = sf.Material(**TRUTH)
+    plan = plan_render(scene, material, transparent=False)
+    sigma = np.full(image.shape, 0.004) * np.linspace(0.8, 1.2, image.size).reshape(image.shape)
+    problems = {
+        loss: build_problem(
+            scene, target, FREE, material, plan, sf.FitOptions(), 0.004, loss=loss, noise_sigma=sigma, pad=True
+        )[0]
+        for loss in ("linear", "huber", "cauchy")
+    }
+    # far enough from the truth that Huber's and Cauchy's values differ from their squares
+    xs = np.array([[0.55, 0.42, 0.28, 0.58, 0.35], [0.6, 0.4, 0.3, 0.6, 0.3], [0.3, 0.6, 0.5, 0.9, 0.0]])
+    keys = {batch_key(costs.call(problem, xs)) for problem in problems.values()}
+    assert len(keys) == 1
+    assert {problem.kernel_form().loss for problem in problems.values()} == {LOSS_BY_CODE}
+    costs(problems["linear"], xs)  # compiles the program every loss shares
+    found = {}
+
+    def others() -> None:
+        for loss in ("huber", "cauchy"):
+            found[loss] = costs(problems[loss], xs)
+
+    assert _compiled_during(others) == []
+    found["linear"] = costs(problems["linear"], xs)
+    for loss, problem in problems.items():
+        # the loss as structure (the problem as it is, not its kernel form), compiled apart
+        own = jax.jit(lambda x, problem=problem: jnp.sum(problem.objective_residual(x) ** 2))
+        np.testing.assert_allclose(found[loss], [own(x) for x in xs], rtol=1e-12)
+        shared = objective_terms_kernel(problem, xs[2])
+        separate = jax.jit(lambda x, problem=problem: _objective_terms(problem, x))(xs[2])
+        for a, b in zip(shared, separate):
+            np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * float(np.max(np.abs(b))))
+    assert not np.allclose(found["huber"], found["linear"])  # the losses do differ here
+    assert not np.allclose(found["cauchy"], found["huber"])
+
+
+def _compiled_during(action) -> list[str]:
+    """The programs JAX compiled while ``action()`` ran (its log of compilations)."""
     messages: list[str] = []
 
     class Collect(logging.Handler):
@@ -118,10 +175,8 @@ def test_targets_with_other_pixel_counts_compile_nothing_new(scene_and_image):
     logger.addHandler(handler)
     jax.config.update("jax_log_compiles", True)
     try:
-        for rows in (2, 4):  # fewer usable pixels, the same bucket
-            sf.fit(scene, _target(image, rows), options)
+        action()
     finally:
         jax.config.update("jax_log_compiles", False)
         logger.removeHandler(handler)
-    compiled = [m for m in messages if m.startswith("Compiling")]
-    assert compiled == []
+    return [m for m in messages if m.startswith("Compiling")]

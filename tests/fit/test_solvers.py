@@ -1,7 +1,6 @@
 """The solvers of :mod:`strauss_fit.fit.solvers`: the Levenberg–Marquardt variant reaches the
 same optimum as optimistix's stock one, in fewer steps on this model."""
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
@@ -10,7 +9,14 @@ import pytest
 import strauss_fit as sf
 from strauss_fit import FitOptions, plan_render
 from strauss_fit.fit.problem import build_problem
-from strauss_fit.fit.solvers import GROW_RATIO, REJECT_RATIO, SOLVERS, levenberg_marquardt, make_solver
+from strauss_fit.fit.solvers import (
+    GROW_RATIO,
+    REJECT_RATIO,
+    SOLVERS,
+    STRICT_REJECT_RATIO,
+    levenberg_marquardt,
+    make_solver,
+)
 from support import noisy_target
 
 pytestmark = pytest.mark.usefixtures("x64")
@@ -55,7 +61,8 @@ def test_poor_steps_are_rejected_where_gauss_newton_overshoots():
     # curvature (which J^T J leaves out) makes the true Hessian 1.92 J^T J there, so an
     # undamped Gauss-Newton step overshoots by 92 % and achieves only 1 - 1.92/2 = 4 % of its
     # predicted decrease. Accepting such steps (optimistix's 1 % cutoff) zig-zags about the
-    # optimum; rejecting them below REJECT_RATIO damps the solver, which then converges.
+    # optimum; rejecting them below STRICT_REJECT_RATIO (a conversion's and a capture's
+    # cutoff) damps the solver, which then converges.
     a, d, k = 0.5, 2.0262064194175182, 10.0
 
     def residual(theta, args=None):
@@ -65,10 +72,11 @@ def test_poor_steps_are_rejected_where_gauss_newton_overshoots():
     optimum = 0.4708230122141235  # where (t - 1) + 2 a^2 t (t^2 + d) = 0
     curvature = (1 + 4 * a * a * optimum**2 + 2 * a * a * (optimum**2 + d)) / (1 + 4 * a * a * optimum**2)
     assert curvature == pytest.approx(1.92)
-    accepting = levenberg_marquardt(1e-4, 1e-6)
-    accepting = eqx.tree_at(lambda s: s.search.low_cutoff, accepting, 0.01)
+    accepting = levenberg_marquardt(1e-4, 1e-6)  # a fit's cutoff, optimistix's 1 %
+    assert accepting.search.low_cutoff == REJECT_RATIO == 0.01
+    strict = levenberg_marquardt(1e-4, 1e-6, reject_ratio=STRICT_REJECT_RATIO)
     steps = {}
-    for name, solver in (("accepting", accepting), ("ours", levenberg_marquardt(1e-4, 1e-6))):
+    for name, solver in (("accepting", accepting), ("ours", strict)):
         solution = optx.least_squares(residual, solver, jnp.array([2.0]), max_steps=500, throw=False)
         assert solution.result == optx.RESULTS.successful
         assert float(solution.value[0]) == pytest.approx(optimum, abs=1e-4)
@@ -82,5 +90,6 @@ def test_make_solver_knows_every_name_and_sets_the_growth_cutoff():
         assert (solver.rtol, solver.atol) == (1e-5, 1e-7)
     assert make_solver("lm", 1e-5, 1e-7).search.high_cutoff == GROW_RATIO
     assert make_solver("lm", 1e-5, 1e-7).search.low_cutoff == REJECT_RATIO
+    assert make_solver("lm", 1e-5, 1e-7, STRICT_REJECT_RATIO).search.low_cutoff == STRICT_REJECT_RATIO
     with pytest.raises(sf.StraussFitError, match="unknown solver 'newton'"):
         make_solver("newton", 1e-5, 1e-7)
