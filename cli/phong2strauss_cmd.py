@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from strauss_fit.io.table_formats import describe_suffixes, output_suffixes
+
 from .common import add_quality_option, by_quality, image_side, positive_int, progress_printer
 
 FORMATS_HELP = {
@@ -26,7 +28,7 @@ def add_parser(subparsers) -> None:
         ("phong2strauss", ("Phong", "Strauss")),
         ("strauss2phong", ("Strauss", "Phong")),
     ):
-        outputs = ".json or .csv" + (" or .mtl" if direction == "strauss2phong" else "")
+        outputs = describe_suffixes(output_suffixes(direction))
         parser = subparsers.add_parser(
             direction,
             help=f"convert {source} materials to {destination} parameters (by fitting sphere renders)",

@@ -161,6 +161,23 @@ def fit_chunk(
     return results
 
 
+class InProcessExecutor:
+    """Fit the chunks here, one after the other (:func:`fit_chunk`): :func:`fit_many`'s
+    default executor. It lives beside the work it runs; the executors that send chunks
+    elsewhere (:mod:`strauss_fit.fit.executors`) sit above this module."""
+
+    def __init__(self, max_batch: int | None = None):
+        self.max_batch = max_batch
+
+    def run(self, jobs: Sequence[FitJob], chunks: list[list[int]], arrived: Callable[[int, Any], None]) -> None:
+        for chunk in chunks:
+            fit_chunk(
+                [jobs[i] for i in chunk],
+                on_result=lambda position, result, chunk=chunk: arrived(chunk[position], result),
+                max_batch=self.max_batch,
+            )
+
+
 def fit_many(
     targets: Iterable[Target | str | Path | FitJob],
     scenes: Scene | str | Path | Sequence[Scene | str | Path],
@@ -183,8 +200,6 @@ def fit_many(
     ``progress`` is called with a :class:`BatchProgress` after each target,
     ``on_result(index, result)`` with each result as it arrives (to write it at once:
     a killed run then loses only the targets in flight)."""
-    from .executors import InProcessExecutor
-
     jobs = jobs_for(targets, scenes, options)
     if chunk_size < 1:
         raise StraussFitError(f"the chunk size must be at least 1, got {chunk_size}")

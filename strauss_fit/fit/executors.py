@@ -4,7 +4,8 @@ An executor has one method, ``run(jobs, chunks, arrived)``: fit the
 :class:`~strauss_fit.fit.batch.FitJob` s of every chunk (a list of indices into
 ``jobs``) and call ``arrived(index, result)`` in this process for each result as it comes.
 
-- :class:`InProcessExecutor` — here, chunk after chunk (:func:`~strauss_fit.fit.batch.fit_chunk`).
+- :class:`InProcessExecutor` — here, chunk after chunk (:func:`~strauss_fit.fit.batch.fit_chunk`);
+  defined in :mod:`strauss_fit.fit.batch`, beside that work, and re-exported here.
 - :class:`DaskExecutor` — on a ``dask.distributed`` cluster: a local one of ``workers``
   processes (one JAX runtime each), or an existing one at ``scheduler``. Each chunk is one
   task; a worker fits its chunk exactly as this process would and sends back the results
@@ -25,22 +26,8 @@ import numpy as np
 
 from ..errors import StraussFitError
 from .batch import FitFailure, FitJob, fit_chunk
+from .batch import InProcessExecutor as InProcessExecutor  # the default, defined beside the work it runs
 from .result import FitResult
-
-
-class InProcessExecutor:
-    """Fit the chunks here, one after the other."""
-
-    def __init__(self, max_batch: int | None = None):
-        self.max_batch = max_batch
-
-    def run(self, jobs: Sequence[FitJob], chunks: list[list[int]], arrived: Callable[[int, Any], None]) -> None:
-        for chunk in chunks:
-            fit_chunk(
-                [jobs[i] for i in chunk],
-                on_result=lambda position, result, chunk=chunk: arrived(chunk[position], result),
-                max_batch=self.max_batch,
-            )
 
 
 def _portable(result: FitResult | FitFailure) -> dict[str, Any]:

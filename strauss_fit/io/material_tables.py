@@ -36,13 +36,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .. import Material  # the public name: of models.material only its parameter constants are used here
 from ..errors import MaterialError, StraussFitError
 from ..models import phong as phong_values
-from ..models.material import COLOR_RANGE, PARAMETER_NAMES, PARAMETER_RANGES
+from ..models.material import COLOR_RANGE, PARAMETER_NAMES, PARAMETER_RANGES, Material
 from ..models.phong import PhongMaterial
 from .files import Outputs
 from .mtl import decode_text, format_mtl, format_mtl_material, read_mtl
+from .table_formats import INPUT_SUFFIXES, INPUT_SUFFIXES_BY_KIND, OUTPUT_FORMATS, describe_suffixes, output_suffixes
 
 
 class Entry:
@@ -324,7 +324,7 @@ PHONG = Kind(
     ("opacity", "ior"),  # a Phong material has neither; they become Strauss's transparency and n
     PHONG_ALIASES,
     "n/Ns for exponent, Cd, Cs, d for opacity, Ni for ior",
-    (".json", ".csv", ".mtl"),
+    INPUT_SUFFIXES_BY_KIND["phong"],
 )
 STRAUSS = Kind(
     "strauss",
@@ -335,7 +335,7 @@ STRAUSS = Kind(
     (),
     STRAUSS_ALIASES,
     "C, s, m, t, n",
-    (".json", ".csv"),
+    INPUT_SUFFIXES_BY_KIND["strauss"],
     fit_results=True,
 )
 #: The kinds of material read, by :attr:`Entry.kind`.
@@ -370,9 +370,6 @@ def parse_inline(tokens: list[str]) -> dict[str, Any]:
     if not values:
         raise StraussFitError("no material given")
     return values
-
-
-INPUT_SUFFIXES = (".json", ".csv", ".mtl")
 
 
 def _looks_like_file(token: str) -> bool:
@@ -521,39 +518,48 @@ def _from_csv(path: Path, kind: Kind) -> list[Entry]:
 # --- entry points -----------------------------------------------------------------------------
 
 
+def _from_mtl(path: Path, kind: Kind) -> tuple[list[Entry], list[str]]:
+    """The materials of a Wavefront ``.mtl`` library (Phong materials) and its notes."""
+    library = read_mtl(path)
+    entries = [
+        Entry(
+            name=material.name,
+            source=f"{path} line {material.line}",
+            opacity=material.opacity,
+            ior=material.ior,
+            notes=list(material.notes),
+            error=material.error,
+            values=material.values,
+            kind=PHONG.name if material.values is not None else None,
+            warnings=list(material.warnings),
+        )
+        for material in library.materials
+    ]
+    return entries, list(library.notes)
+
+
+#: What reads a material file, by its extension: the entries and the file's notes. Which of
+#: them a kind of material accepts is its :attr:`Kind.suffixes` (a ``.mtl`` library holds
+#: Phong materials only).
+INPUT_READERS: dict[str, Callable[[Path, Kind], tuple[list[Entry], list[str]]]] = {
+    ".json": lambda path, kind: (_from_json(path, kind), []),
+    ".csv": lambda path, kind: (_from_csv(path, kind), []),
+    ".mtl": _from_mtl,
+}
+
+
 def _read_file(path: Path, kind: Kind) -> tuple[list[Entry], list[str]]:
     if not path.exists():
         raise StraussFitError(f"input not found: {path} (give a {', '.join(kind.suffixes)} file or KEY=VALUE pairs)")
     if path.is_dir():
         raise StraussFitError(f"input is a directory: {path}")
     suffix = path.suffix.lower()
-    if suffix == ".json":
-        entries, notes = _from_json(path, kind), []
-    elif suffix == ".csv":
-        entries, notes = _from_csv(path, kind), []
-    elif suffix == ".mtl" and suffix in kind.suffixes:  # a .mtl library holds Phong materials
-        library = read_mtl(path)
-        notes = list(library.notes)
-        entries = []
-        for material in library.materials:
-            entries.append(
-                Entry(
-                    name=material.name,
-                    source=f"{path} line {material.line}",
-                    opacity=material.opacity,
-                    ior=material.ior,
-                    notes=list(material.notes),
-                    error=material.error,
-                    values=material.values,
-                    kind=PHONG.name if material.values is not None else None,
-                    warnings=list(material.warnings),
-                )
-            )
-    else:
-        expected = f"{', '.join(kind.suffixes[:-1])} or {kind.suffixes[-1]}"
+    if suffix not in kind.suffixes:
         raise StraussFitError(
-            f"cannot read {path}: unknown input format {suffix or '(no extension)'}; expected {expected}"
+            f"cannot read {path}: unknown input format {suffix or '(no extension)'}; "
+            f"expected {describe_suffixes(kind.suffixes)}"
         )
+    entries, notes = INPUT_READERS[suffix](path, kind)
     if not entries:
         raise StraussFitError(f"{path} holds no material")
     return entries, notes
@@ -598,19 +604,18 @@ def read_strauss_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
 
 # --- outputs ----------------------------------------------------------------------------------
 
-OUTPUT_FORMATS = {".json": "json", ".csv": "csv", ".mtl": "mtl"}
-
 
 def output_format(path: str | Path, direction: str) -> str:
-    """``json``, ``csv`` or (Strauss → Phong only) ``mtl``, from the extension."""
+    """The name of the output format the extension of ``path`` selects (``json``, ``csv`` or,
+    Strauss → Phong only, ``mtl``: :data:`~strauss_fit.io.table_formats.OUTPUT_FORMATS`)."""
     suffix = Path(path).suffix.lower()
-    fmt = OUTPUT_FORMATS.get(suffix)
-    if fmt is None or (fmt == "mtl" and direction != "strauss2phong"):
-        allowed = ".json, .csv or .mtl" if direction == "strauss2phong" else ".json or .csv"
+    name, directions = OUTPUT_FORMATS.get(suffix, (None, ()))
+    if direction not in directions:
         raise StraussFitError(
-            f"cannot write {path}: unknown output format {suffix or '(no extension)'}; expected {allowed}"
+            f"cannot write {path}: unknown output format {suffix or '(no extension)'}; "
+            f"expected {describe_suffixes(output_suffixes(direction))}"
         )
-    return fmt
+    return name
 
 
 def _rgb_columns(name: str) -> list[str]:
@@ -759,13 +764,31 @@ def format_results_mtl(results: list[dict[str, Any]]) -> tuple[str, list[str]]:
     return text, renamed
 
 
-def format_results(document: dict[str, Any], direction: str, fmt: str) -> tuple[str, list[str]]:
-    """The text of a conversion's output in format ``fmt`` and warnings about it."""
-    if fmt == "json":
-        return json.dumps(document, indent=2, allow_nan=False) + "\n", []
-    if fmt == "csv":
-        return format_csv(document["materials"], direction), []
+def _format_json(document: dict[str, Any], direction: str) -> tuple[str, list[str]]:
+    return json.dumps(document, indent=2, allow_nan=False) + "\n", []
+
+
+def _format_csv_document(document: dict[str, Any], direction: str) -> tuple[str, list[str]]:
+    return format_csv(document["materials"], direction), []
+
+
+def _format_mtl_document(document: dict[str, Any], direction: str) -> tuple[str, list[str]]:
     return format_results_mtl(document["materials"])
+
+
+#: What formats a conversion's document (text and warnings about it), by the format's name
+#: (:data:`~strauss_fit.io.table_formats.OUTPUT_FORMATS` names the extensions).
+OUTPUT_WRITERS: dict[str, Callable[[dict[str, Any], str], tuple[str, list[str]]]] = {
+    "json": _format_json,
+    "csv": _format_csv_document,
+    "mtl": _format_mtl_document,
+}
+
+
+def format_results(document: dict[str, Any], direction: str, fmt: str) -> tuple[str, list[str]]:
+    """The text of a conversion's output in format ``fmt`` (:data:`OUTPUT_WRITERS`) and
+    warnings about it."""
+    return OUTPUT_WRITERS[fmt](document, direction)
 
 
 def write_results(

@@ -4,6 +4,7 @@ and the same outputs and messages, byte for byte, as the two-way switches they r
 expected texts were recorded from that code)."""
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -205,3 +206,28 @@ def test_csv_inputs_per_kind(tmp_path):
         "blinn": True,
     }
     assert (entry.opacity, entry.ior) == (0.5, 1.3) and isinstance(entry.material, PhongMaterial)
+
+
+def test_every_format_the_tables_name_has_a_reader_or_writer_and_the_help_derives_from_them():
+    """The extension tables (:mod:`strauss_fit.io.table_formats`) are the one home of the
+    formats: each input extension of a kind has a reader, each output format a writer, and
+    the command line's help and errors list exactly the extensions a direction can write."""
+    import argparse
+
+    from strauss_fit.io import material_tables, table_formats
+    from strauss_fit_cli import phong2strauss_cmd
+
+    for kind in material_tables.KINDS.values():
+        assert set(kind.suffixes) <= set(material_tables.INPUT_READERS)
+        assert kind.suffixes == table_formats.INPUT_SUFFIXES_BY_KIND[kind.name]
+    assert set(table_formats.INPUT_SUFFIXES) == set(material_tables.INPUT_READERS)
+    assert {name for name, _ in table_formats.OUTPUT_FORMATS.values()} == set(material_tables.OUTPUT_WRITERS)
+    assert table_formats.output_suffixes("phong2strauss") == [".json", ".csv"]
+    assert table_formats.output_suffixes("strauss2phong") == [".json", ".csv", ".mtl"]
+    subparsers = argparse.ArgumentParser().add_subparsers()
+    phong2strauss_cmd.add_parser(subparsers)
+    for direction, parser in subparsers.choices.items():
+        output = next(a for a in parser._actions if "--output" in a.option_strings)
+        assert table_formats.describe_suffixes(table_formats.output_suffixes(direction)) in output.help
+        with pytest.raises(StraussFitError, match="expected " + re.escape(output.help.split(": ")[1].split(" (")[0])):
+            material_tables.output_format("out.txt", direction)
