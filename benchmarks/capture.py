@@ -24,14 +24,14 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
-import platform
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import bench_common
 
 COLD = """
 import sys, time, resource
@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--holdout", default="2", help="held-out images: every K-th, or a list (default 2)")
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args(argv)
+    machine = bench_common.machine()
 
     env = dict(os.environ, STRAUSS_FIT_CACHE_DIR="off")
     cold = subprocess.run([sys.executable, "-c", COLD, str(args.capture)], env=env, capture_output=True, text=True)
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
 
     figures = {
         "date": datetime.date.today().isoformat(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+        "machine": machine,
         "capture": str(args.capture),
         "images": whole["images"],
         "pixels": whole["pixels"],
@@ -115,7 +116,6 @@ def main(argv: list[str] | None = None) -> int:
             },
         },
     }
-    print(f"{figures['date']}, {figures['machine']}")
     print(
         f"capture {args.capture}: {whole['images']} images, {whole['pixels']} sphere pixels, "
         f"{whole['values_used']} values"
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
         ratio = entry["warm_s"] / per_model["strauss"]["warm_s"]
         print(f"{name:<22}{entry['warm_s']:>9.1f}s{ratio:>11.2f}{100 * entry['relative_rms']:>9.1f}%")
     if args.json:
-        args.json.write_text(json.dumps(figures, indent=2) + "\n")
+        bench_common.write_json(args.json, figures)
     return 0
 
 

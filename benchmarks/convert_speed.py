@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -131,29 +129,6 @@ def worker(direction: str, size: int, quality: str) -> dict:
     return out
 
 
-def machine() -> dict:
-    import jax
-
-    cpu = ""
-    try:
-        cpu = next(
-            line.split(":", 1)[1].strip()
-            for line in Path("/proc/cpuinfo").read_text().splitlines()
-            if line.startswith("model name")
-        )
-    except (OSError, StopIteration):
-        pass
-    return {
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "cpu": cpu,
-        "cpus": os.cpu_count(),
-        "jax": jax.__version__,
-        "backend": jax.default_backend(),
-        "load_average": os.getloadavg() if hasattr(os, "getloadavg") else None,
-    }
-
-
 def commit() -> str | None:
     try:
         return subprocess.run(
@@ -174,6 +149,9 @@ def main() -> None:
     if args.worker:
         print(json.dumps(worker(args.worker[0], int(args.worker[1]), args.quality)))
         return
+    import bench_common  # in the parent only: the workers' processes stay as lean as the command's
+
+    machine = bench_common.machine()
     rows = []
     for direction in args.directions:
         for size in args.sizes:
@@ -211,12 +189,11 @@ def main() -> None:
         "date": time.strftime("%Y-%m-%d"),
         "commit": commit(),
         "quality": args.quality,
-        "machine": machine(),
+        "machine": machine,
         "runs": rows,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=1))
-    print(f"\nwrote {args.json}")
+    print()
+    bench_common.write_json(args.json, result)
 
 
 if __name__ == "__main__":

@@ -28,10 +28,10 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
-import platform
 import time
 from pathlib import Path
 
+import bench_common
 import numpy as np
 
 import strauss_fit as sf
@@ -134,6 +134,7 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "external.json")
     args = parser.parse_args()
     losses = [loss.strip() for loss in args.losses.split(",") if loss.strip()]
+    machine = bench_common.machine()
     sidecars = [
         p for p in sorted(BUNDLED.glob("*.json")) if p.name != "index.json" and fnmatch.fnmatch(p.stem, args.cases)
     ]
@@ -168,15 +169,8 @@ def main() -> None:
             f"  offset px {np.median([r.get('highlight_offset_px', 0) for r in mine]):.1f}"
             f"  time {np.median([r['seconds'] for r in mine]):.2f} s"
         )
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    payload = {
-        "benchmark": "external",
-        "date": time.strftime("%Y-%m-%d"),
-        "machine": {"platform": platform.platform(), "python": platform.python_version()},
-        "rows": rows,
-    }
-    args.json.write_text(json.dumps(payload, indent=1))
-    print(f"wrote {args.json}")
+    payload = {"benchmark": "external", "date": time.strftime("%Y-%m-%d"), "machine": machine, "rows": rows}
+    bench_common.write_json(args.json, payload)
 
 
 if __name__ == "__main__":

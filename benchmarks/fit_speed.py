@@ -21,9 +21,6 @@ The ratio is of medians measured in the same run. Results: a table on stdout and
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -33,9 +30,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import jax  # noqa: E402
 import scipy  # noqa: E402
-from bench_common import legacy_options  # noqa: E402
+from bench_common import legacy_options, machine, write_json  # noqa: E402
 from numpy_reference import shade_numpy, sphere_normals  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
@@ -90,6 +86,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--json", default=str(Path(__file__).resolve().parent / "results" / "fit_speed.json"))
     args = parser.parse_args()
+    info = machine()
 
     scene = make_scene(args.size)
     clean, _ = sf.render(scene, sf.Material(**TRUTH))
@@ -153,20 +150,8 @@ def main() -> None:
             f"{row['steps']:10d} {row['max_param_error']:9.1e} {ratio:8.1f}"
         )
         row["speedup_vs_scipy"] = ratio
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    info = dict(
-        platform=platform.platform(),
-        cpus=os.cpu_count(),
-        jax=jax.__version__,
-        scipy=scipy.__version__,
-        backend=jax.default_backend(),
-        load_average=os.getloadavg()[0],
-        size=args.size,
-        repeats=args.repeats,
-    )
-    out.write_text(json.dumps(dict(machine=info, rows=rows), indent=2) + "\n")
-    print(f"wrote {out}")
+    info.update(scipy=scipy.__version__, size=args.size, repeats=args.repeats)
+    write_json(args.json, dict(machine=info, rows=rows))
 
 
 if __name__ == "__main__":

@@ -32,9 +32,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
-import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -81,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import jax
     import numpy as np
-    from bench_common import key_and_fill_scene
+    from bench_common import key_and_fill_scene, machine, write_json
 
     import strauss_fit as sf
     from strauss_fit.io.images import write_image
@@ -89,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     from strauss_fit.models.reflectance import REFLECTANCE_MODELS
     from strauss_fit.render.reflectance import render_model
 
+    info = machine()
     capture = importlib.import_module("strauss_fit.fit.capture")
     scene_samples = importlib.import_module("strauss_fit.fit.scene_samples")
 
@@ -123,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
 
     figures = {
         "date": datetime.date.today().isoformat(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+        "machine": info,
         "size": args.size,
         "repeats": args.repeats,
         "render": render_rows,
@@ -138,11 +136,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{name:<22}{row['median_s'] * 1e3:>11.1f}{row['min_s'] * 1e3:>9.1f}"
                 f"{row['first_s']:>9.2f}{row['median_s'] / base:>11.2f}"
             )
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.json.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(figures, indent=2) + "\n")
-    os.replace(tmp, args.json)
-    print(f"\nwrote {args.json}")
+    print()
+    write_json(args.json, figures)
     return 0
 
 

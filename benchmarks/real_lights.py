@@ -27,13 +27,11 @@ Two diagnostics say which of the two is off where they disagree:
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import platform
 import time
 from pathlib import Path
 
+import bench_common
 import numpy as np
 
 from strauss_fit.capture._mirror import estimate_lights
@@ -91,6 +89,7 @@ def main() -> None:
     parser.add_argument("--focal-px", type=float, help="perspective: the focal length in pixels")
     args = parser.parse_args()
     camera = Camera(args.camera, args.focal_px)
+    machine = bench_common.machine()
 
     folder = args.folder
     lines = (folder / "lights.txt").read_text().split()
@@ -169,11 +168,10 @@ def main() -> None:
             f"grey-sphere Lambertian directions: median {np.median(to_measured):.2f}° from the measured, "
             f"{np.median(to_reference):.2f}° from the reference; the measured is closer in {closer} of {COUNT} images"
         )
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "benchmark": "real_lights",
         "date": time.strftime("%Y-%m-%d"),
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version()},
+        "machine": machine,
         "data": folder.name,
         "camera": camera.to_dict(),
         "circle": circle.to_dict(),
@@ -181,8 +179,7 @@ def main() -> None:
         "summary": summary,
         "rows": rows,
     }
-    args.json.write_text(json.dumps(payload, indent=1) + "\n")
-    print(f"wrote {args.json}")
+    bench_common.write_json(args.json, payload)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import statistics
 import sys
 import time
@@ -42,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_common import legacy_options  # noqa: E402
+from bench_common import legacy_options, machine, write_json  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
 from data_synth.sensor import Sensor, encode_ldr  # noqa: E402
@@ -123,6 +122,7 @@ def main() -> None:
         help="noise draws per noisy case (default 3; the first is the one earlier runs used)",
     )
     args = parser.parse_args()
+    info = machine()
     scenes = {"opaque": parse_scene(OPAQUE, source="opaque"), "glass": parse_scene(GLASS, source="glass")}
     records = []
     base = [
@@ -240,10 +240,7 @@ def main() -> None:
     )
     failures = [r for r in records if "error" in r]
     print(f"fits refused: {len(failures)}; total time {elapsed:.0f} s for {len(cases)} fits")
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(dict(rows=rows, records=records, elapsed_s=elapsed), indent=2) + "\n")
-    print(f"wrote {out}")
+    write_json(args.json, dict(machine=info, rows=rows, records=records, elapsed_s=elapsed))
 
 
 if __name__ == "__main__":

@@ -69,8 +69,6 @@ if ARGS is not None and ARGS.disable_ynn_fusion:
     # Must happen before JAX initialises its CPU backend.
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_experimental_ynn_fusion_type=").strip()
 
-import json  # noqa: E402
-import platform  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 
@@ -79,6 +77,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(HERE))
+from bench_common import machine, write_json  # noqa: E402
 from numpy_reference import arrays_from_scene, check_against_strauss_fit, render_numpy  # noqa: E402
 
 import strauss_fit  # noqa: E402
@@ -148,31 +147,19 @@ def jax_call(scene: Scene, mode: str, dtype):
 
 
 def machine_info() -> dict:
+    """:func:`bench_common.machine` (printed) with what this benchmark adds: the library
+    versions, the device and ``XLA_FLAGS`` (which ``--disable-ynn-fusion`` changes)."""
     device = jax.devices()[0]
-    info = {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "python": platform.python_version(),
-        "cpu_count": os.cpu_count(),
+    return {
+        **machine(),
         "numpy": np.__version__,
-        "jax": jax.__version__,
         "jaxlib": getattr(__import__("jaxlib"), "__version__", None),
-        "jax_backend": jax.default_backend(),
         "jax_device": str(device),
         "jax_device_kind": getattr(device, "device_kind", None),
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
         "strauss_fit": strauss_fit.__version__,
         "load_average_before": os.getloadavg(),
     }
-    try:
-        with open("/proc/cpuinfo") as handle:
-            for line in handle:
-                if line.startswith("model name"):
-                    info["cpu_model"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return info
 
 
 def row(
@@ -216,11 +203,8 @@ def main(args: argparse.Namespace) -> dict:
     size, repeats = args.size, args.repeats
     info = machine_info()
     print(f"strauss_fit.render vs NumPy float64, {size}x{size}, median of {repeats} interleaved warm calls")
-    print(
-        f"machine: {info.get('cpu_model', info['processor'])}, {info['cpu_count']} CPUs, {info['platform']}; "
-        f"jax {info['jax']} on {info['jax_device']}; load average before {info['load_average_before']}"
-        + (f"; XLA_FLAGS={info['XLA_FLAGS']}" if info["XLA_FLAGS"] else "")
-    )
+    if info["XLA_FLAGS"]:
+        print(f"XLA_FLAGS={info['XLA_FLAGS']}")
 
     local = make_scene(size, depth=4)
     local_depth1 = make_scene(size, depth=1)
@@ -330,9 +314,7 @@ def main(args: argparse.Namespace) -> dict:
         "global": rows["global"],
         "overhead": rows["overhead"],
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.json}")
+    write_json(args.json, result)
     return result
 
 

@@ -45,9 +45,7 @@ Prints a table and writes JSON (default ``benchmarks/results/sample_speed.json``
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -59,7 +57,7 @@ sys.path.insert(0, str(HERE))
 import emcee  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
-from bench_common import key_and_fill_scene, legacy_options  # noqa: E402
+from bench_common import key_and_fill_scene, legacy_options, machine, write_json  # noqa: E402
 from numpy_reference import shade_numpy, sphere_normals  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
@@ -151,22 +149,14 @@ def run_emcee(log_prob, vectorize: bool, start: np.ndarray, steps: int, seed: in
 
 
 def machine_info() -> dict:
-    info = {
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu_count": os.cpu_count(),
+    """:func:`bench_common.machine` (printed) with the versions of NumPy and emcee and the device."""
+    return {
+        **machine(),
         "numpy": np.__version__,
-        "jax": jax.__version__,
         "emcee": emcee.__version__,
         "jax_device": str(jax.devices()[0]),
         "load_average_before": os.getloadavg(),
     }
-    try:
-        with open("/proc/cpuinfo") as handle:
-            info["cpu_model"] = next(line.split(":", 1)[1].strip() for line in handle if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return info
 
 
 def main(args: argparse.Namespace) -> dict:
@@ -184,10 +174,6 @@ def main(args: argparse.Namespace) -> dict:
     print(
         f"emcee on the Strauss posterior: {args.size}x{args.size} image, {int(used.sum())} pixels, "
         f"{x_hat.size} parameters, {args.steps} steps with {', '.join(map(str, args.walkers))} walkers"
-    )
-    print(
-        f"machine: {info.get('cpu_model', '?')}, {info['cpu_count']} CPUs; jax {info['jax']} on {info['jax_device']}; "
-        f"load average before {tuple(round(v, 2) for v in info['load_average_before'])}"
     )
 
     covariance = laplace_covariance(problem, x_hat, SIGMA)
@@ -295,9 +281,7 @@ def main(args: argparse.Namespace) -> dict:
         "rows": rows,
         "speedup_ess_per_s": {str(w): r["speedup_vs_numpy"] for w, r in jax_rows.items()},
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2) + "\n")
-    print(f"wrote {args.json}")
+    write_json(args.json, out)
     return out
 
 

@@ -30,6 +30,7 @@ import time
 import tomllib
 from pathlib import Path
 
+import bench_common
 import numpy as np
 
 import strauss_fit as sf
@@ -92,6 +93,7 @@ def main() -> None:
     parser.add_argument("--supersample", type=int, default=8)
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "silhouette.json")
     args = parser.parse_args()
+    machine = bench_common.machine()
     rows = []
     cases = []
     for sidecar_path in sorted(MITSUBA.glob("mitsuba-diffuse*.json")):
@@ -131,11 +133,8 @@ def main() -> None:
                 f"median C error {np.median([r['color_error'] for r in mine]):.4f}"
                 + (f"; auto chose {sorted({r['resolved'] for r in mine})}" if rule == "auto" else "")
             )
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(
-        json.dumps({"benchmark": "silhouette", "date": time.strftime("%Y-%m-%d"), "rows": rows}, indent=1)
-    )
-    print(f"wrote {args.json}")
+    payload = {"benchmark": "silhouette", "date": time.strftime("%Y-%m-%d"), "machine": machine, "rows": rows}
+    bench_common.write_json(args.json, payload)
 
 
 if __name__ == "__main__":

@@ -60,7 +60,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import resource
 import statistics
 import sys
@@ -76,7 +75,7 @@ sys.path.insert(0, str(HERE))
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from bench_common import key_and_fill_scene, legacy_options  # noqa: E402
+from bench_common import key_and_fill_scene, legacy_options, machine, write_json  # noqa: E402
 from numpy_reference import arrays_from_scene, render_numpy  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
@@ -150,25 +149,15 @@ def scene_from(template: str, size: int):
 
 
 def machine_info() -> dict:
-    device = jax.devices()[0]
-    info = {
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu_count": os.cpu_count(),
+    """:func:`bench_common.machine` (printed) with the library versions, the device and ``XLA_FLAGS``."""
+    return {
+        **machine(),
         "numpy": np.__version__,
-        "jax": jax.__version__,
-        "jax_backend": jax.default_backend(),
-        "jax_device": str(device),
+        "jax_device": str(jax.devices()[0]),
         "strauss_fit": sf.__version__,
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
         "load_average_before": os.getloadavg(),
     }
-    try:
-        with open("/proc/cpuinfo") as handle:
-            info["cpu_model"] = next(line.split(":", 1)[1].strip() for line in handle if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return info
 
 
 def device_memory_stats() -> dict | None:
@@ -1433,12 +1422,7 @@ def main(argv=None) -> dict:
     args.out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     info = machine_info()
-    print(
-        f"strauss-fit speed/accuracy trade-offs{' (quick)' if args.quick else ''}: "
-        f"{info.get('cpu_model', '?')}, {info['cpu_count']} CPUs, jax {info['jax']} on {info['jax_device']}, "
-        f"load average {tuple(round(v, 2) for v in info['load_average_before'])}",
-        flush=True,
-    )
+    print(f"strauss-fit speed/accuracy trade-offs{' (quick)' if args.quick else ''}", flush=True)
     results: dict = {
         "benchmark": "tradeoff",
         "quick": args.quick,
@@ -1474,7 +1458,7 @@ def main(argv=None) -> dict:
     print()
     print(text)
     (args.out / "tradeoff.md").write_text(text)
-    (args.out / "tradeoff.json").write_text(json.dumps(results, indent=2, default=float) + "\n")
+    write_json(args.out / "tradeoff.json", results)
     print(
         f"wrote {args.out / 'tradeoff.json'}, {args.out / 'tradeoff.md'} and {', '.join(results['plots'])} "
         f"in {results['timings_s']['total']:.0f} s"
