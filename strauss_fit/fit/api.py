@@ -40,7 +40,7 @@ from ..engine import Steps, run
 from ..errors import StraussFitError
 from ..inference import laplace
 from ..inference.equivalence import equivalence_ranges_steps
-from ..inference.laplace import problem_laplace_steps, problem_sandwich_steps
+from ..inference.laplace import padded_noise, problem_laplace_steps, sandwich_from_parts, sandwich_parts_kernel
 from ..inference.noise import NoiseModel, describe_noise
 from ..io.targets import Target, reduce_target
 from ..models.material import PARAMETER_NAMES, Material
@@ -82,6 +82,7 @@ from .parameters import (
 )
 from .problem import (
     EXPOSURE,
+    ROBUST_LOSSES,
     Problem,
     build_problem_steps,
     coarse_problem_steps,
@@ -230,10 +231,10 @@ def fit_steps(
     used_mask = np.zeros(target.pixels.shape[:2], dtype=bool)
     used_mask.reshape(-1)[index] = True
     noise = describe_noise(target.pixels, used_mask, encoding=target.encoding, path=target.path, given=options.noise)
-    # the robust losses scale residuals by each value's noise: at the target's level, the
-    # only one there is before a fit
-    noise_sigma = noise.sigma_at(target.pixels) if noise.known else None
     loss = "linear" if options.loss == "auto" else options.loss
+    # the robust losses scale residuals by each value's noise: at the target's level, the
+    # only one there is before a fit (a whole image's worth: only for a loss that reads it)
+    noise_sigma = _image_noise(noise, target) if loss in ROBUST_LOSSES else None
 
     sigma_ref = reference_noise(target, options)
     say("deciding which parameters the image constrains")
@@ -353,7 +354,8 @@ def fit_steps(
     visible = float(np.mean(outcome.delta_e)) >= VISIBLE_DELTA_E
     if options.loss == "auto" and outcome.diagnosis.verdict == "mismatch" and visible and MISMATCH_LOSS != loss:
         say(f"the model cannot reproduce the target: fitting again with the {MISMATCH_LOSS} loss")
-        refit = yield from _refit_with_loss(kept, target, options, MISMATCH_LOSS, noise_sigma, sigma_ref, say)
+        robust_sigma = _image_noise(noise, target) if MISMATCH_LOSS in ROBUST_LOSSES else None
+        refit = yield from _refit_with_loss(kept, target, options, MISMATCH_LOSS, robust_sigma, sigma_ref, say)
         outcome = yield from _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
         kept = refit
     solve_time = time.perf_counter() - solve_started
@@ -408,6 +410,13 @@ class _Outcome:
     full: np.ndarray
     delta_e: np.ndarray
     diagnosis: Diagnosis
+    #: (N, 3) each used value's noise σ at the fitted radiance ``model``; None when unknown.
+    sigma: np.ndarray | None
+
+
+def _image_noise(noise: NoiseModel, target: Target) -> np.ndarray | None:
+    """Every value's noise σ at the target's own level (H, W, 3), None when unknown."""
+    return noise.sigma_at(target.pixels) if noise.known else None
 
 
 def _conclude(
@@ -429,12 +438,13 @@ def _conclude(
     hit = np.asarray(kept.prepared_full.hit).reshape(-1, 1)
     full = np.where(hit, full_fit, np.asarray(kept.prepared_full.miss_radiance).reshape(-1, 3) * exposure)
     say("comparing the fit with the target's noise")
+    sigma = noise.sigma_at(model) if noise.known else None  # once, for the verdict and the ±
     free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
     pinned = np.asarray(problem.pinned)
     reach = None
     if not free_lights:
         floor = np.maximum(model, problem.real((yield from reachable_floor_steps(problem))))
-        if _may_be_out_of_reach(problem.real(problem.target), floor, noise, model):
+        if _may_be_out_of_reach(problem.real(problem.target), floor, sigma):
             reach = problem.real((yield from reachable_maximum_steps(problem)))
     diagnosis = diagnose(
         problem,
@@ -446,19 +456,20 @@ def _conclude(
         reach=reach,
         image=target.pixels,  # an unknown noise is bounded from the whole image
         index=kept.index,
+        sigma=sigma,
     )
-    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis)
+    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis, sigma)
 
 
-def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, noise: NoiseModel, model: np.ndarray) -> bool:
+def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, sigma: np.ndarray | None) -> bool:
     """Whether the out-of-reach check needs the reachable maximum (88 renders of the used
     pixels: a fifth of a warm fit): only where the target exceeds, by the check's margin
     (:func:`~strauss_fit.fit.diagnosis.diagnose`'s: 2 % and 3 σ of the noise at the fitted
-    ``model`` when it is known, 2 % alone otherwise), a ``floor`` of values that Strauss
+    model, ``sigma``, when it is known, 2 % alone otherwise), a ``floor`` of values that Strauss
     materials reach: the fit itself and a white matte plastic. A pixel within the margin of
     a reachable value is not out of reach (were the envelope's sampling of s ever below the
     floor, flagging such a pixel would be a false alarm)."""
-    margin = 3.0 * np.nan_to_num(noise.sigma_at(model)) if noise.known else 0.0
+    margin = 3.0 * np.nan_to_num(sigma) if sigma is not None else 0.0
     return bool(np.any(target > floor * REACH_MARGIN + margin))
 
 
@@ -495,13 +506,17 @@ def _result(
     model, diagnosis = outcome.model, outcome.diagnosis
     residual = model - problem.real(problem.target)
     rss = float(np.sum(residual**2))
-    laplace_sd, laplace_corr, laplace_cov = yield from problem_laplace_steps(
-        problem, x_best, rss, None, solved.information if problem.loss == "linear" else None
-    )
+    # JᵀJ of the physical residuals: the polish's (least squares), else one kernel's (with
+    # the noise sandwich's parts when the noise is known: one call for both)
+    information = solved.information if problem.loss == "linear" else None
+    parts = None
     if noise.known:
-        uncertainty, correlation, covariance, extra = yield from problem_sandwich_steps(
-            problem, x_best, noise.sigma_at(model).ravel()
-        )
+        noise_sd = padded_noise(problem, outcome.sigma)
+        parts = yield sandwich_parts_kernel.call(problem, np.asarray(x_best, dtype=np.float64), noise_sd)
+        information = np.asarray(parts["information"]) if information is None else information
+    laplace_sd, laplace_corr, laplace_cov = yield from problem_laplace_steps(problem, x_best, rss, None, information)
+    if noise.known:
+        uncertainty, correlation, covariance, extra = sandwich_from_parts(problem, parts)
         method = {
             "name": "noise sandwich",
             "noise_source": noise.source,
@@ -550,11 +565,13 @@ def _result(
         equivalence = yield from equivalence_ranges_steps(problem, x_best, delta_e=options.equivalence_de)
     free_covariance = None
     if pinned.any():  # what the pinned entries' deviations would be, were they free
-        variance = (
-            float(np.mean(noise.sigma_at(model) ** 2)) if noise.known else rss / max(residual.size - layout.size, 1)
-        )
-        jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, np.asarray(x_best))))
-        free_covariance = laplace.covariance(laplace.information(jacobian), variance)
+        variance = float(np.mean(outcome.sigma**2)) if noise.known else rss / max(residual.size - layout.size, 1)
+        if parts is None:
+            jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, np.asarray(x_best))))
+            free_information = laplace.information(jacobian)
+        else:
+            free_information = np.asarray(parts["information"])
+        free_covariance = laplace.covariance(free_information, variance)
     warnings = diagnosis.warnings + uncertainty_warnings(
         layout,
         np.zeros((layout.size, layout.size)) if covariance is None else covariance,
@@ -563,7 +580,8 @@ def _result(
         free_covariance,
         equivalence,
     )
-    noise_typical = noise.typical(model) if noise.known else None
+    # NoiseModel.typical at the fitted radiance, from its σ already computed
+    noise_typical = np.sqrt(np.mean(outcome.sigma**2, axis=0)) if noise.known else None
     residual_stats = {
         "rms": float(np.sqrt(np.mean(residual**2))),
         "max_abs": float(np.max(np.abs(residual))),

@@ -229,6 +229,7 @@ def diagnose(
     reach: np.ndarray | None,
     image: np.ndarray | None = None,
     index: np.ndarray | None = None,
+    sigma: np.ndarray | None = None,
 ) -> Diagnosis:
     """The verdict for the fitted radiance ``model`` (N, 3) at the used pixels of
     ``problem`` (whose ``target`` it is compared with), ``parameters`` fitted values,
@@ -237,14 +238,15 @@ def diagnose(
     brightness is reachable). ``image`` (H, W, 3), the whole target, and ``index`` (N,),
     the flat indices of the used pixels in it (the rows of ``model``), let an unknown
     noise be bounded from the image for a one-sided verdict (:func:`_one_sided`);
-    without them the verdict on such a target stays undetermined."""
+    without them the verdict on such a target stays undetermined. ``sigma`` (N, 3): the
+    noise's σ at ``model`` when already computed (``noise.sigma_at(model)``)."""
     target = problem.real(problem.target)
     regions = {name: problem.real(mask) for name, mask in pixel_regions(problem.prepared).items()}
     diagnosis = Diagnosis("undetermined")
     color_at_one = [label[-1] for label in at_bound if label.startswith("color_") and label.endswith(("r", "g", "b"))]
     color_at_one = [c for c in color_at_one if _pinned_at_one(problem, "color_" + c)]
     if not noise.known:
-        sigma = None
+        sigma = None  # the bound's, when the image gives one
         if image is not None and index is not None:
             # σ ≤ the bound: the out-of-reach check below may use it as its margin
             sigma = _one_sided(diagnosis, target, model, noise, parameters, image, index, regions, delta_e_mean)
@@ -264,7 +266,7 @@ def diagnose(
                 "give the noise level (--noise)",
             )
     else:
-        sigma = noise.sigma_at(model)
+        sigma = noise.sigma_at(model) if sigma is None else sigma
         z = (target - model) / sigma
         z2 = z**2
         chi2, dof, spread, zscore = chi2_statistics(z2, parameters, noise.relative_stderr)

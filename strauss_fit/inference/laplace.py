@@ -25,10 +25,8 @@ Problems are duck-typed: anything with ``residual_physical(x)`` (a Strauss
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -148,28 +146,74 @@ def by_parameter(layout: Any, cov: np.ndarray) -> tuple[dict[str, Any], dict[str
 # --- under misspecification: the noise sandwich ------------------------------------------
 
 
+def _value_derivatives(problem: Any, model: Array) -> tuple[Array, Array, Array, Array, Array]:
+    """Each residual gᵢ = φᵢ(mᵢ, yᵢ) of ``problem.objective_of_model`` as a function of its
+    own model value mᵢ and target value yᵢ (M,): g, ∂g/∂m, ∂g/∂y, ∂²g/∂m² and ∂²g/∂m∂y, each
+    one forward-mode derivative along "every value + 1" (each gᵢ depends on its own mᵢ and
+    yᵢ alone, so that direction gives every value's own derivative at once)."""
+    target = problem.target
+    ones = jnp.ones_like(target)
+
+    def of_model(m: Array, y: Array) -> tuple[Array, Array]:
+        return jax.jvp(lambda u: problem.objective_of_model(u, y), (m,), (ones,))
+
+    (values, slope_m), (_, curvature_m) = jax.jvp(lambda m: of_model(m, target), (model,), (ones,))
+    _, slope_y = jax.jvp(lambda y: problem.objective_of_model(model, y), (target,), (ones,))
+    _, cross_my = jax.jvp(lambda y: of_model(model, y)[1], (target,), (ones,))
+    return values, slope_m, slope_y, curvature_m, cross_my
+
+
+def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
+    r""":math:`\sum_i w_i \nabla^2 m_i(x)` (P, P) for the model values m (M,) of
+    ``problem.render_physical``: each of the P(P + 1)/2 second derivatives
+    :math:`\partial^2 m/\partial x_a \partial x_b` as a forward-over-forward directional
+    derivative, one pair after the other (``lax.map``). Why not ``jax.hessian``: the model's
+    derivatives are a closed-form ``custom_jvp`` (:func:`strauss_fit.render.strauss.direct_radiance`),
+    and batching its second derivatives over the P × P pairs (``vmap``) cost 6-10 times the
+    pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5)."""
+    size = x.shape[0]
+    pairs = [(a, b) for a in range(size) for b in range(a, size)]
+    if not pairs:
+        return jnp.zeros((0, 0), dtype=x.dtype)
+    basis = jnp.eye(size, dtype=x.dtype)
+    first = basis[jnp.asarray([a for a, _ in pairs])]
+    second = basis[jnp.asarray([b for _, b in pairs])]
+
+    def render(z: Array) -> Array:
+        return problem.render_physical(z).ravel()
+
+    def pair(directions: tuple[Array, Array]) -> Array:
+        u, v = directions
+        _, second_derivative = jax.jvp(lambda z: jax.jvp(render, (z,), (u,))[1], (x,), (v,))
+        return jnp.sum(weights * second_derivative)
+
+    upper = jax.lax.map(pair, (first, second))
+    rows, columns = np.array(pairs).T
+    hessian = jnp.zeros((size, size), dtype=x.dtype).at[rows, columns].set(upper)
+    return hessian.at[columns, rows].set(upper)
+
+
 def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array, Array, Array]:
-    residual = problem.objective_residual
+    return _objective_terms_and_model_jacobian(problem, x)[:5]
 
-    def half_cost(z):
-        r = residual(z)
-        return 0.5 * jnp.sum(r * r)
 
-    def with_target(target):
-        return eqx.tree_at(lambda p: p.target, problem, target)
-
-    def of_target(target):
-        return type(problem).objective_residual(with_target(target), x)
-
-    def jacobian_of_target(target):
-        return jax.jacfwd(type(problem).objective_residual, argnums=1)(with_target(target), x)
-
-    ones = jnp.ones_like(problem.target)
-    values, slope = jax.jvp(of_target, (problem.target,), (ones,))
-    # each gᵢ depends on its own yᵢ alone, so the derivative along "every target value + 1"
-    # is, row by row, ∂Jᵢ/∂yᵢ
-    _, jacobian_slope = jax.jvp(jacobian_of_target, (problem.target,), (ones,))
-    return jax.jacfwd(residual)(x), jax.hessian(half_cost)(x), slope, values, jacobian_slope
+def _objective_terms_and_model_jacobian(problem: Any, x: Array) -> tuple[Array, ...]:
+    r"""J, H, D, g and ∂J/∂y of :func:`objective_terms`, from the model's Jacobian F (M, P)
+    and the value-by-value derivatives of the residuals (:func:`_value_derivatives`):
+    :math:`J_i = g'_i F_i`, :math:`\partial J_i/\partial y_i = \partial^2 g_i/\partial m_i\partial y_i\,F_i`
+    and :math:`H = \sum_i (g_i'^2 + g_i g''_i) F_i F_i^\top + \sum_i g_i g'_i \nabla^2 m_i`
+    (:func:`_weighted_model_hessian`), g′ and g″ the derivatives in mᵢ: the Hessian of ½Σg²
+    by the chain rule, with the render differentiated once and twice instead of the whole
+    residual (the render's batched second derivatives are what made ``jax.hessian`` slow)."""
+    model = problem.render_physical(x)
+    model_jacobian = jax.jacfwd(lambda z: problem.render_physical(z).ravel())(x)  # F, (M, P)
+    values, slope_m, slope_y, curvature_m, cross_my = _value_derivatives(problem, model)
+    jacobian = slope_m[:, None] * model_jacobian
+    gauss_newton_weight = slope_m * slope_m + values * curvature_m
+    hessian = model_jacobian.T @ (gauss_newton_weight[:, None] * model_jacobian) + _weighted_model_hessian(
+        problem, x, values * slope_m
+    )
+    return jacobian, hessian, slope_y, values, cross_my[:, None] * model_jacobian, model_jacobian
 
 
 #: :func:`objective_terms` as a :class:`~strauss_fit.engine.Kernel`.
@@ -184,11 +228,43 @@ def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
     D = ∂gᵢ/∂yᵢ (M,), the slope of each residual in its own target value (each gᵢ depends on
     yᵢ alone), and the rows C (M, P) of the cross derivative of the cost's gradient,
     :math:`C_i = \partial(g_i \nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`:
-    how the value yᵢ's noise moves the optimum (:func:`problem_sandwich_steps`)."""
+    how the value yᵢ's noise moves the optimum (:func:`problem_sandwich_steps`).
+
+    ``problem``: a fit problem (:class:`strauss_fit.fit.problem.Problem`) whose residuals
+    are value by value functions of its model (``render_physical``) and target
+    (``objective_of_model``)."""
     j, h, slope, values, jacobian_slope = (
         np.asarray(v) for v in objective_terms_kernel(problem, jnp.asarray(x, dtype=jnp.float64))
     )
     return j, h, slope, _cross_rows(j, slope, values, jacobian_slope)
+
+
+def _sandwich_parts(problem: Any, x: Array, noise_sd: Array) -> dict[str, Array]:
+    r"""What the noise sandwich and the Laplace errors need, reduced on the device to P × P
+    matrices (:func:`problem_sandwich_steps`): the bread H/c², the meat
+    :math:`C^\top \mathrm{diag}(\sigma^2) C/c^4` (C's rows divided by c² factor by factor,
+    :func:`_cross_rows`), the Gauss–Newton JᵀJ/c² of the objective, and JᵀJ of the physical
+    residuals (model minus target, the padding weighted 0) — c the largest |D|, 1 when that
+    is not a positive finite number. ``noise_sd`` (M,): every value's noise, 0 on the padding."""
+    jacobian, hessian, slope, values, jacobian_slope, model_jacobian = _objective_terms_and_model_jacobian(problem, x)
+    scale = jnp.max(jnp.abs(slope)) if slope.size else jnp.asarray(0.0, slope.dtype)
+    scale = jnp.where(jnp.isfinite(scale) & (scale > 0), scale, 1.0)
+    cross = (slope / scale)[:, None] * (jacobian / scale) + (values / scale)[:, None] * (jacobian_slope / scale)
+    scaled_jacobian = jacobian / scale
+    # the physical residuals' Jacobian: the model's, the padding's rows weighted 0 as there
+    valid = problem.valid
+    physical = model_jacobian if valid is None else jnp.repeat(valid, 3)[:, None] * model_jacobian
+    return {
+        "scale": scale,
+        "bread": hessian / scale / scale,
+        "meat": cross.T @ (cross * (noise_sd**2)[:, None]),
+        "gauss_newton": scaled_jacobian.T @ scaled_jacobian,
+        "information": physical.T @ physical,
+    }
+
+
+#: :func:`_sandwich_parts` as a :class:`~strauss_fit.engine.Kernel`.
+sandwich_parts_kernel = Kernel(_sandwich_parts, "sandwich_parts")
 
 
 def _cross_rows(
@@ -270,26 +346,33 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     Returns the deviations by name, the correlation, V, and the eigenvalues of
     (JᵀJ)⁻¹H on the free entries (1 when the model fits; far from 1: the misfit's curvature
     matters)."""
-    j, h, slope, values, jacobian_slope = (
-        np.asarray(v) for v in (yield objective_terms_kernel.call(problem, np.asarray(x, dtype=np.float64)))
-    )
-    # V is the same with C divided by any c² and H by c²: with c the largest slope
-    # (1/the residual scale, for the linear loss) the products below stay of the image's
-    # own magnitude whatever scale the residuals were divided by (a reference noise of
-    # 1e-100 made the meat overflow to NaN)
-    scale = float(np.max(np.abs(slope))) if slope.size else 0.0
-    scale = scale if math.isfinite(scale) and scale > 0 else 1.0
-    cross = _cross_rows(j, slope, values, jacobian_slope, scale)
-    j, h = j / scale, h / scale / scale
+    parts = yield sandwich_parts_kernel.call(problem, np.asarray(x, dtype=np.float64), padded_noise(problem, noise_sd))
+    return sandwich_from_parts(problem, parts)
+
+
+def padded_noise(problem: Any, noise_sd: np.ndarray) -> np.ndarray:
+    """``noise_sd`` (one per real residual value) as :func:`_sandwich_parts` takes it: one
+    per value of ``problem.target``, 0 on a padded pixel set's padding
+    (:func:`strauss_fit.fit.problem.pixel_bucket`), whose slope is 0 too."""
+    noise_sd = np.asarray(noise_sd, dtype=np.float64).ravel()
+    return np.concatenate([noise_sd, np.zeros(int(np.asarray(problem.target).size) - noise_sd.size)])
+
+
+def sandwich_from_parts(
+    problem: Any, parts: dict[str, Any]
+) -> tuple[dict[str, Any], dict[str, Any], np.ndarray, dict[str, Any]]:
+    """:func:`problem_sandwich_steps`'s result from :func:`_sandwich_parts`' P × P matrices.
+
+    V is the same with C divided by any c² and H by c²: with c the largest slope (1/the
+    residual scale, for the linear loss) the products stay of the image's own magnitude
+    whatever scale the residuals were divided by (a reference noise of 1e-100 made the meat
+    overflow to NaN)."""
+    bread, meat = np.asarray(parts["bread"]), np.asarray(parts["meat"])
     free = ~np.asarray(problem.pinned)
-    noise_sd = np.asarray(noise_sd, dtype=np.float64)
-    # a padded pixel set (strauss_fit.fit.problem.pixel_bucket): its padding has slope 0
-    noise_sd = np.concatenate([noise_sd, np.zeros(slope.size - noise_sd.size)])
-    meat = cross.T @ (cross * (noise_sd**2)[:, None])
-    cov = sandwich(h, meat, free)
+    cov = sandwich(bread, meat, free)
     uncertainty, corr = by_parameter(problem.layout, cov)
-    gauss_newton = information(j)[np.ix_(free, free)]
-    curvature = np.linalg.eigvals(covariance(gauss_newton) @ h[np.ix_(free, free)]) if free.any() else np.zeros(0)
+    gauss_newton = np.asarray(parts["gauss_newton"])[np.ix_(free, free)]
+    curvature = np.linalg.eigvals(covariance(gauss_newton) @ bread[np.ix_(free, free)]) if free.any() else np.zeros(0)
     return uncertainty, corr, cov, {"curvature_eigenvalues": np.sort(np.real(curvature)).tolist()}
 
 

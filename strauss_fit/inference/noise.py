@@ -92,7 +92,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from scipy import ndimage, special
 
 from ..color import srgb_decode, srgb_encode
 from ..errors import StraussFitError
@@ -206,6 +205,8 @@ def _check_finite(img: np.ndarray, usable: np.ndarray) -> None:
 def _erode(mask: np.ndarray, margin: int) -> np.ndarray:
     if margin <= 0:
         return mask
+    from scipy import ndimage  # on first use: importing SciPy cost a command's start 1.5 s (2 cores, load 11)
+
     return ndimage.binary_erosion(mask, structure=np.ones((3, 3), bool), iterations=margin, border_value=0)
 
 
@@ -242,6 +243,8 @@ def _truncated_variance_factor(k: float) -> float:
 
 def _truncated_median_factor(k: float) -> float:
     """median(|z| given |z| ≤ k) for z ~ N(0, 1)."""
+    from scipy import special  # on first use (see _erode)
+
     p = math.erf(k / math.sqrt(2.0))
     return math.sqrt(2.0) * special.erfinv(0.5 * p)
 
@@ -311,6 +314,8 @@ def _robust_scale(
       (content that is below the clip level but spatially coherent: a moiré ring, a
       refracted pattern; also a noise level that varies across the image).
     """
+    from scipy import ndimage  # on first use (see _erode)
+
     z = res
     rows = z[valid]
     n_valid = rows.shape[0]
@@ -1094,6 +1099,8 @@ def _gaussian_1d(width: float) -> np.ndarray:
 
 def _separable(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """``values`` (H, W[, C]) correlated with the 2-D kernel kernel ⊗ kernel, zero outside."""
+    from scipy import ndimage  # on first use (see _erode)
+
     out = ndimage.correlate1d(values, kernel, axis=0, mode="constant", cval=0.0)
     return ndimage.correlate1d(out, kernel, axis=1, mode="constant", cval=0.0)
 
