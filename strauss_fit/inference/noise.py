@@ -687,15 +687,30 @@ class PoissonGaussian:
 
 
 def _fit_line(x: np.ndarray, y: np.ndarray, se: np.ndarray) -> tuple[float, float, float, float, float]:
-    """Weighted line y = a x + b with a, b ≥ 0. Returns a, b, se_a, se_b, chi2/dof."""
+    r"""Weighted line y = a x + b with a, b ≥ 0. Returns a, b, se_a, se_b, chi2/dof.
+
+    Solved in centred form: with :math:`\bar x = \sum w x / \sum w` and
+    :math:`S = \sum w (x - \bar x)^2`, :math:`a = \sum w (x - \bar x) y / S`,
+    :math:`b = \bar y - a \bar x`, :math:`\mathrm{var}\,a = 1/S` and
+    :math:`\mathrm{var}\,b = 1/\sum w + \bar x^2/S`. Why not the inverse of the 2 × 2
+    normal matrix: when one bin's error is tiny (a noise-free 8-bit image has a level bin
+    whose variance is all quantisation: se ~ 1e-16, a weight 10¹⁴ times the others) that
+    matrix is singular in float64 and its inverse had negative variances (a math domain
+    error in the fit of a recovery target). S ≥ 0 by construction; S = 0 (one level) leaves
+    the slope undetermined: a = 0 with an infinite error."""
     w = 1.0 / se**2
-    X = np.stack([x, np.ones_like(x)], axis=1)
-    A = X.T @ (w[:, None] * X)
-    try:
-        cov = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(A)
-    a, b = cov @ (X.T @ (w * y))
+    total = np.sum(w)
+    x_mean = np.sum(w * x) / total
+    y_mean = np.sum(w * y) / total
+    spread = float(np.sum(w * (x - x_mean) ** 2))
+    if spread > 0:
+        a = float(np.sum(w * (x - x_mean) * y) / spread)
+        var_a = 1.0 / spread
+    else:
+        a, var_a = 0.0, math.inf
+    b = float(y_mean - a * x_mean)
+    var_b = 1.0 / total + (x_mean**2 * var_a if x_mean else 0.0)
+    cov = np.array([[var_a, -x_mean * var_a], [-x_mean * var_a, var_b]])
     if a < 0 or b < 0:
         # one-parameter fits on the boundary; keep the better one that is admissible
         cands = []

@@ -467,3 +467,42 @@ def test_describe_noise_estimates_an_image_once(monkeypatch):
     assert len(calls) == 3
     # a given level or a sidecar's sensor is not an estimate
     assert ne.describe_noise(noisy, usable, given=0.01).source == "given" and len(calls) == 3
+
+
+def test_the_level_line_fit_survives_a_bin_without_noise_and_matches_weighted_least_squares():
+    """:func:`_fit_line` (the signal-dependent noise model's σ² = a·level + b): one bin of a
+    noise-free 8-bit target has only quantisation variance (se ~ 1e-16, a weight 10¹⁴× the
+    others), which made the inverse of the normal matrix report negative variances (a math
+    domain error that ended a fit). The values are the ones recorded from that fit. On
+    ordinary data the fit is weighted least squares (numpy.polyfit with weights 1/se)."""
+    from strauss_fit.inference.noise import _fit_line
+
+    x = np.array(
+        [0.0780969866747178, 0.11058016741189494, 0.13574167886219324, 0.1546373470235953, 0.16920198140812687]
+        + [0.1808213156669776, 0.19064733120721805, 0.19922385355293074, 0.2091433316622451]
+    )
+    y = np.array(
+        [-2.2651990137719166e-08, -1.2604709560788536e-07, -1.6750087098334942e-07, -1.7671826673006894e-07]
+        + [-2.4028206275825097e-07, -9.018482445870568e-07, -2.4670825080813833e-07, -2.521805609606961e-07]
+        + [-2.642510643462172e-07]
+    )
+    se = np.array(
+        [6.188894621286967e-08, 7.468741127300374e-08, 9.322629147479187e-08, 1.1226475835375102e-07]
+        + [1.1628397664281499e-07, 1.3490974597999678e-16, 1.391802693178466e-07, 1.4896622949134697e-07]
+        + [1.5559589991847797e-07]
+    )
+    a, b, sa, sb, red = _fit_line(x, y, se)
+    assert np.isfinite([a, b, sa, sb, red]).all() and min(a, b) >= 0 and sa > 0 and sb > 0
+
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.05, 0.9, 12)
+    se = rng.uniform(0.5e-5, 2e-5, x.size)
+    y = 3e-4 * x + 2e-5 + rng.normal(0, 1, x.size) * se
+    a, b, sa, sb, _ = _fit_line(x, y, se)
+    (a_ref, b_ref), cov = np.polyfit(x, y, 1, w=1 / se, cov="unscaled")
+    np.testing.assert_allclose([a, b], [a_ref, b_ref], rtol=1e-9)
+    red = np.sum(((y - a * x - b) / se) ** 2) / (x.size - 2)
+    np.testing.assert_allclose([sa, sb], np.sqrt(np.diag(cov)) * np.sqrt(max(red, 1.0)), rtol=1e-9)
+
+    a, b, sa, sb, _ = _fit_line(np.full(5, 0.3), np.full(5, 1e-5), np.full(5, 1e-6))  # one level: no slope
+    assert a == 0.0 and b == pytest.approx(1e-5) and sa == np.inf
