@@ -50,6 +50,7 @@ def refuse_ignored(args: argparse.Namespace, how: str, *, scene: bool = True) ->
         "solver": "lm",
         "loss": "auto",
         "edge_pixels": "auto",
+        "search": "auto",
         "quality": DEFAULT_QUALITY,
         "mode": "exact",
         "table_size": DEFAULT_TABLE_SIZE,

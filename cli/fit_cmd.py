@@ -68,8 +68,8 @@ def add_parser(subparsers) -> None:
         "--starts",
         type=positive_int,
         metavar="N",
-        help="number of starts: the closed-form guess plus N-1 fixed points (default: from --quality: "
-        f"{by_quality('starts')})",
+        help="number of starts: the N best distinct minima of the global search, or the closed-form guess plus "
+        f"N-1 fixed points (--search; default: from --quality: {by_quality('starts')})",
     )
     parser.add_argument(
         "--max-steps",
@@ -119,6 +119,15 @@ def add_parser(subparsers) -> None:
         help="silhouette pixels the sphere covers only partly: fit them as sphere pixels when the target is "
         "point-sampled there (auto, the default: checked against the scene's background), leave them out, or "
         "always include them",
+    )
+    parser.add_argument(
+        "--search",
+        choices=("auto", "grid", "starts"),
+        default="auto",
+        help="where the solves start: grid, a global search over smoothness and metalness with the colour solved "
+        "in closed form (an opaque material fitted by least squares, no light or exposure free; the multi-start "
+        "elsewhere); starts, the closed-form guess and fixed points; auto, the default: the grid wherever it "
+        "applies (docs/fitting.md#starts)",
     )
     parser.add_argument(
         "--equivalence",
@@ -221,6 +230,7 @@ def fit_options(args: argparse.Namespace, fixed, **more):
         loss=getattr(args, "loss", None),
         fit_exposure=getattr(args, "fit_exposure", None),
         edge_pixels=getattr(args, "edge_pixels", None),
+        search=getattr(args, "search", None),
         equivalence=equivalence_asked(args),
         equivalence_de=getattr(args, "equivalence_de", None),
         **more,

@@ -69,8 +69,30 @@ MISMATCH_LOSS = "huber"
 VISIBLE_DELTA_E = 1.0
 #: What ``FitOptions.edge_pixels`` accepts.
 EDGE_PIXELS = ("auto", "exclude", "include")
-#: What ``FitOptions.search`` accepts (see :mod:`strauss_fit.fit.search`, which decides
-#: what ``"auto"`` means).
+#: What ``FitOptions.search`` accepts: ``"grid"`` (the global search of
+#: :mod:`strauss_fit.fit.search` where :func:`~strauss_fit.fit.search.grid_applies`, the
+#: multi-start elsewhere), ``"starts"`` (the multi-start always) and ``"auto"``, which is
+#: ``"grid"``: the grid wherever it applies, as measured by ``benchmarks/search.py``
+#: (2026-12-03, preset balanced, both fits of every target interleaved in one process,
+#: load average 4-14 on 2 cores; calibrations NumPy 100-356 ms, JAX 34-130 ms):
+#:
+#: - recovery set, the 95 targets where it applies: the lower RSS of the two reached on 93
+#:   against the multi-start's 86, 1 111 solver steps against 1 547, warm time 1.03× (29.6 s
+#:   against 28.7 s in all); the 2 it missed are mirrors (s = 1, m = 0) whose colour the
+#:   image does not show, where the multi-start's RSS was lower by 1.2e-4 and 9e-6 of itself
+#:   (Δχ² 1.05 and 0.10 at the reference noise), decided by which parameters the fit then
+#:   held at that degenerate optimum;
+#: - bundled Mitsuba renders, the 11 where it applies: the lower RSS on 10 against 8 (every
+#:   miss within Δχ² 0.17), 539 steps against 644, but 1.2× the warm time (6.1 s against
+#:   5.1 s): short fits, where the grid's fixed cost (four renders of the subsample per s) is
+#:   not paid back;
+#: - the README's example: the same optimum (RSS 1.99886, 16 steps against 17), and with one
+#:   start the grid's reaches it where the multi-start's (the guess, s = 0) ends in the local
+#:   minimum at s = 0 (RSS 2.155).
+#:
+#: So the grid wins on the optimum reached and the steps everywhere it applies and costs
+#: time only on short fits; it is the default for its robustness (no start in a basin the
+#: fixed points miss). Captures keep their own projected grid (:mod:`strauss_fit.fit.capture`).
 SEARCHES = ("auto", "grid", "starts")
 #: The preset settings that are fit settings (the others are sampling settings).
 FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol", "equivalence")
@@ -139,8 +161,7 @@ class FitOptions:
     #: minima the starts, where that projection holds (an opaque material fitted by least
     #: squares, no light or exposure free), the multi-start elsewhere; ``"starts"``, the
     #: multi-start (the closed-form guess and fixed points) always; ``"auto"``: the grid
-    #: wherever it applies (measured by ``benchmarks/search.py``, see
-    #: :mod:`strauss_fit.fit.search`).
+    #: wherever it applies, as measured (:data:`SEARCHES`).
     search: str = "auto"
 
     @classmethod

@@ -31,7 +31,8 @@ too: the transmitted light is tinted by C once per passage and the inner reflect
 least squares (the robust losses reweight residuals nonlinearly). :func:`grid_applies`
 says which.
 
-Where it is the default (``FitOptions.search = "auto"``) and why: see :data:`SEARCHES`.
+``FitOptions.search = "auto"`` (the default) uses the grid wherever it applies, as
+measured against the multi-start: see :data:`~strauss_fit.fit.options.SEARCHES`.
 """
 
 from __future__ import annotations

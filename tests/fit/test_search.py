@@ -22,7 +22,7 @@ from strauss_fit.fit.search import (
     projected_costs,
 )
 from strauss_fit.fit.solvers import solve
-from strauss_fit.fit.starts import start_points_steps, starts
+from strauss_fit.fit.starts import start_points_steps, starts, uses_grid
 from strauss_fit.render.strauss import plan_render
 from support import SCENES, noisy_target
 
@@ -154,6 +154,10 @@ def test_the_grid_applies_only_where_the_colour_projects_out():
         thetas, sources = run(start_points_steps(problem_, guess, options))
         np.testing.assert_array_equal(thetas, starts(problem_.layout, guess, options.starts))
         assert sources == ["guess"] + ["fixed"] * (options.starts - 1)
+    # "auto", the default, is the grid wherever it applies (as measured: options.SEARCHES)
+    assert uses_grid(opaque_problem(opaque, target), FitOptions())
+    assert not uses_grid(opaque_problem(opaque, target, loss="huber"), FitOptions())
+    assert not uses_grid(problem, FitOptions())
     with pytest.raises(StraussFitError, match="search"):
         FitOptions(search="everywhere").validate()
 
