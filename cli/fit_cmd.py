@@ -355,6 +355,7 @@ def run(args: argparse.Namespace) -> int:
     from strauss_fit import fit, load_scene, load_target, match_scene
     from strauss_fit.fit.summary import comparison_image, format_fit_table, standardized_map
     from strauss_fit.io.files import Outputs
+    from strauss_fit.io.images import add_image
 
     log = progress_printer(args.quiet, "... ")
     scene = load_scene(args.scene)
@@ -369,11 +370,11 @@ def run(args: argparse.Namespace) -> int:
     with Outputs(force=args.force) as out:  # all or nothing
         out.add_json(args.output, payload)
         if args.render_fit:
-            out.add_image(args.render_fit, result.fitted_image)
+            add_image(out, args.render_fit, result.fitted_image)
             # the target as fitted: a target above the pixel limit was fitted block-averaged
             seen = result.target_image if result.target_image is not None else target.pixels
             standardized = standardized_map(result, seen.shape[:2])
-            out.add_image(compare_path, comparison_image(seen, result.fitted_image, result.mask, standardized))
+            add_image(out, compare_path, comparison_image(seen, result.fitted_image, result.mask, standardized))
         written = out.commit(final=True)
     print(escape(format_fit_table(payload)))
     print(f"wrote {', '.join(str(p) for p in written)}")

@@ -123,12 +123,13 @@ def _write(args: argparse.Namespace, image, mask, detail: str) -> int:
     import numpy as np
 
     from strauss_fit.io.files import Outputs
+    from strauss_fit.io.images import add_image
 
     with Outputs(force=args.force) as out:
-        out.add_image(args.output, np.asarray(image))
+        add_image(out, args.output, np.asarray(image))
         if args.mask:
             mask_rgb = np.repeat(np.asarray(mask, dtype=float)[..., None], 3, axis=-1)
-            out.add_image(args.mask, mask_rgb, encoding="linear")
+            add_image(out, args.mask, mask_rgb, encoding="linear")
         out.commit(final=True)
     height, width = mask.shape
     print(f"wrote {args.output} ({width}x{height}, {int(np.sum(mask))} sphere pixels{detail})")

@@ -54,8 +54,6 @@ KNOWN_UPWARD = {
 KNOWN_CYCLES = {
     # the runtime configures the export cache, which asks the runtime whether caching is on
     ("export_cache", "runtime"),
-    # Outputs.add_image encodes through images, which stages its bytes through Outputs
-    ("io.files", "io.images"),
 }
 
 

@@ -65,7 +65,7 @@ from typing import Any
 from ..errors import CaptureError, OutputExistsError, StraussFitError
 from ..inference.noise import sidecar_path
 from ..io.files import Outputs, check_input_file, check_replaceable, read_json
-from ..io.images import read_image
+from ..io.images import add_image, read_image
 from ..io.journal import file_digest, pytree_digest, run_key
 from ..io.targets import Target
 from ..runtime import release_compiled_code_if_needed
@@ -610,7 +610,7 @@ def fit_to_folder(
                     image = comparison_image(
                         target, result.fitted_image, result.mask, standardized_map(result, target.shape[:2])
                     )
-                    out.add_image(folder / f"{names[index]}.compare.png", image)
+                    add_image(out, folder / f"{names[index]}.compare.png", image)
                 out.commit()
             rows[index] = row_of(job.name, payload, path=path.name)
         if on_result is not None:

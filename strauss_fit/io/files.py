@@ -314,13 +314,6 @@ class Outputs:
         """JSON, indented; NaN and infinity are refused (they are not JSON)."""
         return self.add_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
-    def add_image(self, path: str | Path, image: Any, *, encoding: str = "auto") -> Path:
-        """An image (see :func:`strauss_fit.io.images.encode_image`)."""
-        from .images import encode_image
-
-        path = check_writable(path, self.force)
-        return self.add_bytes(path, encode_image(image, path, encoding=encoding))
-
     def commit(self, *, final: bool = False) -> list[Path]:
         """Rename every temporary into place (SIGINT deferred meanwhile) and return the
         outputs. An interrupt recorded before is raised first, and nothing is renamed; one

@@ -278,8 +278,17 @@ def encode_image(image: np.ndarray, path: str | Path, *, encoding: Encoding = "a
             return handle.read()
 
 
+def add_image(out: Outputs, path: str | Path, image: np.ndarray, *, encoding: Encoding = "auto") -> Path:
+    """Stage a linear RGB image (H, W, 3), encoded for ``path`` (:func:`encode_image`), among
+    ``out``'s outputs: written when they are committed, all of them or none. A function here
+    rather than a method of :class:`~strauss_fit.io.files.Outputs`, so that the atomic
+    writer does not import the image codecs that write through it."""
+    path = check_writable(path, out.force)
+    return out.add_bytes(path, encode_image(image, path, encoding=encoding))
+
+
 def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, encoding: Encoding = "auto") -> Path:
     """Write a linear RGB image (H, W, 3) atomically (see :func:`encode_image`)."""
     with Outputs(force=force) as out:
-        out.add_image(path, image, encoding=encoding)
+        add_image(out, path, image, encoding=encoding)
         return out.commit()[0]
