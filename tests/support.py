@@ -188,3 +188,25 @@ def write_spec(folder: Path, text: str = SYNTH_SPEC, name: str = "spec.toml") ->
 
 def files_of(folder: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def compiled_during(action) -> list[str]:
+    """The programs JAX compiled while ``action()`` ran (its log of compilations)."""
+    import logging
+
+    messages: list[str] = []
+
+    class Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            messages.append(record.getMessage())
+
+    handler = Collect()
+    logger = logging.getLogger("jax")
+    logger.addHandler(handler)
+    jax.config.update("jax_log_compiles", True)
+    try:
+        action()
+    finally:
+        jax.config.update("jax_log_compiles", False)
+        logger.removeHandler(handler)
+    return [m for m in messages if m.startswith("Compiling")]

@@ -46,30 +46,6 @@ def _identical(a: sf.FitResult, b: sf.FitResult) -> None:
     np.testing.assert_array_equal(a.fitted_image, b.fitted_image)
 
 
-def _compiled_during(action) -> list[str]:
-    """The programs JAX compiled while ``action()`` ran (its log of compilations)."""
-    import logging
-
-    import jax
-
-    messages: list[str] = []
-
-    class Collect(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            messages.append(record.getMessage())
-
-    handler = Collect()
-    logger = logging.getLogger("jax")
-    logger.addHandler(handler)
-    jax.config.update("jax_log_compiles", True)
-    try:
-        action()
-    finally:
-        jax.config.update("jax_log_compiles", False)
-        logger.removeHandler(handler)
-    return [m for m in messages if m.startswith("Compiling")]
-
-
 def test_a_targets_fit_is_the_same_in_any_batch_and_compiles_nothing_new():
     """A target's fit does not depend on the batch it runs in: alone (``fit``) or among 1,
     3 or 7 targets, consistent or mismatched (refitted with the Huber loss), bit for bit —
@@ -91,7 +67,7 @@ def test_a_targets_fit_is_the_same_in_any_batch_and_compiles_nothing_new():
         for count in (1, 3, 7):
             batches[count] = fit_many(targets[:count], scene, options)
 
-    assert _compiled_during(batched) == []
+    assert support.compiled_during(batched) == []
     for count, results in batches.items():
         assert len(results) == count
         for result, single in zip(results, alone):

@@ -4,7 +4,6 @@ share one compilation, and the padding changes nothing a fit reports."""
 from __future__ import annotations
 
 import importlib
-import logging
 
 import jax
 import jax.numpy as jnp
@@ -113,7 +112,7 @@ def test_targets_with_other_pixel_counts_compile_nothing_new(scene_and_image):
         for rows in (2, 4):  # fewer usable pixels, the same bucket
             sf.fit(scene, _target(image, rows), options)
 
-    assert _compiled_during(fewer_pixels) == []
+    assert support.compiled_during(fewer_pixels) == []
 
 
 def test_least_squares_huber_and_cauchy_share_one_program_with_each_losss_own_values(scene_and_image):
@@ -148,7 +147,7 @@ def test_least_squares_huber_and_cauchy_share_one_program_with_each_losss_own_va
         for loss in ("huber", "cauchy"):
             found[loss] = costs(problems[loss], xs)
 
-    assert _compiled_during(others) == []
+    assert support.compiled_during(others) == []
     found["linear"] = costs(problems["linear"], xs)
     for loss, problem in problems.items():
         # the loss as structure (the problem as it is, not its kernel form), compiled apart
@@ -160,23 +159,3 @@ def test_least_squares_huber_and_cauchy_share_one_program_with_each_losss_own_va
             np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * float(np.max(np.abs(b))))
     assert not np.allclose(found["huber"], found["linear"])  # the losses do differ here
     assert not np.allclose(found["cauchy"], found["huber"])
-
-
-def _compiled_during(action) -> list[str]:
-    """The programs JAX compiled while ``action()`` ran (its log of compilations)."""
-    messages: list[str] = []
-
-    class Collect(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            messages.append(record.getMessage())
-
-    handler = Collect()
-    logger = logging.getLogger("jax")
-    logger.addHandler(handler)
-    jax.config.update("jax_log_compiles", True)
-    try:
-        action()
-    finally:
-        jax.config.update("jax_log_compiles", False)
-        logger.removeHandler(handler)
-    return [m for m in messages if m.startswith("Compiling")]
