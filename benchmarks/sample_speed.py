@@ -62,7 +62,6 @@ from numpy_reference import shade_numpy, sphere_normals  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
 from strauss_fit import Target, fit  # noqa: E402
-from strauss_fit.inference.laplace import laplace_covariance  # noqa: E402
 from strauss_fit.inference.posterior import LogPosterior, default_prior  # noqa: E402
 from strauss_fit.inference.sampler import (  # noqa: E402
     SampleSettings,
@@ -71,6 +70,7 @@ from strauss_fit.inference.sampler import (  # noqa: E402
     initial_walkers,
     run_sampler,
 )
+from strauss_fit.stats.laplace import laplace_covariance  # noqa: E402
 
 #: The material of the scene (key_and_fill.toml, local model only).
 SCENE_MATERIAL = dict(color=[0.5, 0.5, 0.5], smoothness=0.5, metalness=0.2)

@@ -82,10 +82,10 @@ import strauss_fit as sf  # noqa: E402
 from strauss_fit import Target, fit, parse_scene, plan_render  # noqa: E402
 from strauss_fit.fit.identifiability import DEFAULT_THRESHOLD, MIRROR_SMOOTHNESS  # noqa: E402
 from strauss_fit.fit.solvers import solve_starts  # noqa: E402
-from strauss_fit.inference.laplace import information as laplace_information  # noqa: E402
-from strauss_fit.inference.laplace import jacobian as laplace_jacobian  # noqa: E402
 from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE  # noqa: E402
 from strauss_fit.render.strauss import render_jit  # noqa: E402
+from strauss_fit.stats.laplace import information as laplace_information  # noqa: E402
+from strauss_fit.stats.laplace import jacobian as laplace_jacobian  # noqa: E402
 
 FREE = ("color", "smoothness", "metalness")
 NOISE = 0.01  # of the clean image's 98th percentile over the sphere
@@ -799,7 +799,6 @@ def knob_sampler(quick: bool) -> dict:
         "rows": [laplace_row(laplace, truth, fit_times)],
     }
     try:
-        from strauss_fit.inference.laplace import laplace_covariance
         from strauss_fit.inference.posterior import LogPosterior, default_prior
         from strauss_fit.inference.sampler import (
             SampleSettings,
@@ -809,6 +808,7 @@ def knob_sampler(quick: bool) -> dict:
             initial_walkers,
             run_sampler,
         )
+        from strauss_fit.stats.laplace import laplace_covariance
     except ImportError as exc:  # the sampler is another engineer's work in progress
         return dict(
             out,

@@ -84,7 +84,7 @@ def figure_path(output: str | Path) -> Path:
 def _target_noise(args: argparse.Namespace, samples, target):
     """σ per value of TARGET (given, else its sidecar's) and what it came from; (None, note)
     when unknown."""
-    from strauss_fit.inference.noise import describe_noise, read_sidecar
+    from strauss_fit.stats.noise import describe_noise, read_sidecar
 
     from .fit_cmd import parse_noise
 
@@ -175,7 +175,7 @@ def _capture_samples(args: argparse.Namespace, png: Path, log):
     _check_outputs(args, png, named)
     given = parse_noise(args.noise)
     if given is not None:  # σ² and 1/σ² within float64's range, as for TARGET's noise
-        from strauss_fit.inference.noise import check_noise_level
+        from strauss_fit.stats.noise import check_noise_level
 
         check_noise_level(given, "--noise")
     log(f"reading {len(capture.images)} images")

@@ -8,8 +8,9 @@ scene → geometry → shading → image → fit → uncertainty → report
 - :mod:`strauss_fit.scene`: camera, lights, background, the scene file;
 - :mod:`strauss_fit.render`: rendering the sphere (Strauss with its global model, Phong);
 - :mod:`strauss_fit.io`: images, fit targets, material tables, safe writes;
+- :mod:`strauss_fit.stats`: Laplace and sandwich covariances, the target's noise;
 - :mod:`strauss_fit.fit`: least-squares recovery of the material;
-- :mod:`strauss_fit.inference`: Laplace uncertainties, the posterior, emcee sampling;
+- :mod:`strauss_fit.inference`: the posterior, emcee sampling;
 - :mod:`strauss_fit.reporting`: the uncertainty report and the study's report;
 - :mod:`strauss_fit.convert`: Phong ↔ Strauss conversion; :mod:`strauss_fit.study`: the
   intuitive-parameter study.

@@ -12,7 +12,7 @@ def test_the_fit_command_imports_no_scipy_before_it_needs_it():
     code = (
         "import sys\n"
         "import strauss_fit, strauss_fit_cli.main, strauss_fit_cli.fit_cmd, strauss_fit.fit.folder\n"
-        "from strauss_fit.inference import noise\n"
+        "from strauss_fit.stats import noise\n"
         "print(sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.')))\n"
     )
     finished = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -25,7 +25,7 @@ def test_the_noise_estimate_still_finds_scipy_when_it_runs():
     code = (
         "import sys\n"
         "import numpy as np\n"
-        "from strauss_fit.inference.noise import estimate_noise\n"
+        "from strauss_fit.stats.noise import estimate_noise\n"
         "rng = np.random.default_rng(0)\n"
         "image = 0.5 + 0.01 * rng.normal(size=(64, 64, 3))\n"
         "estimate = estimate_noise(image, np.ones((64, 64), bool))\n"

@@ -8,7 +8,7 @@ model to that image by least squares, starting from a closed-form guess:
   Strauss fit's machinery (:func:`strauss_fit.fit.problem.build_problem`, its start grid
   (:func:`strauss_fit.fit.starts.starts`), its bound-aware polish
   (:func:`strauss_fit.fit.solvers.polish`) and its Laplace uncertainty
-  (:func:`strauss_fit.inference.laplace.problem_laplace`)). Transparency and index of refraction
+  (:func:`strauss_fit.stats.laplace.problem_laplace`)). Transparency and index of refraction
   are not visible in a local rendering over black: the fit matches the *opaque* appearance
   (t = 0), and t = 1 − opacity (``d`` of a ``.mtl``) and n (``Ni``) are carried over as
   given. Strauss's t scales both its diffuse and its base specular reflectivity by
@@ -73,8 +73,6 @@ from ..fit.parameters import jsonable, material_with
 from ..fit.problem import build_problem, physical_values, render_at, take_pixels_jit
 from ..fit.solvers import STRICT_REJECT_RATIO, polish_steps, solve_starts
 from ..fit.starts import START_MARGIN, starts
-from ..inference.laplace import covariance, deviations, jacobian_kernel, problem_laplace_steps
-from ..inference.laplace import information as information_of
 from ..io.files import check_distinct, check_writable
 from ..io.journal import Journal, run_key
 from ..io.material_tables import Entry, output_format, read_phong_input, read_strauss_input, write_results
@@ -86,6 +84,8 @@ from ..precision import uses_float64
 from ..render.phong import render_phong
 from ..render.strauss import plan_render
 from ..scene.loading import Scene, load_scene
+from ..stats.laplace import covariance, deviations, jacobian_kernel, problem_laplace_steps
+from ..stats.laplace import information as information_of
 from .phong_fit import (
     PHONG_LAYOUT,
     exponent_from_unit,

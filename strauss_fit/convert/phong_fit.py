@@ -36,11 +36,11 @@ from jax import Array
 from ..engine import Kernel
 from ..fit.parameters import Layout
 from ..fit.solvers import STRICT_REJECT_RATIO, levenberg_marquardt
-from ..inference import laplace
 from ..models.phong import MAX_EXPONENT, PhongMaterial, coefficient, highlight_power, phong_angles
 from ..scene.camera import intersect_unit_sphere, primary_rays
 from ..scene.lights import sample_lights
 from ..scene.loading import Scene
+from ..stats import laplace
 
 #: The fitted vector: D (rgb), S (rgb), u (log exponent), all in [0, 1].
 PHONG_LAYOUT = Layout(("diffuse_r", "diffuse_g", "diffuse_b", "specular_r", "specular_g", "specular_b", "log_exponent"))
@@ -230,7 +230,7 @@ def laplace_deviations_from(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Standard deviations and correlation matrix of the physical parameters from the
     Gauss–Newton (Laplace) approximation :math:`\\Sigma = \\sigma^2 (J^\top J)^{-1}`,
-    :math:`\\sigma^2 = \\mathrm{RSS}/(N - P)` (:mod:`strauss_fit.inference.laplace`), as for a
+    :math:`\\sigma^2 = \\mathrm{RSS}/(N - P)` (:mod:`strauss_fit.stats.laplace`), as for a
     Strauss fit, from the Jacobian ``jacobian`` already computed; the entries not ``free``
     (held) are left out of the inverse (deviation 0, the others conditional on them)."""
     j = np.asarray(jacobian)

@@ -12,6 +12,8 @@ In the order a fit uses them:
 - :mod:`~strauss_fit.fit.starts`: the starting points and the scan over n;
 - :mod:`~strauss_fit.fit.solvers`: the optimistix solvers, the batched starts and the
   bound-aware polish;
+- :mod:`~strauss_fit.fit.equivalence`: the perceptual equivalence ranges (refits with a
+  parameter held);
 - :mod:`~strauss_fit.fit.result`: :class:`~strauss_fit.fit.result.FitResult` and its JSON;
 - :mod:`~strauss_fit.fit.api`: :func:`~strauss_fit.fit.api.fit`, which puts them together.
 

@@ -13,7 +13,7 @@ the material-independent part of the rendering is prepared once), the closed-for
 (:mod:`strauss_fit.fit.starts`), the solves and the bound-aware polish
 (:mod:`strauss_fit.fit.solvers`), the verdict on whether the model reproduces the target
 (:mod:`strauss_fit.fit.diagnosis`, against the target's noise from
-:mod:`strauss_fit.inference.noise`), the uncertainties (:mod:`strauss_fit.inference.laplace`:
+:mod:`strauss_fit.stats.noise`), the uncertainties (:mod:`strauss_fit.stats.laplace`:
 the noise sandwich when the noise is known, else the Laplace approximation) and the result
 (:mod:`strauss_fit.fit.result`).
 
@@ -38,16 +38,15 @@ import numpy as np
 from ..color import delta_e_2000
 from ..engine import Steps, run
 from ..errors import StraussFitError
-from ..inference import laplace
-from ..inference.equivalence import equivalence_ranges_steps
-from ..inference.laplace import padded_noise, problem_laplace_steps, sandwich_from_parts, sandwich_parts_kernel
-from ..inference.noise import NoiseModel, describe_noise
 from ..io.targets import Target, reduce_target
 from ..models.material import PARAMETER_NAMES, Material
 from ..precision import uses_float64
 from ..render.strauss import Prepared, RenderPlan, plan_render
 from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene
+from ..stats import laplace
+from ..stats.laplace import padded_noise, problem_laplace_steps, sandwich_from_parts, sandwich_parts_kernel
+from ..stats.noise import NoiseModel, describe_noise
 from .diagnosis import (
     REACH_MARGIN,
     Diagnosis,
@@ -56,6 +55,7 @@ from .diagnosis import (
     reachable_maximum_steps,
     uncertainty_warnings,
 )
+from .equivalence import equivalence_ranges_steps
 from .guess import initial_guess
 from .identifiability import (
     MAX_DECISIONS,

@@ -38,9 +38,9 @@ import numpy as np
 from ..capture._samples import CaptureSamples
 from ..color import delta_e_2000
 from ..errors import CaptureError
-from ..inference.laplace import sandwich
 from ..models.reflectance import REFLECTANCE_MODELS, reflectance_model
 from ..precision import float64
+from ..stats.laplace import sandwich
 from .solvers import STRICT_REJECT_RATIO, _result_code, levenberg_marquardt, status_name
 
 #: The reflectance models a capture can be fitted with: every registered one.

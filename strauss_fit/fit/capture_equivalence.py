@@ -1,7 +1,7 @@
 r"""Perceptual equivalence ranges of a capture's fit: which materials look the same under
 every light of the capture?
 
-The same question as for one image (:mod:`strauss_fit.inference.equivalence`), asked of the
+The same question as for one image (:mod:`strauss_fit.fit.equivalence`), asked of the
 whole capture. For a material parameter p (each channel of a colour separately) with best
 value p̂, and the best fit's prediction :math:`\hat I_l` of every image l,
 

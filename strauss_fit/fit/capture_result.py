@@ -9,7 +9,7 @@ both sides:
   stored values;
 - from above, by the images' five-point Laplacian on the sphere, binned by level: noise of
   level σ gives it a spread of √20 σ, and the picture's own curvature only adds to it
-  (:func:`strauss_fit.inference.noise.binned_laplacian_bound`).
+  (:func:`strauss_fit.stats.noise.binned_laplacian_bound`).
 
 ``consistent`` when the residual is within even the lower bound; ``mismatch`` when its RMS
 exceeds :data:`strauss_fit.fit.capture.BOUND_FACTOR` times the upper bound (whatever the
@@ -32,9 +32,9 @@ from ..capture._manifest import Capture, open_capture
 from ..capture._samples import CaptureSamples, load_samples
 from ..color import delta_e_2000
 from ..errors import CaptureError
-from ..inference.noise import binned_laplacian_bound
 from ..models.material import PARAMETER_NAMES
 from ..precision import float64
+from ..stats.noise import binned_laplacian_bound
 from . import capture_stability
 from .capture import (
     BOUND_FACTOR,
@@ -98,7 +98,7 @@ def holdout_indices(spec: str | int | Sequence[int], count: int) -> list[int]:
 
 def noise_bound(samples: CaptureSamples, residual_levels: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """Per value (L, P, 3): an upper bound on the noise σ at the observed level, from the
-    images' five-point Laplacians (:func:`strauss_fit.inference.noise.binned_laplacian_bound`);
+    images' five-point Laplacians (:func:`strauss_fit.stats.noise.binned_laplacian_bound`);
     and its level bins (for the result)."""
     return binned_laplacian_bound(samples.laplacian, samples.values, samples.usable, residual_levels)
 

@@ -2,7 +2,7 @@ r"""Can the model reproduce the target? The verdict of a fit, where it fails and
 
 A fit always finds *some* best Strauss material; whether that material reproduces the
 target is a separate question, answered against the target's noise
-(:class:`strauss_fit.inference.noise.NoiseModel`, which does not come from the fit's own
+(:class:`strauss_fit.stats.noise.NoiseModel`, which does not come from the fit's own
 residual): with σ each value's noise at the fitted radiance,
 
 .. math:: \chi^2/\mathrm{dof} = \frac{1}{N - P}\sum_i \left(\frac{I_i - T_i}{\sigma_i}\right)^2,
@@ -12,15 +12,15 @@ right, widened by the noise level's own relative uncertainty ε (:math:`2ε` on 
 verdict is *consistent* when :math:`z = (\chi^2/\mathrm{dof} - 1)/\mathrm{spread} \le 3`,
 otherwise *mismatch*.
 
-When the noise is unknown (no sidecar, and :func:`~strauss_fit.inference.noise.estimate_noise`
+When the noise is unknown (no sidecar, and :func:`~strauss_fit.stats.noise.estimate_noise`
 cannot separate it from the image's content), the image still bounds it from above: the
 local mean square of a second-difference high-pass residual is the noise variance plus the
-signal's own curvature (:func:`~strauss_fit.inference.noise.noise_bound`). The verdict is
-then one-sided (:func:`~strauss_fit.inference.noise.one_sided_verdict`): *mismatch* when the
+signal's own curvature (:func:`~strauss_fit.stats.noise.noise_bound`). The verdict is
+then one-sided (:func:`~strauss_fit.stats.noise.one_sided_verdict`): *mismatch* when the
 residual is too large (χ²/dof at the bound above
-:data:`~strauss_fit.inference.noise.BOUND_CHI2`) or too structured (its smooth part alone
-above :data:`~strauss_fit.inference.noise.STRUCTURE_POWER` times the bound's variance, by
-:data:`~strauss_fit.inference.noise.STRUCTURE_Z` standard errors) for any noise up to that
+:data:`~strauss_fit.stats.noise.BOUND_CHI2`) or too structured (its smooth part alone
+above :data:`~strauss_fit.stats.noise.STRUCTURE_POWER` times the bound's variance, by
+:data:`~strauss_fit.stats.noise.STRUCTURE_Z` standard errors) for any noise up to that
 bound, else *undetermined*: a residual within the bound may or may not be noise.
 
 Where: the used pixels fall into regions — the *highlight* of a light (within
@@ -60,7 +60,8 @@ import numpy as np
 from jax import Array
 
 from ..engine import Kernel, Steps, run
-from ..inference.noise import (
+from ..models.material import REFLECTION_NAMES
+from ..stats.noise import (
     BOUND_CHI2,
     BOUND_TILE,
     STRUCTURE_POWER,
@@ -71,7 +72,6 @@ from ..inference.noise import (
     noise_bound,
     one_sided_verdict,
 )
-from ..models.material import REFLECTION_NAMES
 from .parameters import Layout
 
 #: z of χ²/dof above which the model is said not to reproduce the target.
@@ -314,8 +314,8 @@ def _one_sided(
     delta_e_mean: float,
 ) -> np.ndarray | None:
     """The one-sided verdict of a target whose noise is unknown: the residual against the
-    largest noise the image can hold (:func:`~strauss_fit.inference.noise.noise_bound`,
-    :func:`~strauss_fit.inference.noise.one_sided_verdict`). Sets ``diagnosis``'s bound
+    largest noise the image can hold (:func:`~strauss_fit.stats.noise.noise_bound`,
+    :func:`~strauss_fit.stats.noise.one_sided_verdict`). Sets ``diagnosis``'s bound
     and test, and on a mismatch its verdict and a ``model-mismatch`` warning that says the
     verdict is one-sided. Returns the bound σ_b (N, 3) at the used pixels; None, with
     nothing set, when the used pixels are too few to bound the noise (the verdict stays
@@ -499,7 +499,7 @@ def uncertainty_warnings(
       were it free (``free_covariance``: the same covariance with nothing pinned), would
       exceed that fraction: the cost is nearly flat, and the bound, not the image, sets it.
 
-    ``equivalence`` (:func:`strauss_fit.inference.equivalence.equivalence_ranges`), when
+    ``equivalence`` (:func:`strauss_fit.fit.equivalence.equivalence_ranges`), when
     computed, is quoted."""
     from .identifiability import deviation_scale
 

@@ -63,13 +63,13 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CaptureError, OutputExistsError, StraussFitError
-from ..inference.noise import sidecar_path
 from ..io.files import Outputs, check_input_file, check_replaceable, read_json
 from ..io.images import add_image, read_image
 from ..io.journal import file_digest, pytree_digest, run_key
 from ..io.targets import Target
 from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene, load_scene
+from ..stats.noise import sidecar_path
 from .batch import DEFAULT_CHUNK, BatchProgress, FitFailure, FitJob, _failure, _loaded, fit_many
 from .capture import CaptureFitOptions, _parameters
 from .capture_result import check_capture_result, fit_capture, is_capture_result

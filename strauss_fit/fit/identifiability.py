@@ -39,12 +39,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..engine import Steps, run
-from ..inference import laplace
 from ..io.targets import Target
 from ..models.material import FRACTION_NAMES, Material
 from ..render.strauss import plan_render
 from ..scene.lights import Lights
 from ..scene.loading import Scene
+from ..stats import laplace
 from .options import DEFAULT_THRESHOLD
 from .parameters import Layout, value_of
 from .problem import build_problem_steps, costs

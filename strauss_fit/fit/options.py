@@ -133,9 +133,9 @@ class FitOptions:
     #: background together), the usual unknown of a photograph or a foreign render.
     fit_exposure: bool = False
     #: The target's noise standard deviation (linear units; one value or R, G, B, each
-    #: within :data:`~strauss_fit.inference.noise.NOISE_RANGE`) when known; None: from the
+    #: within :data:`~strauss_fit.stats.noise.NOISE_RANGE`) when known; None: from the
     #: target's sidecar, else estimated from the image
-    #: (:func:`strauss_fit.inference.noise.describe_noise`).
+    #: (:func:`strauss_fit.stats.noise.describe_noise`).
     noise: float | tuple[float, float, float] | None = None
     #: What the solver minimises (:data:`~strauss_fit.fit.problem.LOSSES`): ``"linear"``
     #: least squares, ``"perceptual"`` (cube-root), ``"huber"``, ``"cauchy"``; ``"auto"``:
@@ -151,7 +151,7 @@ class FitOptions:
     #: A result records what was used.
     edge_pixels: str = "auto"
     #: Also compute each free parameter's perceptual equivalence range
-    #: (:func:`strauss_fit.inference.equivalence.equivalence_ranges`): on in the
+    #: (:func:`strauss_fit.fit.equivalence.equivalence_ranges`): on in the
     #: ``accurate`` preset.
     equivalence: bool = bool(_BALANCED["equivalence"])
     #: Its threshold, a mean CIEDE2000 (1: one just-noticeable difference).
@@ -199,7 +199,7 @@ class FitOptions:
 
     def validate(self) -> None:
         """Raise :class:`~strauss_fit.errors.StraussFitError` naming the first bad setting."""
-        from ..inference.noise import check_noise_level
+        from ..stats.noise import check_noise_level
         from .problem import LOSSES
 
         if self.loss not in ("auto", *LOSSES):

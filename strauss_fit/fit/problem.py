@@ -183,7 +183,7 @@ class Problem(eqx.Module):
         ``model`` (N, 3) and the ``target`` (N, 3), flattened (N·3,). Each residual depends on
         its own model value and target value alone (the loss, the padding's weight and the
         scale act value by value), which lets the noise sandwich take their derivatives
-        value by value (:func:`strauss_fit.inference.laplace.objective_terms`)."""
+        value by value (:func:`strauss_fit.stats.laplace.objective_terms`)."""
         if self.loss == "linear":
             return self._masked(model - target).ravel() / self.residual_scale
         return self._masked(loss_residual(self, model, target)).ravel() / self.residual_scale

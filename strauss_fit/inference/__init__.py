@@ -1,7 +1,6 @@
-"""Uncertainty: the Laplace approximation, the posterior, emcee sampling and summaries.
+"""Uncertainty beyond the fit: the posterior, emcee sampling and summaries (the Laplace
+approximation and the noise are below the fit, in :mod:`strauss_fit.stats`).
 
-- :mod:`~strauss_fit.inference.laplace`: JᵀJ → covariance → deviations and correlations
-  (the one home of that computation);
 - :mod:`~strauss_fit.inference.posterior`: likelihood, priors, the noise level, and a
   fit's problem rebuilt from its result;
 - :mod:`~strauss_fit.inference.sampler`: emcee runs, chain files, diagnostics, and

@@ -8,7 +8,7 @@ Hessian of ½RSS). When the model cannot reproduce the target, the fitted values
 scatter like that over fresh noise: their covariance about the *pseudo-true* values (the
 best Strauss approximation of the noise-free image) is the noise sandwich
 :math:`V = H^{-1} J^\top \Sigma_\varepsilon J H^{-1}` of the fit
-(:func:`strauss_fit.inference.laplace.problem_sandwich`), which weighs the noise by where
+(:func:`strauss_fit.stats.laplace.problem_sandwich`), which weighs the noise by where
 the Jacobian looks, and the misfit's curvature enters H. On Phong and Mitsuba targets the
 variance inflation needed, the generalised eigenvalues of :math:`(\Sigma_\text{post}, V)`,
 differed by up to 7× between directions, so one scalar cannot fix it everywhere.
@@ -30,7 +30,7 @@ Two adjustments (``sample --adjust``):
   eigenvalue of (:math:`\Sigma_\text{post}` predicted as :math:`\sigma^2 H^{-1}`, V)
   (:func:`temperature`), both matrices over the same entries — those the fit did not pin
   at a bound, the others held where the fit put them, as the sandwich holds them
-  (:func:`strauss_fit.inference.laplace.posterior_covariance`). Every interval is then at
+  (:func:`strauss_fit.stats.laplace.posterior_covariance`). Every interval is then at
   least as wide as the sandwich's — conservative, and wider than needed in the other
   directions. Tempering only ever widens: where the chain is already at least as wide as V
   in every direction (:math:`\lambda_\max < 1`), T = 1 and the likelihood is left as it

@@ -104,7 +104,7 @@ from ..fit.capture_result import is_capture_result, reload_capture_fit
 from ..fit.options import DEFAULT_QUALITY
 from ..io.files import check_writable, read_json
 from ..precision import uses_float64
-from . import laplace as _laplace
+from ..stats import laplace as _laplace
 from .adjustment import METHODS as ADJUST_METHODS
 from .adjustment import AdjustmentError, adjusted_entries, temperature
 from .posterior import EXACT_FIT, Prior, check_sigma

@@ -25,7 +25,7 @@ range (``--prior``). Outside the box :math:`\log p = -\infty`.
 
 Laplace (Gauss–Newton) estimate: at :math:`\hat\theta`,
 :math:`\Sigma \approx \sigma^2 (J^\top J)^{-1}`, J the Jacobian of r
-(:func:`strauss_fit.inference.laplace.laplace_covariance`). It is exact for a linear model
+(:func:`strauss_fit.stats.laplace.laplace_covariance`). It is exact for a linear model
 with a flat prior and an optimum away from the bounds.
 """
 
@@ -131,9 +131,9 @@ def parse_priors(items: list[str]) -> dict[str, tuple[float, float]]:
 
 def check_sigma(sigma: float, what: str = "the noise level sigma") -> float:
     """σ must be a finite positive number, within
-    :data:`~strauss_fit.inference.noise.NOISE_RANGE` (σ² and 1/σ² stay in float64's range);
+    :data:`~strauss_fit.stats.noise.NOISE_RANGE` (σ² and 1/σ² stay in float64's range);
     ``what`` names it in the error (``--sigma`` on the command line)."""
-    from .noise import check_noise_level
+    from ..stats.noise import check_noise_level
 
     if not np.isfinite(sigma) or sigma <= 0:
         raise PosteriorError(f"the noise level sigma must be a finite number > 0, got {sigma:g}")

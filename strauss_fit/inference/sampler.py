@@ -103,7 +103,7 @@ from ..io.files import Outputs, WriteError, check_writable, read_json
 from ..io.targets import load_target, match_scene
 from ..precision import uses_float64
 from ..scene.loading import load_scene
-from . import laplace
+from ..stats import laplace
 from .adjustment import METHODS as ADJUST_METHODS
 from .adjustment import (
     AdjustmentError,

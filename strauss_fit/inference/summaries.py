@@ -40,7 +40,7 @@ import numpy as np
 
 from ..fit.identifiability import deviation_scale
 from ..fit.result import FitResult
-from . import laplace as _laplace
+from ..stats import laplace as _laplace
 from .adjustment import loss_of
 
 if TYPE_CHECKING:

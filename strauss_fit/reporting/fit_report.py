@@ -32,7 +32,6 @@ import numpy as np
 from ..color import srgb_encode
 from ..errors import StraussFitError
 from ..fit.result import FitResult
-from ..inference import laplace as _laplace
 from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings, loss_warning
 from ..io.files import Outputs, check_writable, read_json
@@ -41,6 +40,7 @@ from ..models.material import FRACTION_NAMES
 from ..models.strauss import DEFAULT_TABLE_SIZE
 from ..precision import uses_float64
 from ..scene.loading import Scene, load_scene
+from ..stats import laplace as _laplace
 from .document import Document
 from .figures import new_figure, png_bytes
 

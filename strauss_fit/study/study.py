@@ -66,13 +66,13 @@ from ..errors import StraussFitError
 from ..fit.identifiability import reference_noise_level
 from ..fit.options import FitOptions
 from ..fit.problem import build_problem
-from ..inference import laplace
 from ..io.targets import Target
 from ..models.albedo import DEFAULT_NODES, phong_reflectance, quadrature_error, strauss_reflectance
 from ..models.material import FRACTION_NAMES, REFLECTION_NAMES, Material
 from ..models.phong import PhongMaterial
 from ..precision import uses_float64
 from ..render.strauss import plan_render
+from ..stats import laplace
 
 #: Novice ranges of the draws.
 PHONG_EXPONENT_RANGE = (1.0, 1000.0)

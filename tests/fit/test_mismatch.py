@@ -19,9 +19,9 @@ import pytest
 import strauss_fit as sf
 import support
 from strauss_fit.fit.problem import CAUCHY_C, HUBER_K, build_problem, loss_residual
-from strauss_fit.inference.laplace import problem_sandwich
-from strauss_fit.inference.noise import describe_noise
 from strauss_fit.render.coverage import fully_covered, pixel_coverage
+from strauss_fit.stats.laplace import problem_sandwich
+from strauss_fit.stats.noise import describe_noise
 
 MITSUBA = support.SCENES.parent / "bundled_mitsuba"
 
@@ -287,7 +287,7 @@ def test_the_noise_sandwich_is_the_laplace_covariance_when_the_model_is_right(ke
     problem, x = result.problem, result.x
     _, _, sandwich, _ = problem_sandwich(problem, x, np.full(problem.target.size, sigma))
     with sf.float64():
-        from strauss_fit.inference.laplace import covariance, information, jacobian
+        from strauss_fit.stats.laplace import covariance, information, jacobian
 
         laplace = covariance(information(np.asarray(jacobian(problem, jnp.asarray(x)))), sigma**2)
     free = ~np.asarray(problem.pinned)
@@ -305,7 +305,7 @@ def _noisy(scene, material, sigma=0.005, seed=0):
 
 
 def test_equivalence_ranges_hold_the_fit_widen_with_the_threshold_and_see_what_the_eye_sees():
-    from strauss_fit.inference.equivalence import equivalence_ranges
+    from strauss_fit.fit.equivalence import equivalence_ranges
 
     material = dict(color=(0.6, 0.4, 0.3), smoothness=0.0, metalness=0.0)
     scene = support.key_and_fill_scene(40, material=material, source="matte")

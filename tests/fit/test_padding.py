@@ -13,8 +13,8 @@ import pytest
 import strauss_fit as sf
 import support
 from strauss_fit.fit.problem import build_problem, pixel_bucket
-from strauss_fit.inference.laplace import problem_laplace, problem_sandwich
 from strauss_fit.render.strauss import plan_render
+from strauss_fit.stats.laplace import problem_laplace, problem_sandwich
 
 pytestmark = pytest.mark.usefixtures("x64")
 
@@ -122,7 +122,7 @@ def test_least_squares_huber_and_cauchy_share_one_program_with_each_losss_own_va
     structure, compiled on its own, to 1e-12)."""
     from strauss_fit.engine import batch_key
     from strauss_fit.fit.problem import LOSS_BY_CODE, costs
-    from strauss_fit.inference.laplace import _objective_terms, objective_terms_kernel
+    from strauss_fit.stats.laplace import _objective_terms, objective_terms_kernel
 
     scene, image = scene_and_image
     target = _target(image, 3)

@@ -1,7 +1,7 @@
 """The one-sided verdict of a target without a noise sidecar (issue 25, item 8).
 
 When a target's noise is unknown (no sidecar, and the image does not reveal it), the image
-still bounds it from above (``strauss_fit.inference.noise.noise_bound``: the signal's own
+still bounds it from above (``strauss_fit.stats.noise.noise_bound``: the signal's own
 curvature only inflates a second-difference residual), and a residual too large or too
 structured for any noise up to that bound is a mismatch whatever the noise is
 (``one_sided_verdict``). These tests fit sidecar-free copies of bundled targets (the image
@@ -28,7 +28,7 @@ import strauss_fit as sf
 import support
 from strauss_fit.fit.diagnosis import Diagnosis
 from strauss_fit.fit.summary import verdict_lines
-from strauss_fit.inference.noise import (
+from strauss_fit.stats.noise import (
     BOUND_CHI2,
     STRUCTURE_POWER,
     STRUCTURE_Z,

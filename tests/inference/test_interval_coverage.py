@@ -1,6 +1,6 @@
 """Coverage of the fit's intervals when the model cannot reproduce the target (issue 13.1).
 
-The fit's ± under mismatch is the noise sandwich (:func:`strauss_fit.inference.laplace.problem_sandwich`):
+The fit's ± under mismatch is the noise sandwich (:func:`strauss_fit.stats.laplace.problem_sandwich`):
 the spread of the fitted values over fresh noise around the *pseudo-true* values — the fit to
 the noise-free image. Here targets the Strauss model cannot reproduce (a Phong sphere, a
 Mitsuba rough plastic) get many independent noise draws; the ±1.96 σ intervals must cover

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from strauss_fit.color import srgb_decode, srgb_encode
-from strauss_fit.inference import noise as ne
+from strauss_fit.stats import noise as ne
 
 # ------------------------------------------------------------------------------------------
 # synthetic spheres
@@ -475,7 +475,7 @@ def test_the_level_line_fit_survives_a_bin_without_noise_and_matches_weighted_le
     others), which made the inverse of the normal matrix report negative variances (a math
     domain error that ended a fit). The values are the ones recorded from that fit. On
     ordinary data the fit is weighted least squares (numpy.polyfit with weights 1/se)."""
-    from strauss_fit.inference.noise import _fit_line
+    from strauss_fit.stats.noise import _fit_line
 
     x = np.array(
         [0.0780969866747178, 0.11058016741189494, 0.13574167886219324, 0.1546373470235953, 0.16920198140812687]

@@ -7,12 +7,12 @@ import pytest
 
 import strauss_fit as sf
 from strauss_fit import fit
-from strauss_fit.inference.laplace import laplace_covariance
 from strauss_fit.inference.posterior import LogPosterior, default_prior
 from strauss_fit.inference.sampler import SampleSettings, initial_walkers, run_sampler
 from strauss_fit.inference.summaries import Laplace, degeneracy_warnings
 from strauss_fit.reporting.document import Document
 from strauss_fit.reporting.fit_report import build_report, render_fit
+from strauss_fit.stats.laplace import laplace_covariance
 from support import SMALL_MATERIAL, key_and_fill_scene, legacy_options, noisy_target
 
 pytestmark = pytest.mark.usefixtures("x64")

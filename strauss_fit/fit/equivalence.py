@@ -1,6 +1,6 @@
 r"""Which values look the same? Perceptual equivalence ranges of a fit.
 
-The statistical ± of a fit (:mod:`strauss_fit.inference.laplace`) answers "how well do the
+The statistical ± of a fit (:mod:`strauss_fit.stats.laplace`) answers "how well do the
 data pin the best Strauss approximation"; it shrinks with every extra pixel and says
 nothing about what a person sees. The *equivalence range* of a parameter answers the
 artist's question instead: how far can its slider move, the other parameters re-adjusted,
@@ -52,7 +52,7 @@ def _real(problem: Any, per_pixel: Any) -> np.ndarray:
 
 
 def _perceptual_copy(problem: Any, image: np.ndarray) -> Any:
-    from ..fit.problem import PERCEPTUAL_OFFSET
+    from .problem import PERCEPTUAL_OFFSET
 
     level = max(float(np.percentile(_real(problem, image), 98)), 1e-12)
     offset = PERCEPTUAL_OFFSET * level
@@ -86,8 +86,8 @@ def equivalence_ranges_steps(
 ) -> Steps:
     """:func:`equivalence_ranges` as steps: ``delta_e`` the threshold (mean CIEDE2000), the
     inner fits' tolerances and step limit."""
-    from ..fit.problem import physical_values, render_at
-    from ..fit.solvers import solve_starts
+    from .problem import physical_values, render_at
+    from .solvers import solve_starts
 
     if not np.isfinite(delta_e) or delta_e <= 0:
         raise StraussFitError(f"the equivalence threshold must be a positive CIEDE2000, got {delta_e}")

@@ -1,0 +1,14 @@
+"""Statistics a fit needs, below the fit in the layers (docs/development.md#layers):
+
+- :mod:`~strauss_fit.stats.laplace`: JᵀJ → covariance → deviations and correlations, the
+  noise sandwich (the one home of those computations);
+- :mod:`~strauss_fit.stats.noise`: the target's noise, estimated from the image or read
+  from its sidecar, and the noise model at a radiance.
+
+They take arrays and problems, never fits: :mod:`strauss_fit.fit` uses them, and
+:mod:`strauss_fit.inference` (the posterior and sampling) sits above both. The perceptual
+equivalence ranges refit with a parameter held, so they live in the fit
+(:mod:`strauss_fit.fit.equivalence`).
+
+Next in the flow: :mod:`strauss_fit.render` is below; :mod:`strauss_fit.fit` above.
+"""
