@@ -47,7 +47,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .runtime import turned_off
+from ._environment import turned_off
 
 #: Bump when the file layout changes.
 FORMAT = 2

@@ -43,6 +43,8 @@ import os
 import sys
 from pathlib import Path
 
+from ._environment import turned_off
+
 #: Clear JAX's caches once the process holds this fraction of the mapping limit.
 MAP_FRACTION = 0.5
 _MAPS = Path("/proc/self/maps")
@@ -82,11 +84,6 @@ def use_cpu_cores() -> None:
         jax.config.update("jax_num_cpu_devices", devices)
     except (ImportError, AttributeError, RuntimeError):
         return
-
-
-def turned_off(setting: str | None) -> bool:
-    """Whether an environment setting says ``off`` (or ``none``, ``0``, empty); unset is not."""
-    return setting is not None and setting.strip().lower() in ("", "off", "none", "0")
 
 
 def cache_folder() -> Path | None:

@@ -21,6 +21,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "core",
         (
             "_version",
+            "_environment",
             "errors",
             "numerics",
             "precision",
@@ -45,11 +46,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 
 #: Imports that point up today, and why they are still there (none).
 KNOWN_UPWARD: set[tuple[str, str]] = set()
-#: Import cycles today (sorted module lists), and why.
-KNOWN_CYCLES = {
-    # the runtime configures the export cache, which asks the runtime whether caching is on
-    ("export_cache", "runtime"),
-}
+#: Import cycles today, and why (none).
+KNOWN_CYCLES: set[tuple[str, ...]] = set()
 
 
 def _modules() -> dict[str, Path]:
