@@ -46,13 +46,15 @@ import numpy as np
 from jax import Array
 
 from ..engine import Kernel, Steps, run
+from ..models.material import OPAQUE_NAMES
 from ..precision import uses_float64
 from ..render.strauss import shade_prepared
 from .parameters import Layout, material_with
 from .problem import Problem, scaled
 
-#: The nonlinear parameters the grid spans (those of them that are free).
-GRID_NAMES = ("smoothness", "metalness")
+#: The nonlinear parameters the grid spans (those of them that are free): an opaque
+#: material's parameters but its colour, which is solved in closed form.
+GRID_NAMES = tuple(name for name in OPAQUE_NAMES if name != "color")
 #: Smoothness values of the grid: every 0.05 up to 0.9, then geometrically towards 1 (the
 #: highlight's exponent is 3/(1 − s), so equal steps of log(1 − s) change its width by equal
 #: factors), and the mirror, s = 1. Each costs four renders of the coarse subsample.
