@@ -106,14 +106,21 @@ def timed_batch(targets, scene, options, cache: str, executor=None) -> dict:
     results = fit_many(targets, scene, options, executor=executor)
     seconds = time.perf_counter() - started
     fitted = [r for r in results if not isinstance(r, FitFailure)]
+    losses = [r.solver["loss"] for r in fitted]
+    return _row(len(targets), seconds, len(results) - len(fitted), losses, cached_programs(cache) - before)
+
+
+def _row(count: int, seconds: float, failed: int, losses: list[str], programs: int) -> dict:
+    """One row of the table: ``count`` targets fitted in ``seconds``, the ``losses`` of the
+    fits that succeeded, the programs the run added to the cache."""
     return {
-        "targets": len(targets),
+        "targets": count,
         "seconds": seconds,
-        "per_s": len(targets) / seconds,
-        "s_per_target": seconds / len(targets),
-        "failed": len(results) - len(fitted),
-        "huber": sum(r.solver["loss"] == "huber" for r in fitted),
-        "programs": cached_programs(cache) - before,
+        "per_s": count / seconds,
+        "s_per_target": seconds / count,
+        "failed": failed,
+        "huber": sum(loss == "huber" for loss in losses),
+        "programs": programs,
     }
 
 
@@ -145,15 +152,8 @@ def cli_batch(targets, scene_text: str, cache: str) -> dict:
         subprocess.run(command, env=env, check=True, capture_output=True)
         seconds = time.perf_counter() - started
         results = [json.loads(p.read_text()) for p in sorted((folder / "out").glob("t*.json"))]
-    return {
-        "targets": len(targets),
-        "seconds": seconds,
-        "per_s": len(targets) / seconds,
-        "s_per_target": seconds / len(targets),
-        "failed": len(targets) - len(results),
-        "huber": sum(r["solver"]["loss"] == "huber" for r in results),
-        "programs": cached_programs(cache) - before,
-    }
+    losses = [r["solver"]["loss"] for r in results]
+    return _row(len(targets), seconds, len(targets) - len(results), losses, cached_programs(cache) - before)
 
 
 def one_process_per_target(targets, scene_text: str, count: int, cache: str) -> dict:
