@@ -44,9 +44,7 @@ from typing import TYPE_CHECKING, Any
 
 from ._version import __version__ as __version__
 from .errors import ImageError, MaterialError, OutputExistsError, SceneError, StraussFitError
-from .runtime import use_cpu_cores
-
-use_cpu_cores()  # before JAX starts: one CPU device per core, for batches (strauss_fit.runtime)
+from .runtime import use_cpu_cores as use_cpu_cores
 
 if TYPE_CHECKING:
     from .convert.converter import phong_to_strauss, strauss_to_phong

@@ -58,13 +58,32 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from equinox.internal import Static
 
 from .export_cache import ExportedKernel, kernel_identity
 from .runtime import usable_cores
 
 #: A fit (or any computation) written as steps: it yields :class:`Call` and receives results.
 Steps = Generator["Call", Any, Any]
+
+
+class _Static(eqx.Module):
+    """The non-array part of a kernel's output, carried as static data: ``jax.jit`` returns
+    only arrays, so the rest (``None`` partitions, Python numbers, strings) rides in the
+    output's tree structure. Stored flat (its leaves and tree definition), so that it is
+    hashable and compares by value. (equinox has the same idea as ``equinox.internal.Static``,
+    a private API; this is the few lines it takes.)"""
+
+    leaves: tuple = eqx.field(static=True)
+    treedef: Any = eqx.field(static=True)
+
+    @classmethod
+    def of(cls, value: Any) -> _Static:
+        leaves, treedef = jax.tree.flatten(value)
+        return cls(tuple(leaves), treedef)
+
+    @property
+    def value(self) -> Any:
+        return jax.tree.unflatten(self.treedef, self.leaves)
 
 
 class Kernel:
@@ -285,10 +304,10 @@ class _DispatchingJit:
 
         def arrays_only(arrays: list, static: StaticPart) -> Any:
             out_arrays, rest = eqx.partition(on_arrays(arrays, static), eqx.is_array)
-            return out_arrays, Static(rest)
+            return out_arrays, _Static.of(rest)
 
         arrays_only.__name__ = getattr(fn, "__name__", "kernel")
-        #: ``(arrays, static) -> (output arrays, Static(output rest))``, jitted.
+        #: ``(arrays, static) -> (output arrays, _Static(output rest))``, jitted.
         self.jitted = jax.jit(arrays_only, static_argnums=1)
 
     def __call__(self, *args: Any) -> Any:

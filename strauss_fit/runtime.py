@@ -26,15 +26,19 @@ does nothing.
 
 CPU devices (:func:`use_cpu_cores`): XLA:CPU runs the work of one device in order, on
 one core for the small programs of a fit, and a small eager operation waits for the
-program before it. The compiled kernels (:mod:`strauss_fit.engine`) therefore run on a
-device other than the first, which is left to the eager operations of the fits' Python —
-a single fit's kernels as a batch's, so that both share their programs
-(:func:`strauss_fit.engine.compute_device`: a program belongs to its device, in memory
-and in the compilation cache) — and a large batch on several of them where there are
-cores to spare. Importing :mod:`strauss_fit` asks JAX for one CPU device per usable core
-(at most eight) and one more through ``JAX_NUM_CPU_DEVICES``, unless it is already set
-(``JAX_NUM_CPU_DEVICES=1`` keeps JAX's single CPU device: everything then runs on it,
-batches slower) or ``XLA_FLAGS`` chooses a device count.
+program before it. Where JAX has several CPU devices the compiled kernels
+(:mod:`strauss_fit.engine`) therefore run on a device other than the first, which is left
+to the eager operations of the fits' Python — a single fit's kernels as a batch's, so that
+both share their programs (:func:`strauss_fit.engine.compute_device`: a program belongs to
+its device, in memory and in the compilation cache) — and a large batch on several of them
+where there are cores to spare. JAX's CPU device count is the process's, so the package
+never changes it on import: the ``strauss-fit`` command asks for one device per usable core
+(at most eight) and one more when it starts, and so does the first batch
+(:func:`strauss_fit.fit_many`) of a process whose JAX has not run anything yet. In a
+program of your own, call :func:`use_cpu_cores` right after importing the package (before
+any JAX work) for the same; without it everything runs on JAX's one default CPU device,
+with the same results, batches slower. A count you chose (``JAX_NUM_CPU_DEVICES``,
+``XLA_FLAGS``' host device count, ``jax.config``'s ``jax_num_cpu_devices``) is kept.
 """
 
 from __future__ import annotations
@@ -64,26 +68,31 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def use_cpu_cores() -> None:
+def use_cpu_cores() -> bool:
     """Ask JAX for one CPU device per usable core (at most :data:`MAX_COMPUTE_DEVICES`)
-    and one more (see the module docstring), unless the user chose a count
-    (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count) or JAX already started its
-    backends (it cannot change then: batches run on the default device)."""
+    and one more (see the module docstring), unless a count was chosen
+    (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count, ``jax_num_cpu_devices``) or
+    JAX already ran something (the count cannot change then). True when the count was set.
+
+    Before JAX is imported, through ``JAX_NUM_CPU_DEVICES`` in this process's environment
+    (JAX reads it on import; the processes it starts, local Dask workers for one, inherit
+    it): the command line's way, which keeps ``--help`` and its errors from importing JAX.
+    After, through ``jax.config`` (public), which JAX accepts only before its backends
+    start: it refuses later with a ``RuntimeError``, here "too late, keep what there is"."""
     if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
-        return
+        return False
     devices = min(usable_cores(), MAX_COMPUTE_DEVICES) + 1
     jax = sys.modules.get("jax")
-    if jax is None:  # JAX reads its settings from the environment when first imported
+    if jax is None:
         os.environ["JAX_NUM_CPU_DEVICES"] = str(devices)
-        return
+        return True
+    if jax.config.jax_num_cpu_devices != -1:  # chosen through jax.config already
+        return False
     try:
-        from jax._src import xla_bridge
-
-        if xla_bridge.backends_are_initialized() or jax.config.jax_num_cpu_devices != -1:
-            return
         jax.config.update("jax_num_cpu_devices", devices)
-    except (ImportError, AttributeError, RuntimeError):
-        return
+    except RuntimeError:  # JAX's backends are running: batches use the devices there are
+        return False
+    return True
 
 
 def cache_folder() -> Path | None:

@@ -12,6 +12,10 @@ import pytest
 import strauss_fit as sf
 import support
 
+# the command line's device setup (strauss_fit.runtime.use_cpu_cores), before any JAX work:
+# the tests run the kernels where the command runs them
+sf.use_cpu_cores()
+
 
 @pytest.fixture
 def x64():

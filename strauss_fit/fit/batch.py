@@ -28,7 +28,7 @@ from ..engine import run_batched
 from ..errors import StraussFitError
 from ..io.targets import Target, load_target, match_scene
 from ..precision import uses_float64
-from ..runtime import release_compiled_code_if_needed
+from ..runtime import release_compiled_code_if_needed, use_cpu_cores
 from ..scene.loading import Scene, load_scene
 from .api import fit_steps
 from .options import FitOptions
@@ -199,7 +199,11 @@ def fit_many(
     executor of :mod:`strauss_fit.fit.executors` (e.g. ``DaskExecutor(workers=2)``).
     ``progress`` is called with a :class:`BatchProgress` after each target,
     ``on_result(index, result)`` with each result as it arrives (to write it at once:
-    a killed run then loses only the targets in flight)."""
+    a killed run then loses only the targets in flight).
+
+    In a process whose JAX has run nothing yet, the first batch asks JAX for a CPU device
+    per core (:func:`strauss_fit.runtime.use_cpu_cores`) before loading anything."""
+    use_cpu_cores()
     jobs = jobs_for(targets, scenes, options)
     if chunk_size < 1:
         raise StraussFitError(f"the chunk size must be at least 1, got {chunk_size}")

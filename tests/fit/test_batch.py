@@ -276,28 +276,40 @@ def test_cohorts_run_on_cpu_devices_after_the_first(monkeypatch):
     assert engine.cohort_devices(64, cohorts=3) == [None, None, None]
 
 
-def test_importing_the_package_asks_jax_for_a_cpu_device_per_core_and_one_more():
-    """``import strauss_fit`` sets ``JAX_NUM_CPU_DEVICES`` before JAX starts, unless the
-    user chose a count."""
+def test_cpu_devices_are_asked_for_by_use_cpu_cores_not_by_importing_the_package():
+    """``import strauss_fit`` leaves JAX's device count alone; ``use_cpu_cores()`` asks for
+    one CPU device per core and one more, before JAX starts (by the environment) or after
+    its import (by ``jax.config``), keeps a count the user chose, and cannot change it once
+    JAX ran something."""
     import os
     import subprocess
     import sys
 
     from strauss_fit.runtime import MAX_COMPUTE_DEVICES, usable_cores
 
-    code = "import strauss_fit, jax; print(jax.local_device_count())"
+    wanted = min(usable_cores(), MAX_COMPUTE_DEVICES) + 1
     env = {k: v for k, v in os.environ.items() if k not in ("JAX_NUM_CPU_DEVICES", "XLA_FLAGS")}
     env["JAX_PLATFORMS"] = "cpu"
-    default = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert int(default.stdout.strip()) == min(usable_cores(), MAX_COMPUTE_DEVICES) + 1
+    count = "print(jax.local_device_count())"
+    programs = {
+        f"import strauss_fit, os, jax; print('JAX_NUM_CPU_DEVICES' in os.environ); {count}": "False\n1",
+        f"import strauss_fit as sf; print(sf.use_cpu_cores()); import jax; {count}": f"True\n{wanted}",
+        f"import jax, strauss_fit as sf; print(sf.use_cpu_cores()); {count}": f"True\n{wanted}",
+        f"import jax, strauss_fit as sf; jax.numpy.ones(1).block_until_ready(); print(sf.use_cpu_cores()); {count}": (
+            "False\n1"
+        ),
+    }
+    for code, expected in programs.items():
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        assert done.stdout.strip() == expected, code
     chosen = subprocess.run(
-        [sys.executable, "-c", code],
+        [sys.executable, "-c", f"import strauss_fit as sf, jax; print(sf.use_cpu_cores()); {count}"],
         env={**env, "JAX_NUM_CPU_DEVICES": "1"},
         capture_output=True,
         text=True,
         check=True,
     )
-    assert int(chosen.stdout.strip()) == 1
+    assert chosen.stdout.strip() == "False\n1"
 
 
 def test_fit_many_gives_what_fit_gives_each_target_and_isolates_failures(tmp_path):
