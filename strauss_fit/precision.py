@@ -52,7 +52,15 @@ F = TypeVar("F", bound=Callable[..., Any])
 @contextmanager
 def float64() -> Iterator[None]:
     """Run the block with JAX's float64 support on (``jax.enable_x64(True)``), restoring
-    the previous setting afterwards."""
+    the previous setting afterwards.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> import strauss_fit as sf
+        >>> with sf.float64():
+        ...     print(jnp.ones(2).dtype)
+        float64
+    """
     with jax.enable_x64(True):
         yield
 

@@ -342,7 +342,15 @@ def phong_to_strauss(
     module docstring): one result dict per material (``status``, ``strauss``,
     ``uncertainty``, ``residual``, ``notes``, ...), in input order. ``scene`` is the
     conversion scene (a :class:`~strauss_fit.scene.loading.Scene`, a scene file, or None
-    for the default)."""
+    for the default).
+
+    Example:
+        >>> import strauss_fit as sf
+        >>> red_plastic = sf.PhongMaterial(kd=0.7, ks=0.3, exponent=40.0, diffuse_color=(0.8, 0.1, 0.1))
+        >>> [result] = sf.phong_to_strauss(red_plastic)
+        >>> result["status"], round(result["strauss"]["smoothness"], 2), round(result["strauss"]["metalness"], 2)
+        ('ok', 0.51, 0.36)
+    """
     converter = Converter(scene if isinstance(scene, Scene) or scene is None else conversion_scene(scene), settings)
     return converter.phong_to_strauss(_entries(materials, PhongMaterial), progress)
 

@@ -157,6 +157,16 @@ class Material(eqx.Module):
     and its range); traced values, e.g. inside a fit or ``jax.grad`` — also a tuple
     holding them, ``Material(color=(p[0], p[1], p[2]))`` — are not checked. Leaves may carry
     leading batch axes (colour ``(..., 3)``, scalars ``(...)``) for ``vmap``.
+
+    Example:
+        >>> import strauss_fit as sf
+        >>> copper = sf.Material(color=(0.8, 0.4, 0.2), smoothness=0.7, metalness=0.9)
+        >>> float(copper.metalness), copper.color.tolist()
+        (0.9, [0.8, 0.4, 0.2])
+        >>> sf.Material(smoothness=1.5)
+        Traceback (most recent call last):
+        ...
+        strauss_fit.errors.MaterialError: material smoothness = 1.5 is outside its range [0, 1]
     """
 
     color: Array

@@ -646,6 +646,13 @@ def render(
     :data:`strauss_fit.scene.loading.MAX_RADIANCE`, see
     :func:`strauss_fit.scene.loading.check_radiance_range`) raises a
     :class:`~strauss_fit.scene.loading.RadianceRangeError` before any work.
+
+    Example:
+        >>> import strauss_fit as sf
+        >>> scene = sf.load_scene("data_synth/scenes/key_and_fill.toml")  # 40 x 40 pixels
+        >>> image, mask = sf.render(scene, sf.Material(color=(0.8, 0.2, 0.1), smoothness=0.6))
+        >>> image.shape, int(mask.sum())  # the sphere covers 1264 of the 1600 pixels
+        ((40, 40, 3), 1264)
     """
     peak = _checked_background_peak(scene)
     material = scene.material if material is None else material

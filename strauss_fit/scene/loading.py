@@ -487,7 +487,14 @@ def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | st
 
 @uses_float64
 def load_scene(path: str | Path) -> Scene:
-    """Read and validate a TOML scene file."""
+    """Read and validate a TOML scene file (its format: docs/formats.md).
+
+    Example:
+        >>> import strauss_fit as sf
+        >>> scene = sf.load_scene("data_synth/scenes/key_and_fill.toml")
+        >>> scene.camera.width, scene.lights.count, float(scene.material.smoothness)
+        (40, 2, 0.5)
+    """
     path = Path(path)
     if path.is_dir():
         raise SceneError(f"scene file is a directory: {path}")
