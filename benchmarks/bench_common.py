@@ -24,6 +24,10 @@ import numpy as np
 import strauss_fit as sf
 from strauss_fit.io.files import write_json as _write_json
 
+# the CPU devices the command line runs on (strauss_fit.runtime.use_cpu_cores): every benchmark
+# imports this module before any JAX work, so that it measures what `strauss-fit` does
+sf.use_cpu_cores()
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Two directional lights (a key and a fill) and ambient light over black.
 KEY_AND_FILL = ROOT / "data_synth" / "scenes" / "key_and_fill.toml"
