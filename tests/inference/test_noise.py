@@ -13,6 +13,7 @@ import pytest
 
 from strauss_fit.color import srgb_decode, srgb_encode
 from strauss_fit.stats import noise as ne
+from strauss_fit.stats.noise import _describe, _level_line
 
 # ------------------------------------------------------------------------------------------
 # synthetic spheres
@@ -398,7 +399,7 @@ def test_bin_variances_are_each_bins_own_statistics():
     r = rng.normal(0.0, 0.1, idx.size)
     qv = rng.uniform(0.0, 1e-4, idx.size)
     for first in (True, False):
-        level, variance, count, quantisation = ne._bin_variances(mu, r, qv, idx, 4, first=first, factor=1.7)
+        level, variance, count, quantisation = _level_line._bin_variances(mu, r, qv, idx, 4, first=first, factor=1.7)
         kept = [b for b in range(4) if counts[b] >= 30]
         assert count.tolist() == [counts[b] for b in kept]
         for row, b in enumerate(kept):
@@ -409,7 +410,7 @@ def test_bin_variances_are_each_bins_own_statistics():
             assert variance[row] == pytest.approx(spread - np.mean(qv[sel]), rel=1e-12)
     # a bin of discrete residuals, more than half exactly 0: its MAD is 0, the mean square stands in
     r0 = np.where(np.arange(idx.size) % 3 == 0, 0.02, 0.0)
-    _, variance, _, quantisation = ne._bin_variances(mu, r0, np.zeros_like(qv), idx, 4, first=True, factor=1.0)
+    _, variance, _, quantisation = _level_line._bin_variances(mu, r0, np.zeros_like(qv), idx, 4, first=True, factor=1.0)
     for row, b in enumerate(kept):
         assert variance[row] == pytest.approx(np.mean(r0[idx == b] ** 2), rel=1e-12)
 
@@ -420,8 +421,8 @@ def test_the_noise_model_stops_at_its_fixed_point_with_what_all_passes_give(monk
     (as it does: fewer passes) changes nothing — on an additive image, where it stops
     after two passes, and on a signal-dependent one, where it runs them all."""
     passes = []
-    robust_scale = ne._robust_scale
-    monkeypatch.setattr(ne, "_robust_scale", lambda *a, **k: passes.append(1) or robust_scale(*a, **k))
+    robust_scale = _level_line._robust_scale
+    monkeypatch.setattr(_level_line, "_robust_scale", lambda *a, **k: passes.append(1) or robust_scale(*a, **k))
     img, cover = sphere(64)
     additive = img + np.random.default_rng(2).normal(0.0, 0.01, img.shape)
     shot = sensor(*sphere(96)[:1], 2000.0, 0.003, np.random.default_rng(11))
@@ -430,7 +431,7 @@ def test_the_noise_model_stops_at_its_fixed_point_with_what_all_passes_give(monk
         early = ne.estimate_noise_model(noisy, usable)
         early_passes = len(passes)
         with monkeypatch.context() as patch:
-            patch.setattr(ne, "FIXED_POINT", -1.0)  # never stops early
+            patch.setattr(_level_line, "FIXED_POINT", -1.0)  # never stops early
             passes.clear()
             every = ne.estimate_noise_model(noisy, usable)
         assert (early_passes < len(passes) == 4) if stops_early else (early_passes == len(passes) == 4)
@@ -447,7 +448,7 @@ def test_describe_noise_estimates_an_image_once(monkeypatch):
     usable = cover == 1
     calls = []
     real = ne.estimate_noise
-    monkeypatch.setattr(ne, "estimate_noise", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(_describe, "estimate_noise", lambda *a, **k: calls.append(1) or real(*a, **k))
     first = ne.describe_noise(noisy, usable, sidecar={})
     again = ne.describe_noise(noisy.copy(), usable.copy(), sidecar={})
     assert len(calls) == 1
@@ -475,7 +476,7 @@ def test_the_level_line_fit_survives_a_bin_without_noise_and_matches_weighted_le
     others), which made the inverse of the normal matrix report negative variances (a math
     domain error that ended a fit). The values are the ones recorded from that fit. On
     ordinary data the fit is weighted least squares (numpy.polyfit with weights 1/se)."""
-    from strauss_fit.stats.noise import _fit_line
+    from strauss_fit.stats.noise._level_line import _fit_line
 
     x = np.array(
         [0.0780969866747178, 0.11058016741189494, 0.13574167886219324, 0.1546373470235953, 0.16920198140812687]
