@@ -20,3 +20,20 @@ def test_ruff_lint_passes():
 def test_ruff_format_is_applied():
     result = _ruff("format", "--check", ".")
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_every_package_folder_is_installed():
+    """pyproject.toml lists the packages one by one (``cli/`` is installed as
+    ``strauss_fit_cli``): a new subpackage left off the list works in an editable install
+    and is missing from a wheel."""
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(config["packages"])
+    where = {name: ROOT / folder for name, folder in config["package-dir"].items()}
+    found = set()
+    for top, folder in where.items():
+        for init in folder.rglob("__init__.py"):
+            parts = init.parent.relative_to(folder).parts
+            found.add(".".join((top, *parts)))
+    assert listed == found, {"not installed": sorted(found - listed), "not a package": sorted(listed - found)}
