@@ -706,6 +706,173 @@ def _read_result(fit: str | Path | dict[str, Any]) -> tuple[dict[str, Any], str 
     return result, str(path), str(path.parent)
 
 
+def _check_request(out: Path, adjust: str, values: int | None) -> Path:
+    """Where the summary of the chain file ``out`` goes (beside it, with the suffix
+    ``.json``), after checking the requested adjustment and subsample."""
+    summary_path = out.with_suffix(".json")
+    if summary_path == out:
+        raise ChainError(f"the chain file needs an extension other than .json (the summary goes to {summary_path})")
+    if adjust not in ADJUST_METHODS:
+        raise ChainError(f"unknown adjustment {adjust!r}; expected one of {', '.join(ADJUST_METHODS)}")
+    if values is not None and values < 1:
+        raise ChainError(f"the likelihood's subsample needs at least one value, got {values}")
+    return summary_path
+
+
+def _resumed_capture(
+    out: Path, summary_path: Path, adjust: str, capture: Capture | None, log: Callable[[str], None]
+) -> tuple[CapturePosterior, dict[str, Any]]:
+    """The likelihood and the metadata of the capture's chain in ``out`` to continue, once
+    the chain, the photographs (read again from what it records, unless ``capture``) and
+    the adjustment are checked to be the ones it was started with; its σ, prior and
+    subsample are kept."""
+    existing = load_chain(out, required=True)
+    meta = existing.meta
+    if not is_capture_chain(meta):
+        raise ChainError(f"{out} is a chain of a single image's fit, not of a capture's")
+    check_capture_chain(meta, out)
+    check_writable(summary_path, True)
+    kept = (meta.get("adjustment") or {}).get("method", "none")
+    if adjust != "auto" and adjust != kept:
+        raise ChainError(f"--adjust cannot change when resuming: {out} was started with --adjust {kept}")
+    log("reading the capture again")
+    samples, fitted = reload_chain_capture(meta, capture)
+    if data_digest(samples) != meta.get("data_sha256"):
+        raise ChainError(f"{out} was sampled for other photographs (the capture's usable values differ)")
+    if fitted.labels != meta["labels"]:
+        raise ChainError(f"{out} samples {', '.join(meta['labels'])}, not {', '.join(fitted.labels)}")
+    labels = meta["labels"]
+    prior = Prior(
+        tuple(labels),
+        np.array([meta["prior"][k][0] for k in labels]),
+        np.array([meta["prior"][k][1] for k in labels]),
+    )
+    likelihood = meta.get("likelihood") or {}
+    log("setting up the likelihood")
+    posterior = CapturePosterior.build(
+        samples,
+        fitted.model,
+        fitted.params,
+        np.asarray(meta["x_hat"], dtype=np.float64),
+        prior,
+        float(meta["sigma"]),
+        values=None,
+        pixels=likelihood.get("pixels"),
+    )
+    log(f"resuming {out} at step {len(existing.chain)}")
+    return posterior, meta
+
+
+def _fit_to_start_from(
+    fit: str | Path | dict[str, Any] | None, base: str | Path | None
+) -> tuple[dict[str, Any], str | None, str | None]:
+    """The capture's fit result a new chain starts from (refused unless it is one, and
+    JSON-clean: the chain's metadata keeps it), where it was read from, and the folder its
+    capture paths are relative to (``base`` when given)."""
+    result, fit_path, fit_base = _read_result(fit) if fit is not None else (None, None, None)
+    if result is None or not is_capture_result(result):
+        raise ChainError("not a capture's fit result (strauss-fit fit --capture)")
+    try:  # the chain's metadata keeps it, as JSON
+        json.dumps(result, allow_nan=False)
+    except (TypeError, ValueError):
+        named = f" {fit_path}" if fit_path else ""
+        raise ChainError(
+            f"the fit result{named} is damaged: it holds NaN or infinity, which JSON does not allow"
+        ) from None
+    if base is not None:
+        fit_base = str(Path(base).resolve())
+    return result, fit_path, fit_base
+
+
+def _tempered(
+    posterior: CapturePosterior,
+    target_covariance: np.ndarray,
+    labels: list[str],
+    at_bound: list[str],
+    log: Callable[[str], None],
+) -> tuple[CapturePosterior, float]:
+    """The likelihood widened to the fit's sandwich (σ√T) and T, computed over the entries
+    V covers that are not at a bound."""
+    use = adjusted_entries(target_covariance) & ~np.isin(labels, at_bound)
+    post = posterior.curvature_covariance(use)
+    try:
+        factor = temperature(post[np.ix_(use, use)], target_covariance[np.ix_(use, use)])
+    except AdjustmentError as exc:
+        raise ChainError(f"cannot temper the likelihood: {exc}") from None
+    untempered = posterior.sigma
+    root = float(np.sqrt(factor))
+    log(f"tempering the likelihood: sigma x sqrt(T) = {untempered:.3g} x {root:.3g} (T = {factor:.3g})")
+    return posterior.tempered(factor), factor
+
+
+def _new_capture_chain(
+    result: dict[str, Any],
+    fit_path: str | None,
+    fit_base: str | None,
+    *,
+    capture: Capture | None,
+    sigma: float | None,
+    priors: dict[str, tuple[float, float]] | None,
+    settings: SampleSettings,
+    values: int | None,
+    adjust: str,
+    quality: str,
+    log: Callable[[str], None],
+) -> tuple[CapturePosterior, np.ndarray, dict[str, Any]]:
+    """A new chain's likelihood, its walkers' starting points and its metadata, from the
+    capture's fit result (the capture read again from what it records, unless
+    ``capture``)."""
+    log("reading the capture")
+    samples, fitted = reload_capture_fit(result, base=fit_base, capture=capture)
+    x_hat = np.asarray(fitted.physical, dtype=np.float64)
+    labels = list(fitted.labels)
+    method, reason, target_covariance = _adjustment(adjust, result, labels, fitted.clustered)
+    prior = capture_prior(fitted.params, labels, x_hat, priors)
+    ndim = len(labels)
+    walkers = settings.walkers or default_walkers(ndim)
+    if walkers < 2 * ndim:
+        raise ChainError(f"--walkers must be at least twice the number of parameters ({2 * ndim}), got {walkers}")
+    log("setting up the likelihood (the full data's Jacobian at the fit)")
+    posterior = CapturePosterior.build(
+        samples, fitted.model, fitted.params, x_hat, prior, sigma, values=values, seed=settings.seed
+    )
+    sigma_source = posterior.sigma_source
+    covariance = posterior.laplace_covariance()
+    at_bound = _at_bound(fitted.params, labels, x_hat)
+    adjustment: dict[str, Any] = {"method": method, "reason": reason}
+    if method != "none":
+        adjustment.update(target_covariance=target_covariance.tolist(), center=[float(v) for v in x_hat])
+    if method == "temperature":
+        untempered = posterior.sigma
+        posterior, factor = _tempered(posterior, target_covariance, labels, at_bound, log)
+        adjustment.update(temperature=factor, sigma_untempered=untempered)
+        covariance = covariance * factor
+        sigma_source += f", tempered by sqrt(T) = {np.sqrt(factor):.3g} (--adjust temperature)"
+    description = posterior.describe()
+    log(f"likelihood: {description['method']}")
+    log("compiling the log-probability and placing the walkers")
+    start = initial_walkers(x_hat, covariance, prior, walkers, np.random.default_rng(settings.seed), posterior)
+    meta = {
+        "kind": KIND,
+        "fit": result,
+        "fit_path": fit_path,
+        "fit_base": fit_base,
+        "data_sha256": data_digest(samples),
+        "sigma": posterior.sigma,
+        "sigma_source": sigma_source,
+        "prior": prior.as_dict(),
+        "x_hat": [float(v) for v in x_hat],
+        "at_bound": at_bound,
+        "seed": settings.seed,
+        "laplace_covariance": covariance.tolist(),
+        "likelihood": description,
+        "values_used": posterior.count,
+        "quality": quality,
+        "adjustment": adjustment,
+    }
+    return posterior, start, meta
+
+
 @uses_float64
 def sample_capture(
     fit: str | Path | dict[str, Any] | None,
@@ -744,120 +911,27 @@ def sample_capture(
     written."""
     log = log or (lambda message: None)
     out = Path(output)
-    summary_path = out.with_suffix(".json")
-    if summary_path == out:
-        raise ChainError(f"the chain file needs an extension other than .json (the summary goes to {summary_path})")
-    if adjust not in ADJUST_METHODS:
-        raise ChainError(f"unknown adjustment {adjust!r}; expected one of {', '.join(ADJUST_METHODS)}")
-    if values is not None and values < 1:
-        raise ChainError(f"the likelihood's subsample needs at least one value, got {values}")
+    summary_path = _check_request(out, adjust, values)
     if resume:
-        existing = load_chain(out, required=True)
-        meta = existing.meta
-        if not is_capture_chain(meta):
-            raise ChainError(f"{out} is a chain of a single image's fit, not of a capture's")
-        check_capture_chain(meta, out)
-        check_writable(summary_path, True)
-        kept = (meta.get("adjustment") or {}).get("method", "none")
-        if adjust != "auto" and adjust != kept:
-            raise ChainError(f"--adjust cannot change when resuming: {out} was started with --adjust {kept}")
-        log("reading the capture again")
-        samples, fitted = reload_chain_capture(meta, capture)
-        if data_digest(samples) != meta.get("data_sha256"):
-            raise ChainError(f"{out} was sampled for other photographs (the capture's usable values differ)")
-        if fitted.labels != meta["labels"]:
-            raise ChainError(f"{out} samples {', '.join(meta['labels'])}, not {', '.join(fitted.labels)}")
-        labels = meta["labels"]
-        prior = Prior(
-            tuple(labels),
-            np.array([meta["prior"][k][0] for k in labels]),
-            np.array([meta["prior"][k][1] for k in labels]),
-        )
-        likelihood = meta.get("likelihood") or {}
-        log("setting up the likelihood")
-        posterior = CapturePosterior.build(
-            samples,
-            fitted.model,
-            fitted.params,
-            np.asarray(meta["x_hat"], dtype=np.float64),
-            prior,
-            float(meta["sigma"]),
-            values=None,
-            pixels=likelihood.get("pixels"),
-        )
+        posterior, meta = _resumed_capture(out, summary_path, adjust, capture, log)
         start = None
-        log(f"resuming {out} at step {len(existing.chain)}")
     else:
         check_writable(out, force)
         check_writable(summary_path, force)
-        result, fit_path, fit_base = _read_result(fit) if fit is not None else (None, None, None)
-        if result is None or not is_capture_result(result):
-            raise ChainError("not a capture's fit result (strauss-fit fit --capture)")
-        try:  # the chain's metadata keeps it, as JSON
-            json.dumps(result, allow_nan=False)
-        except (TypeError, ValueError):
-            named = f" {fit_path}" if fit_path else ""
-            raise ChainError(
-                f"the fit result{named} is damaged: it holds NaN or infinity, which JSON does not allow"
-            ) from None
-        if base is not None:
-            fit_base = str(Path(base).resolve())
-        log("reading the capture")
-        samples, fitted = reload_capture_fit(result, base=fit_base, capture=capture)
-        x_hat = np.asarray(fitted.physical, dtype=np.float64)
-        labels = list(fitted.labels)
-        method, reason, target_covariance = _adjustment(adjust, result, labels, fitted.clustered)
-        prior = capture_prior(fitted.params, labels, x_hat, priors)
-        ndim = len(labels)
-        walkers = settings.walkers or default_walkers(ndim)
-        if walkers < 2 * ndim:
-            raise ChainError(f"--walkers must be at least twice the number of parameters ({2 * ndim}), got {walkers}")
-        log("setting up the likelihood (the full data's Jacobian at the fit)")
-        posterior = CapturePosterior.build(
-            samples, fitted.model, fitted.params, x_hat, prior, sigma, values=values, seed=settings.seed
+        result, fit_path, fit_base = _fit_to_start_from(fit, base)
+        posterior, start, meta = _new_capture_chain(
+            result,
+            fit_path,
+            fit_base,
+            capture=capture,
+            sigma=sigma,
+            priors=priors,
+            settings=settings,
+            values=values,
+            adjust=adjust,
+            quality=quality,
+            log=log,
         )
-        sigma_source = posterior.sigma_source
-        covariance = posterior.laplace_covariance()
-        at_bound = _at_bound(fitted.params, labels, x_hat)
-        adjustment: dict[str, Any] = {"method": method, "reason": reason}
-        if method != "none":
-            adjustment.update(target_covariance=target_covariance.tolist(), center=[float(v) for v in x_hat])
-        if method == "temperature":
-            use = adjusted_entries(target_covariance) & ~np.isin(labels, at_bound)
-            post = posterior.curvature_covariance(use)
-            try:
-                factor = temperature(post[np.ix_(use, use)], target_covariance[np.ix_(use, use)])
-            except AdjustmentError as exc:
-                raise ChainError(f"cannot temper the likelihood: {exc}") from None
-            untempered = posterior.sigma
-            adjustment.update(temperature=factor, sigma_untempered=untempered)
-            posterior = posterior.tempered(factor)
-            covariance = covariance * factor
-            root = float(np.sqrt(factor))
-            log(f"tempering the likelihood: sigma x sqrt(T) = {untempered:.3g} x {root:.3g} (T = {factor:.3g})")
-            sigma_source += f", tempered by sqrt(T) = {np.sqrt(factor):.3g} (--adjust temperature)"
-        description = posterior.describe()
-        log(f"likelihood: {description['method']}")
-        log("compiling the log-probability and placing the walkers")
-        start = initial_walkers(x_hat, covariance, prior, walkers, np.random.default_rng(settings.seed), posterior)
-        meta = {
-            "kind": KIND,
-            "fit": result,
-            "fit_path": fit_path,
-            "fit_base": fit_base,
-            "data_sha256": data_digest(samples),
-            "sigma": posterior.sigma,
-            "sigma_source": sigma_source,
-            "prior": prior.as_dict(),
-            "x_hat": [float(v) for v in x_hat],
-            "at_bound": at_bound,
-            "seed": settings.seed,
-            "laplace_covariance": covariance.tolist(),
-            "likelihood": description,
-            "values_used": posterior.count,
-            "quality": quality,
-            "adjustment": adjustment,
-        }
     return run_and_summarise(
         posterior, out, summary_path, summarise_capture_chain, start=start, settings=settings, metadata=meta,
         resume=resume, progress=progress,

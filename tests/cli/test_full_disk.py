@@ -11,7 +11,7 @@ import pytest
 from faults import disk_fixture  # noqa: F401 - the fixture "disk"
 
 import strauss_fit as sf
-import strauss_fit.inference.sampler as sampler
+import strauss_fit.inference.sampler._backends as sampler_backends
 from data_synth import read_index
 from strauss_fit.inference.sampler import load_chain
 from strauss_fit.io.images import write_image
@@ -93,7 +93,7 @@ def test_synth_stops_cleanly_and_resumes_to_the_same_dataset(disk, reference, ca
 
 
 def test_sample_keeps_the_chain_as_it_was_and_resumes_it(disk, fitted, capsys, monkeypatch, tmp_path):
-    monkeypatch.setattr(sampler, "FLUSH_SECONDS", 0.0)  # write the chain after (about) every step
+    monkeypatch.setattr(sampler_backends, "FLUSH_SECONDS", 0.0)  # write the chain after (about) every step
     argv = ["sample", fitted / "target.exr", "--scene", fitted / "scene.toml", "--fit", fitted / "fit.json"]
     argv += ["--sigma", "0.01", "--walkers", "16", "--max-steps", "150", "--check-every", "25", "--quiet"]
     whole = tmp_path / "whole.h5"

@@ -360,7 +360,7 @@ def test_a_fit_made_with_another_loss_is_refused(phong_chain, tmp_path, capsys):
 
 def test_sample_fits_first_by_least_squares(phong_chain, tmp_path, monkeypatch):
     # the fit loss "auto" switches to Huber on a visible mismatch: not for the fit sample makes
-    import strauss_fit.inference.sampler as sampler_module
+    import strauss_fit.inference.sampler._workflow as sampler_module
 
     folder, _, _ = phong_chain
     losses = []
