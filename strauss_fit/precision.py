@@ -54,7 +54,7 @@ def float64() -> Iterator[None]:
     """Run the block with JAX's float64 support on (``jax.enable_x64(True)``), restoring
     the previous setting afterwards.
 
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import strauss_fit as sf
         >>> with sf.float64():

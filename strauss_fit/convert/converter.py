@@ -344,7 +344,7 @@ def phong_to_strauss(
     conversion scene (a :class:`~strauss_fit.scene.loading.Scene`, a scene file, or None
     for the default).
 
-    Example:
+    Examples:
         >>> import strauss_fit as sf
         >>> red_plastic = sf.PhongMaterial(kd=0.7, ks=0.3, exponent=40.0, diffuse_color=(0.8, 0.1, 0.1))
         >>> [result] = sf.phong_to_strauss(red_plastic)

@@ -158,7 +158,7 @@ class Material(eqx.Module):
     holding them, ``Material(color=(p[0], p[1], p[2]))`` — are not checked. Leaves may carry
     leading batch axes (colour ``(..., 3)``, scalars ``(...)``) for ``vmap``.
 
-    Example:
+    Examples:
         >>> import strauss_fit as sf
         >>> copper = sf.Material(color=(0.8, 0.4, 0.2), smoothness=0.7, metalness=0.9)
         >>> float(copper.metalness), copper.color.tolist()

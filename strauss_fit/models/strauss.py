@@ -59,7 +59,7 @@ def fresnel(x: ArrayLike) -> Array:
     :math:`F(x) = \dfrac{(x - k_f)^{-2} - k_f^{-2}}{(1 - k_f)^{-2} - k_f^{-2}}`;
     F(0) = 0, F(1) = 1. Safe for all x in [0, 1] since :math:`k_f > 1`.
 
-    Example:
+    Examples:
         >>> import strauss_fit as sf
         >>> [round(float(sf.fresnel(x)), 4) for x in (0.0, 0.5, 1.0)]
         [0.0, 0.0263, 1.0]
@@ -92,7 +92,7 @@ def shadow(x: ArrayLike) -> Array:
     :math:`G(x) = \dfrac{(1 - k_g)^{-2} - (x - k_g)^{-2}}{(1 - k_g)^{-2} - k_g^{-2}}`;
     G(0) = 1 (normal incidence), G(1) = 0 (grazing).
 
-    Example:
+    Examples:
         >>> import strauss_fit as sf
         >>> [round(float(sf.shadow(x)), 4) + 0.0 for x in (0.0, 0.5, 1.0)]  # + 0.0: no -0.0
         [1.0, 0.9997, 0.0]

@@ -647,7 +647,7 @@ def render(
     :func:`strauss_fit.scene.loading.check_radiance_range`) raises a
     :class:`~strauss_fit.scene.loading.RadianceRangeError` before any work.
 
-    Example:
+    Examples:
         >>> import strauss_fit as sf
         >>> scene = sf.load_scene("data_synth/scenes/key_and_fill.toml")  # 40 x 40 pixels
         >>> image, mask = sf.render(scene, sf.Material(color=(0.8, 0.2, 0.1), smoothness=0.6))

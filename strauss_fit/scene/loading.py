@@ -489,7 +489,7 @@ def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | st
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a TOML scene file (its format: docs/formats.md).
 
-    Example:
+    Examples:
         >>> import strauss_fit as sf
         >>> scene = sf.load_scene("data_synth/scenes/key_and_fill.toml")
         >>> scene.camera.width, scene.lights.count, float(scene.material.smoothness)
