@@ -21,7 +21,6 @@ or chain recorded, builds the report and writes it.
 
 from __future__ import annotations
 
-import datetime as _dt
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +32,7 @@ from ..color import srgb_encode
 from ..errors import StraussFitError
 from ..fit.result import FitResult
 from ..inference.sampler import Chain, Diagnostics, load_chain
-from ..inference.summaries import Laplace, chain_posterior, degeneracy_warnings, loss_warning
+from ..inference.summaries import ChainPosterior, Laplace, chain_posterior, degeneracy_warnings, loss_warning
 from ..io.files import Outputs, check_writable, read_json
 from ..io.targets import Target, load_target, match_scene
 from ..models.material import FRACTION_NAMES
@@ -41,7 +40,19 @@ from ..models.strauss import DEFAULT_TABLE_SIZE
 from ..precision import uses_float64
 from ..scene.loading import Scene, load_scene
 from ..stats import laplace as _laplace
-from .document import Document
+from .document import (
+    Document,
+    correlation_table,
+    fmt,
+    generated_by,
+    held_parameters,
+    posterior_cells,
+    posterior_header,
+    prior_text,
+    range_text,
+    untrustworthy_chain,
+    verdict_and_warnings,
+)
 from .figures import new_figure, png_bytes
 
 #: At most this many samples go into the corner plot and the comparison statistics.
@@ -204,12 +215,6 @@ def trace_figure(chain: np.ndarray, log_prob: np.ndarray, labels: Sequence[str],
 # --- the report ------------------------------------------------------------------------------
 
 
-def _fmt(value: float | None, digits: int = 4) -> str:
-    if value is None or not np.isfinite(value):
-        return "–"
-    return f"{value:.{digits}g}"
-
-
 _STYLE = (
     "\n"
     "body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;max-width:1100px;margin:2em auto;"
@@ -240,30 +245,43 @@ def build_report(
     (H, W), and optionally a chain."""
     fit = FitResult.from_json(fit)
     laplace = Laplace.from_fit(fit)
-    labels = laplace.labels
     sources = sources or {}
     doc = Document(assets)
-    data: dict[str, Any] = {"labels": labels}
-
-    posterior = summary = samples = diagnostics = None
-    lower = upper = None
-    if chain is not None:
-        if chain.labels != labels:
-            raise ReportError(
-                f"the chain {chain.path} samples {', '.join(chain.labels)} but the fit frees "
-                f"{', '.join(labels)}: they belong to different fits"
-            )
-        posterior = chain_posterior(chain, laplace, MAX_PLOT_SAMPLES)
-        diagnostics, samples, summary = posterior.diagnostics, posterior.samples, posterior.summary
-        lower, upper = posterior.lower, posterior.upper
-        data.update(posterior=summary, diagnostics=diagnostics.as_dict())
-
-    sigma = chain.meta.get("sigma") if chain is not None else None
+    data: dict[str, Any] = {"labels": laplace.labels}
+    posterior = _chain_posterior(chain, laplace, data) if chain is not None else None
     heading = title or f"strauss-fit uncertainty report: {sources.get('target', 'target')}"
-    doc.heading(heading, 1)
-    stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    from .._version import __version__
+    _introduction(doc, heading, fit, sources, chain)
+    _warnings_section(doc, fit, laplace, chain, posterior, data)
+    _images_section(doc, fit, target_pixels, fitted, used, chain)
+    _parameters_section(doc, fit, laplace, chain, posterior, data)
+    if posterior is not None:
+        _comparison_section(doc, fit, posterior, data)
+    _correlation_section(doc, fit, laplace, posterior)
+    _corner_section(doc, fit, laplace, posterior)
+    if chain is not None and posterior is not None:
+        doc.heading("Sampler diagnostics")
+        sampler_diagnostics(doc, chain, posterior.diagnostics)
+    _how_to_read(doc)
+    return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
 
+
+def _chain_posterior(chain: Chain, laplace: Laplace, data: dict[str, Any]) -> ChainPosterior:
+    """The chain's posterior set against the fit (its summary and diagnostics go into
+    ``data``); a chain of other parameters than the fit's is a one-line error."""
+    if chain.labels != laplace.labels:
+        raise ReportError(
+            f"the chain {chain.path} samples {', '.join(chain.labels)} but the fit frees "
+            f"{', '.join(laplace.labels)}: they belong to different fits"
+        )
+    posterior = chain_posterior(chain, laplace, MAX_PLOT_SAMPLES)
+    data.update(posterior=posterior.summary, diagnostics=posterior.diagnostics.as_dict())
+    return posterior
+
+
+def _introduction(doc: Document, heading: str, fit: FitResult, sources: dict[str, str], chain: Chain | None) -> None:
+    """The title and one line of what was fitted to what: target, scene, pixels, the
+    parameters fitted, the chain, and when and by which version the report was built."""
+    doc.heading(heading, 1)
     facts = [
         f"target {sources.get('target', '?')}",
         f"scene {sources.get('scene', '?')}",
@@ -272,9 +290,21 @@ def build_report(
     ]
     if chain is not None:
         facts.append(f"chain {chain.path}")
-    doc.para("; ".join(facts) + f". Generated by strauss-fit {__version__} on {stamp}.")
+    doc.para("; ".join(facts) + ". " + generated_by())
 
-    # warnings first: they are what a reader must not miss
+
+def _warnings_section(
+    doc: Document,
+    fit: FitResult,
+    laplace: Laplace,
+    chain: Chain | None,
+    posterior: ChainPosterior | None,
+    data: dict[str, Any],
+) -> None:
+    """The verdict and every warning, first because they are what a reader must not miss:
+    a loss the chain's likelihood does not share, an untrustworthy chain, the fit's warning
+    codes, the degeneracies (from the posterior, else the fit's ±) and the fit's notes."""
+    labels = laplace.labels
     covariance = posterior.covariance if posterior is not None and len(labels) > 1 else laplace.covariance
     covariance = np.atleast_2d(covariance)
     warnings = degeneracy_warnings(
@@ -282,12 +312,12 @@ def build_report(
         covariance,
         fit.held,
         source="posterior"
-        if samples is not None
+        if posterior is not None
         else ("noise sandwich" if _statistical_name(fit) == "noise sandwich" else "Laplace estimate"),
         values=laplace.x_hat,
     )
-    if diagnostics is not None and not diagnostics.trustworthy:
-        warnings.insert(0, "The chain is not trustworthy yet: " + "; ".join(diagnostics.reasons) + ".")
+    if posterior is not None and not posterior.diagnostics.trustworthy:
+        warnings.insert(0, untrustworthy_chain(posterior.diagnostics.reasons))
     fit_warnings = [w for w in fit.warnings if isinstance(w, dict)]
     warnings = [f"[{w.get('code', '?')}] {w.get('message', '')}" for w in fit_warnings] + warnings
     other_loss = loss_warning(fit) if chain is not None else None
@@ -296,16 +326,23 @@ def build_report(
     warnings += [f"fit: {note}" for note in fit.notes]
     data["warnings"] = warnings
     data["fit_warnings"] = fit_warnings
-    verdict = fit.verdict
-    data["verdict"] = verdict
-    doc.heading("Warnings")
-    if verdict:
-        doc.para(_verdict_text(fit), "ok" if verdict == "consistent" else "bad" if verdict == "mismatch" else None)
-    if warnings:
-        doc.bullets(warnings, "warn")
-    else:
-        doc.para("None: every fitted parameter is constrained on its own and the diagnostics pass.", "ok")
+    data["verdict"] = fit.verdict
+    verdict_and_warnings(
+        doc,
+        "Warnings",
+        fit.verdict,
+        _verdict_text(fit) if fit.verdict else "",
+        warnings,
+        "None: every fitted parameter is constrained on its own and the diagnostics pass.",
+    )
 
+
+def _images_section(
+    doc: Document, fit: FitResult, target_pixels: np.ndarray, fitted: np.ndarray, used: np.ndarray, chain: Chain | None
+) -> None:
+    """The target, the fit and their difference side by side, and the residual in numbers
+    (with the chain's noise σ when it has one)."""
+    sigma = chain.meta.get("sigma") if chain is not None else None
     doc.heading("Target, fit and residual")
     doc.image(
         "images.png",
@@ -314,51 +351,82 @@ def build_report(
     )
     res = fit.residual
     doc.para(
-        f"Residual RMS {_fmt(res.get('rms'), 3)} (linear), CIEDE2000 mean {_fmt(res.get('delta_e2000_mean'), 3)}, "
-        f"95th percentile {_fmt(res.get('delta_e2000_p95'), 3)}."
+        f"Residual RMS {fmt(res.get('rms'), 3)} (linear), CIEDE2000 mean {fmt(res.get('delta_e2000_mean'), 3)}, "
+        f"95th percentile {fmt(res.get('delta_e2000_p95'), 3)}."
         + (f" Noise σ = {sigma:.3g} ({chain.meta.get('sigma_source', '')})." if sigma else "")
     )
 
-    doc.heading("Parameters")
+
+def _parameters_section(
+    doc: Document,
+    fit: FitResult,
+    laplace: Laplace,
+    chain: Chain | None,
+    posterior: ChainPosterior | None,
+    data: dict[str, Any],
+) -> None:
+    """The parameter table, one sentence per kind of interval in it, the figure of the
+    intervals (with equivalence bands), and the parameters the fit held."""
     statistical = _statistical_name(fit)
-    short = "sandwich" if statistical == "noise sandwich" else "Laplace"
-    bands = _equivalence_bands(fit, labels)
+    bands = _equivalence_bands(fit, laplace.labels)
     threshold = float(fit.settings.get("equivalence_de", 1.0) or 1.0)
-    band_header = [f"looks the same (ΔE ≤ {threshold:g})"] if bands else []
     adjusted = chain is not None and chain.adjustment.get("method") == "affine"
-    if summary is not None:
-        posterior_name = "posterior, adjusted" if adjusted else "posterior"
-        header = (
-            ["parameter", "fit", f"± ({statistical})"]
-            + band_header
-            + [f"median ({posterior_name})", "16 %", "84 %", "2.5 %", "97.5 %", "prior"]
+    doc.heading("Parameters")
+    header, rows = _parameter_table(laplace, statistical, bands, threshold, adjusted, posterior)
+    doc.table(header, rows)
+    meanings = _interval_meanings(fit, bands, threshold, chain if adjusted else None)
+    data["intervals"] = {"statistical": statistical, "bands": bands, "meanings": meanings}
+    doc.bullets(meanings)
+    if bands:
+        _intervals_image(doc, laplace, bands, statistical, threshold)
+    if posterior is None:
+        doc.para(
+            f"No chain was given: the intervals are the fit's Gaussian ones ({statistical}), x̂ ± σ and x̂ ± 1.96σ, "
+            "which assume the model is linear over the uncertainty and ignore the bounds. "
+            "Run 'strauss-fit sample' for the posterior."
         )
+    if fit.held:
+        held_parameters(doc, fit.held)
+
+
+def _parameter_table(
+    laplace: Laplace,
+    statistical: str,
+    bands: dict[str, tuple[float, float]],
+    threshold: float,
+    adjusted: bool,
+    posterior: ChainPosterior | None,
+) -> tuple[list[str], list[list[str]]]:
+    """The parameter table's header and rows: value and ± per parameter, its equivalence
+    band when the fit has them, then the posterior's percentiles and prior, or without a
+    chain the Gaussian ones of the fit's ±."""
+    short = "sandwich" if statistical == "noise sandwich" else "Laplace"
+    header = ["parameter", "fit", f"± ({statistical})"] + ([f"looks the same (ΔE ≤ {threshold:g})"] if bands else [])
+    if posterior is not None:
+        header += posterior_header("posterior, adjusted" if adjusted else "posterior")
     else:
-        header = (
-            ["parameter", "fit", f"± ({statistical})"]
-            + band_header
-            + [f"16 % ({short})", f"84 % ({short})", f"2.5 % ({short})", f"97.5 % ({short})"]
-        )
+        header += [f"16 % ({short})", f"84 % ({short})", f"2.5 % ({short})", f"97.5 % ({short})"]
     rows = []
-    for k, label in enumerate(labels):
-        row = [label, _fmt(laplace.x_hat[k]), _fmt(laplace.sd[k], 2) if laplace.sd[k] > 0 else "at bound"]
+    for k, label in enumerate(laplace.labels):
+        row = [label, fmt(laplace.x_hat[k]), fmt(laplace.sd[k], 2) if laplace.sd[k] > 0 else "at bound"]
         if bands:
-            row.append(f"{_fmt(bands[label][0], 3)} – {_fmt(bands[label][1], 3)}" if label in bands else "–")
-        if summary is not None:
-            p = summary["parameters"][label]
-            row += [
-                _fmt(p["median"]),
-                _fmt(p["p16"]),
-                _fmt(p["p84"]),
-                _fmt(p["p2.5"]),
-                _fmt(p["p97.5"]),
-                f"[{_fmt(lower[k], 3)}, {_fmt(upper[k], 3)}]",
-            ]
+            row.append(range_text(*bands[label]) if label in bands else "–")
+        if posterior is not None:
+            row += posterior_cells(posterior.summary["parameters"][label])
+            row.append(prior_text(posterior.lower[k], posterior.upper[k]))
         else:
             x, s = laplace.x_hat[k], laplace.sd[k]
-            row += [_fmt(x - s), _fmt(x + s), _fmt(x - 1.96 * s), _fmt(x + 1.96 * s)]
+            row += [fmt(x - s), fmt(x + s), fmt(x - 1.96 * s), fmt(x + 1.96 * s)]
         rows.append(row)
-    doc.table(header, rows)
+    return header, rows
+
+
+def _interval_meanings(
+    fit: FitResult, bands: dict[str, tuple[float, float]], threshold: float, adjusted: Chain | None
+) -> list[str]:
+    """One sentence per kind of interval in the parameter table: the fit's ±, the
+    equivalence band (when there are bands) and the adjusted posterior (``adjusted``: the
+    chain, when it was adjusted to the sandwich)."""
     meanings = [_statistical_meaning(fit)]
     if bands:
         meanings.append(
@@ -367,117 +435,128 @@ def build_report(
             "image of this scene can show, not how precisely the data pin the value: a band far wider than the ± "
             "means a parameter the data determine but the eye does not."
         )
-    if adjusted:
+    if adjusted is not None:
         meanings.append(
             "Posterior, adjusted: the emcee chain mapped to the fit's noise sandwich (θ' = θ̂ + A(θ − θ̂), A chosen "
             "so that the draws' covariance is the sandwich's), keeping its shape; "
-            f"{chain.adjustment.get('dropped', 0)} draws that left the prior were dropped."
+            f"{adjusted.adjustment.get('dropped', 0)} draws that left the prior were dropped."
         )
-    data["intervals"] = {"statistical": statistical, "bands": bands, "meanings": meanings}
-    doc.bullets(meanings)
-    if bands:
-        lo_box = np.array(
+    return meanings
+
+
+def _intervals_image(
+    doc: Document, laplace: Laplace, bands: dict[str, tuple[float, float]], statistical: str, threshold: float
+) -> None:
+    """The figure of every parameter's equivalence band against its ±1.96σ, each over its
+    range ([0, 1] for a colour or a fraction, else the band and the fit)."""
+    labels = laplace.labels
+    lo_box = np.array(
+        [
+            0.0 if _unit(label) else min(bands.get(label, (np.inf,))[0], laplace.x_hat[k])
+            for k, label in enumerate(labels)
+        ]
+    )
+    hi_box = np.array(
+        [
+            1.0 if _unit(label) else max(bands.get(label, (0.0, -np.inf))[1], laplace.x_hat[k])
+            for k, label in enumerate(labels)
+        ]
+    )
+    doc.image(
+        "intervals.png",
+        intervals_figure(labels, laplace.x_hat, laplace.sd, bands, lo_box, hi_box, statistical, threshold),
+        f"per parameter: the band that looks the same (light), the {statistical} ±1.96σ interval (dark), the fit",
+    )
+
+
+def _comparison_section(doc: Document, fit: FitResult, posterior: ChainPosterior, data: dict[str, Any]) -> None:
+    """The fit's ± against the chain's posterior, per parameter (widths, shift, skew), and
+    what disagrees, or that they agree."""
+    statistical = _statistical_name(fit)
+    short = "sandwich" if statistical == "noise sandwich" else "Laplace"
+    doc.heading(f"The fit's ± ({statistical}) against the posterior")
+    rows_cmp, notes = posterior.rows, posterior.notes
+    data["comparison"] = {"rows": [r.as_dict() for r in rows_cmp], "notes": notes}
+    doc.table(
+        [
+            "parameter",
+            "fit",
+            f"{short} ±",
+            "posterior median",
+            "posterior ± (half 16–84 %)",
+            "width ratio",
+            "shift (σ)",
+            "skew",
+            "disagreement",
+        ],
+        [
             [
-                0.0 if _unit(label) else min(bands.get(label, (np.inf,))[0], laplace.x_hat[k])
-                for k, label in enumerate(labels)
+                r.label,
+                fmt(r.x_hat),
+                fmt(r.laplace_sd, 2),
+                fmt(r.median),
+                fmt(r.posterior_sd, 2),
+                fmt(r.width_ratio, 3),
+                f"{r.shift:+.2f}",
+                f"{r.skew:+.2f}",
+                ", ".join(r.issues) or "none",
             ]
-        )
-        hi_box = np.array(
-            [
-                1.0 if _unit(label) else max(bands.get(label, (0.0, -np.inf))[1], laplace.x_hat[k])
-                for k, label in enumerate(labels)
-            ]
-        )
-        doc.image(
-            "intervals.png",
-            intervals_figure(labels, laplace.x_hat, laplace.sd, bands, lo_box, hi_box, statistical, threshold),
-            f"per parameter: the band that looks the same (light), the {statistical} ±1.96σ interval (dark), the fit",
-        )
-    if summary is None:
+            for r in rows_cmp
+        ],
+    )
+    if notes:
+        doc.bullets(notes, "warn")
+    else:
         doc.para(
-            f"No chain was given: the intervals are the fit's Gaussian ones ({statistical}), x̂ ± σ and x̂ ± 1.96σ, "
-            "which assume the model is linear over the uncertainty and ignore the bounds. "
-            "Run 'strauss-fit sample' for the posterior."
-        )
-    held = fit.held
-    if held:
-        doc.heading("Held parameters", 3)
-        doc.table(
-            ["parameter", "value", "why"],
-            [[name, _value_text(info.get("value")), info.get("reason", "")] for name, info in held.items()],
+            "They agree: widths within 20–25 %, medians within half a standard deviation of the optimum, "
+            f"no skew, no bound, no curved ridge. The fit's {statistical} alone would have done.",
+            "ok",
         )
 
-    if summary is not None:
-        doc.heading(f"The fit's ± ({statistical}) against the posterior")
-        rows_cmp, notes = posterior.rows, posterior.notes
-        data["comparison"] = {"rows": [r.as_dict() for r in rows_cmp], "notes": notes}
-        doc.table(
-            [
-                "parameter",
-                "fit",
-                f"{short} ±",
-                "posterior median",
-                "posterior ± (half 16–84 %)",
-                "width ratio",
-                "shift (σ)",
-                "skew",
-                "disagreement",
-            ],
-            [
-                [
-                    r.label,
-                    _fmt(r.x_hat),
-                    _fmt(r.laplace_sd, 2),
-                    _fmt(r.median),
-                    _fmt(r.posterior_sd, 2),
-                    _fmt(r.width_ratio, 3),
-                    f"{r.shift:+.2f}",
-                    f"{r.skew:+.2f}",
-                    ", ".join(r.issues) or "none",
-                ]
-                for r in rows_cmp
-            ],
-        )
-        if notes:
-            doc.bullets(notes, "warn")
-        else:
-            doc.para(
-                "They agree: widths within 20–25 %, medians within half a standard deviation of the optimum, "
-                f"no skew, no bound, no curved ridge. The fit's {statistical} alone would have done.",
-                "ok",
-            )
 
+def _correlation_section(doc: Document, fit: FitResult, laplace: Laplace, posterior: ChainPosterior | None) -> None:
+    """The correlation matrix, of the posterior samples or else of the fit's ±, as a figure
+    and a table."""
+    statistical = _statistical_name(fit)
     doc.heading("Correlations")
-    corr = np.asarray(summary["correlation"]) if summary is not None else _laplace.correlation(laplace.covariance)
-    source = "posterior samples" if summary is not None else statistical
+    if posterior is not None:
+        corr = np.asarray(posterior.summary["correlation"])
+    else:
+        corr = _laplace.correlation(laplace.covariance)
+    source = "posterior samples" if posterior is not None else statistical
     doc.image(
         "correlation.png",
-        correlation_figure(labels, corr, f"correlation ({source})"),
+        correlation_figure(laplace.labels, corr, f"correlation ({source})"),
         f"correlation matrix from the {source}",
     )
-    doc.table([""] + labels, [[label] + [f"{v:+.2f}" for v in corr[i]] for i, label in enumerate(labels)])
+    correlation_table(doc, laplace.labels, corr)
 
+
+def _corner_section(doc: Document, fit: FitResult, laplace: Laplace, posterior: ChainPosterior | None) -> None:
+    """The corner plot of the posterior samples, or without a chain of draws from the fit's
+    Gaussian (none when its covariance cannot be drawn from)."""
+    statistical = _statistical_name(fit)
+    labels = laplace.labels
     doc.heading("Corner plot")
-    if samples is not None:
-        png = corner_figure(samples, labels, laplace.x_hat, "posterior (orange: least-squares fit)")
+    if posterior is not None:
+        png = corner_figure(posterior.samples, labels, laplace.x_hat, "posterior (orange: least-squares fit)")
         doc.image(
             "corner.png",
             png,
             "posterior samples after burn-in; dashed: 16, 50 and 84 % quantiles; orange: least-squares optimum",
         )
-    else:
-        draws = _laplace_draws(laplace)
-        if draws is not None:
-            doc.image(
-                "corner.png",
-                corner_figure(draws, labels, laplace.x_hat, f"{statistical} (Gaussian)"),
-                f"draws from the Gaussian N(x̂, Σ) of the {statistical}, not a posterior sample",
-            )
+        return
+    draws = _laplace_draws(laplace)
+    if draws is not None:
+        doc.image(
+            "corner.png",
+            corner_figure(draws, labels, laplace.x_hat, f"{statistical} (Gaussian)"),
+            f"draws from the Gaussian N(x̂, Σ) of the {statistical}, not a posterior sample",
+        )
 
-    if chain is not None and diagnostics is not None:
-        doc.heading("Sampler diagnostics")
-        sampler_diagnostics(doc, chain, diagnostics)
 
+def _how_to_read(doc: Document) -> None:
+    """The closing sub-section: what each number of the report means."""
     doc.heading("How to read this report", 3)
     doc.bullets(
         [
@@ -496,7 +575,6 @@ def build_report(
             "Correlation near ±1: the two quantities trade off, and the image constrains only a combination of them.",
         ]
     )
-    return Report(html=doc.html(heading, _STYLE), markdown=doc.markdown(), images=doc.images, assets=assets, data=data)
 
 
 def sampler_diagnostics(
@@ -595,12 +673,6 @@ def _equivalence_bands(fit: FitResult, labels: Sequence[str]) -> dict[str, tuple
         except (TypeError, ValueError, IndexError):
             continue
     return {label: out[label] for label in labels if label in out}
-
-
-def _value_text(value: Any) -> str:
-    if isinstance(value, (list, tuple)):
-        return "(" + ", ".join(f"{float(v):.4g}" for v in value) + ")"
-    return _fmt(value) if value is not None else "–"
 
 
 def _laplace_draws(laplace: Laplace, count: int = 4000) -> np.ndarray | None:

@@ -73,8 +73,35 @@ def conclusions(study: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _consistency(c: dict[str, Any]) -> dict[str, Any]:
-    cap = "80"
-    p, pl, s = (c[k]["caps"][cap] for k in ("phong", "phong_log_exponent", "strauss"))
+    """Part 1's verdict: whether Strauss's ranges create energy less often than a novice's
+    Phong settings up to 80°, with the shares, how much energy, toward grazing, who the
+    offenders are and whether the difference exceeds the sampling noise."""
+    p, pl, s = (c[k]["caps"]["80"] for k in ("phong", "phong_log_exponent", "strauss"))
+    lines = _energy_lines(c, p, pl, s) + _offender_lines(c, p, s)
+    count = c["strauss"]["count"]
+    noise = [
+        label
+        for label, q in (("uniform n", p["fraction"]), ("log-uniform n", pl["fraction"]))
+        if not _distinct(s["fraction"], q, count)
+    ]
+    if noise:
+        lines.append(
+            f"With {count} draws per model, the difference to Phong with {' and '.join(noise)} is within "
+            "sampling noise (two-proportion test, about 95 %)."
+        )
+    holds, claim = _energy_claim(p, pl, s, noise)
+    lines.append(claim)
+    key = (
+        f"albedo > 1 at some angle ≤ 80°: Phong {_pct(p['fraction'])} (n uniform), {_pct(pl['fraction'])} "
+        f"(n log-uniform); Strauss {_pct(s['fraction'])}"
+    )
+    return {"aspect": "consistency (energy)", "verdict": _verdict(holds), "key": key, "statements": lines}
+
+
+def _energy_lines(c: dict[str, Any], p: dict[str, Any], pl: dict[str, Any], s: dict[str, Any]) -> list[str]:
+    """The statements of how often and how much each model creates energy (``p``, ``pl``,
+    ``s``: the 80° cap's figures of Phong with n uniform and log-uniform, and of Strauss),
+    toward grazing incidence, and the white matte Strauss surface's albedo."""
     angles = c["angles_deg"]
     lines = [
         f"Up to 80° of incidence, {_pct(p['fraction'])} of novice Phong sets (n uniform in [1, 1000]) and "
@@ -103,6 +130,13 @@ def _consistency(c: dict[str, Any]) -> dict[str, Any]:
             f"{angles[k60]:g}° and {white[k80]:.4f} at {angles[k80]:g}°: its off-specular term k_j·j is "
             "added on top of a diffuse term that already reflects everything."
         )
+    return lines
+
+
+def _offender_lines(c: dict[str, Any], p: dict[str, Any], s: dict[str, Any]) -> list[str]:
+    """The statements of what the sets that create energy look like, per model (none for a
+    model without offenders)."""
+    lines = []
     offenders = c["strauss"].get("offenders", {})
     if s["fraction"] > 0 and offenders.get("max_color", {}).get("median_offenders") is not None:
         lines.append(
@@ -118,36 +152,27 @@ def _consistency(c: dict[str, Any]) -> dict[str, Any]:
             f"{po['exponent']['median_all']:.3g} overall) and strong coefficients (median ks "
             f"{po['ks']['median_offenders']:.2f})."
         )
-    count = c["strauss"]["count"]
-    noise = [
-        label
-        for label, q in (("uniform n", p["fraction"]), ("log-uniform n", pl["fraction"]))
-        if not _distinct(s["fraction"], q, count)
-    ]
-    if noise:
-        lines.append(
-            f"With {count} draws per model, the difference to Phong with {' and '.join(noise)} is within "
-            "sampling noise (two-proportion test, about 95 %)."
-        )
+    return lines
+
+
+def _energy_claim(
+    p: dict[str, Any], pl: dict[str, Any], s: dict[str, Any], noise: list[str]
+) -> tuple[bool | None, str]:
+    """Whether the claim holds (None: mixed or undecided) and the sentence that says so,
+    from the 80° shares and which Phong comparisons are within sampling noise (``noise``)."""
     if s["fraction"] < min(p["fraction"], pl["fraction"]) and len(noise) == 2:
-        holds = None
-        lines.append(
+        return None, (
             "So the claim is not decided by this run: Strauss creates energy less often than Phong, but "
             "by less than the sampling noise; use --size full."
         )
-    elif s["fraction"] < min(p["fraction"], pl["fraction"]):
-        holds = True
-        lines.append(
-            "So the claim holds here: Strauss's ranges make energy creation rarer than Phong's"
-            + (
-                f" (clearly so only against Phong with {'log-uniform n' if noise == ['uniform n'] else 'uniform n'})."
-                if noise
-                else "."
-            )
+    if s["fraction"] < min(p["fraction"], pl["fraction"]):
+        return True, "So the claim holds here: Strauss's ranges make energy creation rarer than Phong's" + (
+            f" (clearly so only against Phong with {'log-uniform n' if noise == ['uniform n'] else 'uniform n'})."
+            if noise
+            else "."
         )
-    elif s["fraction"] > max(p["fraction"], pl["fraction"]):
-        holds = False
-        lines.append(
+    if s["fraction"] > max(p["fraction"], pl["fraction"]):
+        return False, (
             "So the claim does not hold in frequency: a uniformly drawn Strauss set creates energy more "
             "often than a novice Phong set, although "
             + (
@@ -156,18 +181,11 @@ def _consistency(c: dict[str, Any]) -> dict[str, Any]:
                 else "not by less."
             )
         )
-    else:
-        holds = None
-        lines.append(
-            "So the answer depends on how a novice sets Phong's exponent: Strauss creates energy less often "
-            "than Phong with log-uniform n and more often than with uniform n (which mostly gives narrow, "
-            "weak lobes)."
-        )
-    key = (
-        f"albedo > 1 at some angle ≤ 80°: Phong {_pct(p['fraction'])} (n uniform), {_pct(pl['fraction'])} "
-        f"(n log-uniform); Strauss {_pct(s['fraction'])}"
+    return None, (
+        "So the answer depends on how a novice sets Phong's exponent: Strauss creates energy less often "
+        "than Phong with log-uniform n and more often than with uniform n (which mostly gives narrow, "
+        "weak lobes)."
     )
-    return {"aspect": "consistency (energy)", "verdict": _verdict(holds), "key": key, "statements": lines}
 
 
 def _independence(d: dict[str, Any]) -> dict[str, Any]:
@@ -273,6 +291,8 @@ def _uniformity(u: dict[str, Any]) -> dict[str, Any]:
 
 
 def _expressiveness(e: dict[str, Any]) -> dict[str, Any]:
+    """Part 4's verdict: which model reproduces the other's renders more closely (not part
+    of Strauss's claim), with the medians, the energy-creating sources and the worst matched."""
     a = e["phong_to_strauss"]["delta_e2000_mean"]
     b = e["strauss_to_phong"]["delta_e2000_mean"]
     lines = []
@@ -292,24 +312,7 @@ def _expressiveness(e: dict[str, Any]) -> dict[str, Any]:
                 f"Phong sources that create energy are matched worse (median {_num(crea['median'])}) than those "
                 f"that do not ({_num(cons['median'])})."
             )
-        worst = e.get("worst_matched", {}).get("phong_to_strauss", {})
-        if worst.get("exponent"):
-            lines.append(
-                f"The worst-matched quarter of the Phong sources ({worst['worst_count']}) have median n "
-                f"{worst['exponent']['median_worst']:.3g} (all: {worst['exponent']['median_all']:.3g}), "
-                f"ks {worst['ks']['median_worst']:.2f} (all: {worst['ks']['median_all']:.2f}) and brightest "
-                f"diffuse channel {worst['max_kd_cd']['median_worst']:.2f} "
-                f"(all: {worst['max_kd_cd']['median_all']:.2f}). Strauss ties a highlight's strength to its "
-                "width (r_n = s³ with h = 3/(1 − s)) and dims the diffuse term as s grows, so a visible lobe "
-                "with Phong's free ks has no exact counterpart."
-            )
-        worst_s = e.get("worst_matched", {}).get("strauss_to_phong", {})
-        if worst_s.get("smoothness"):
-            lines.append(
-                f"The worst-matched quarter of the Strauss sources have median s "
-                f"{worst_s['smoothness']['median_worst']:.2f} (all: {worst_s['smoothness']['median_all']:.2f}) "
-                f"and m {worst_s['metalness']['median_worst']:.2f} (all: {worst_s['metalness']['median_all']:.2f})."
-            )
+        lines += _worst_matched_lines(e)
         holds = True if a["median"] <= b["median"] else False
         lines.append(
             "Expressiveness is not part of Strauss's claim; "
@@ -340,6 +343,31 @@ def _expressiveness(e: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _worst_matched_lines(e: dict[str, Any]) -> list[str]:
+    """The statements of what the worst-matched quarter of each direction's sources look
+    like (none for a direction the study did not describe)."""
+    lines = []
+    worst = e.get("worst_matched", {}).get("phong_to_strauss", {})
+    if worst.get("exponent"):
+        lines.append(
+            f"The worst-matched quarter of the Phong sources ({worst['worst_count']}) have median n "
+            f"{worst['exponent']['median_worst']:.3g} (all: {worst['exponent']['median_all']:.3g}), "
+            f"ks {worst['ks']['median_worst']:.2f} (all: {worst['ks']['median_all']:.2f}) and brightest "
+            f"diffuse channel {worst['max_kd_cd']['median_worst']:.2f} "
+            f"(all: {worst['max_kd_cd']['median_all']:.2f}). Strauss ties a highlight's strength to its "
+            "width (r_n = s³ with h = 3/(1 − s)) and dims the diffuse term as s grows, so a visible lobe "
+            "with Phong's free ks has no exact counterpart."
+        )
+    worst_s = e.get("worst_matched", {}).get("strauss_to_phong", {})
+    if worst_s.get("smoothness"):
+        lines.append(
+            f"The worst-matched quarter of the Strauss sources have median s "
+            f"{worst_s['smoothness']['median_worst']:.2f} (all: {worst_s['smoothness']['median_all']:.2f}) "
+            f"and m {worst_s['metalness']['median_worst']:.2f} (all: {worst_s['metalness']['median_all']:.2f})."
+        )
+    return lines
+
+
 # --- plots ------------------------------------------------------------------------------------
 
 
@@ -352,9 +380,20 @@ def _png(fig) -> bytes:
 
 
 def plots(study: dict[str, Any]) -> dict[str, bytes]:
-    """The four figures as PNG bytes, by file name."""
-    out = {}
-    c = study["consistency"]
+    """The four figures as PNG bytes, by file name (the independence figure only when both
+    models' images could be analysed)."""
+    out = {"fig-consistency.png": _consistency_plot(study["consistency"])}
+    independence = _independence_plot(study["independence"])
+    if independence is not None:
+        out["fig-independence.png"] = independence
+    out["fig-uniformity.png"] = _uniformity_plot(study["uniformity"])
+    out["fig-expressiveness.png"] = _expressiveness_plot(study["expressiveness"]["materials"])
+    return out
+
+
+def _consistency_plot(c: dict[str, Any]) -> bytes:
+    """Part 1's figure: the share of sets creating energy up to each angle, and the median
+    albedo per angle, per model (with the white matte Strauss surface)."""
     angles = c["angles_deg"]
     fig = new_figure(figsize=(10, 3.6))
     axes = fig.subplots(1, 2)
@@ -376,36 +415,43 @@ def plots(study: dict[str, Any]) -> dict[str, bytes]:
     for ax in axes:
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
-    out["fig-consistency.png"] = _png(fig)
+    return _png(fig)
 
-    d = study["independence"]["summary"]
-    if "strauss" in d and "phong" in d:
-        fig = new_figure(figsize=(15, 4.2))
-        axes = fig.subplots(1, 3)
-        for ax, key, title in ((axes[0], "strauss", "Strauss |corr|"), (axes[1], "phong", "Phong |corr|")):
-            matrix = np.asarray(d[key]["median_abs_correlation"])
-            im = ax.imshow(matrix, vmin=0, vmax=1, cmap="viridis")
-            ax.set_xticks(range(len(d[key]["labels"])), d[key]["labels"], rotation=60, fontsize=8)
-            ax.set_yticks(range(len(d[key]["labels"])), d[key]["labels"], fontsize=8)
-            ax.set_title(f"{title} (median over images)")
-            fig.colorbar(im, ax=ax, fraction=0.046)
-        per = study["independence"]["per_image"]
-        for k, (key, _label) in enumerate(
-            (("strauss", "Strauss C,s,m"), ("strauss_with_t", "Strauss +t"), ("phong", "Phong D,S,log n"))
-        ):
-            values = [r[key]["condition_scale_free"] for r in per]
-            finite = [v for v in values if v is not None]
-            axes[2].scatter(np.full(len(finite), k) + np.linspace(-0.15, 0.15, len(finite)), finite, s=12)
-            singular = len(values) - len(finite)
-            if singular:
-                axes[2].annotate(f"{singular} singular", (k, max(finite or [1.0])), fontsize=8)
-        axes[2].set_yscale("log")
-        axes[2].set_xticks(range(3), ["Strauss C,s,m", "Strauss +t", "Phong D,S,log n"], fontsize=8)
-        axes[2].set_title("scale-free condition number per image")
-        axes[2].grid(alpha=0.3)
-        out["fig-independence.png"] = _png(fig)
 
-    u = study["uniformity"]
+def _independence_plot(independence: dict[str, Any]) -> bytes | None:
+    """Part 2's figure: both models' median absolute correlations and the scale-free
+    condition number of every image; None unless both models were analysed."""
+    d = independence["summary"]
+    if "strauss" not in d or "phong" not in d:
+        return None
+    fig = new_figure(figsize=(15, 4.2))
+    axes = fig.subplots(1, 3)
+    for ax, key, title in ((axes[0], "strauss", "Strauss |corr|"), (axes[1], "phong", "Phong |corr|")):
+        matrix = np.asarray(d[key]["median_abs_correlation"])
+        im = ax.imshow(matrix, vmin=0, vmax=1, cmap="viridis")
+        ax.set_xticks(range(len(d[key]["labels"])), d[key]["labels"], rotation=60, fontsize=8)
+        ax.set_yticks(range(len(d[key]["labels"])), d[key]["labels"], fontsize=8)
+        ax.set_title(f"{title} (median over images)")
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    per = independence["per_image"]
+    for k, (key, _label) in enumerate(
+        (("strauss", "Strauss C,s,m"), ("strauss_with_t", "Strauss +t"), ("phong", "Phong D,S,log n"))
+    ):
+        values = [r[key]["condition_scale_free"] for r in per]
+        finite = [v for v in values if v is not None]
+        axes[2].scatter(np.full(len(finite), k) + np.linspace(-0.15, 0.15, len(finite)), finite, s=12)
+        singular = len(values) - len(finite)
+        if singular:
+            axes[2].annotate(f"{singular} singular", (k, max(finite or [1.0])), fontsize=8)
+    axes[2].set_yscale("log")
+    axes[2].set_xticks(range(3), ["Strauss C,s,m", "Strauss +t", "Phong D,S,log n"], fontsize=8)
+    axes[2].set_title("scale-free condition number per image")
+    axes[2].grid(alpha=0.3)
+    return _png(fig)
+
+
+def _uniformity_plot(u: dict[str, Any]) -> bytes:
+    """Part 3's figure: each parameter's ΔE per step relative to its mean step, per model."""
     fig = new_figure(figsize=(10, 3.6))
     axes = fig.subplots(1, 2, sharey=True)
     for ax, model in ((axes[0], "strauss"), (axes[1], "phong")):
@@ -423,9 +469,11 @@ def plots(study: dict[str, Any]) -> dict[str, bytes]:
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("step ΔE2000 relative to the mean step")
-    out["fig-uniformity.png"] = _png(fig)
+    return _png(fig)
 
-    e = study["expressiveness"]["materials"]
+
+def _expressiveness_plot(e: dict[str, Any]) -> bytes:
+    """Part 4's figure: the histogram of the conversions' residuals in each direction."""
     fig = new_figure(figsize=(6.5, 3.6))
     ax = fig.subplots()
     values = {
@@ -441,8 +489,7 @@ def plots(study: dict[str, Any]) -> dict[str, bytes]:
     ax.axvline(1.0, color="grey", lw=0.8)
     ax.set(xlabel="CIEDE2000, mean over the sphere", ylabel="materials", title="residual of the conversions")
     ax.legend(fontsize=8)
-    out["fig-expressiveness.png"] = _png(fig)
-    return out
+    return _png(fig)
 
 
 # --- documents --------------------------------------------------------------------------------
@@ -456,19 +503,35 @@ _STYLE = (
 )
 
 
+def study_table(doc: Document, header: list[str], rows: list[list[Any]]) -> None:
+    """A table of the study's report; its header is written as is (a '|' in it is not
+    escaped in the Markdown), as every study table always has been."""
+    doc.table(header, rows, escape_header=False)
+
+
+def study_figure(doc: Document, images: dict[str, bytes], name: str, caption: str) -> None:
+    """The figure ``name`` of ``images`` with its caption below it in the Markdown (linked
+    there even when it was not drawn)."""
+    doc.image(name, images.get(name), caption, caption=True)
+
+
 def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images: dict[str, bytes]) -> Document:
-    """The report's text, tables and figures (``images``: the PNGs of :func:`plots`)."""
-    config = study["config"]
-    c, d, u, e = study["consistency"], study["independence"], study["uniformity"], study["expressiveness"]
+    """The report's text, tables and figures (``images``: the PNGs of :func:`plots`): the
+    conclusions, then one section per part, then the timing line."""
     doc = Document()
+    _conclusions_section(doc, study, verdicts)
+    _consistency_section(doc, study["consistency"], images)
+    _independence_section(doc, study["independence"], images)
+    _uniformity_section(doc, study["uniformity"], images)
+    _expressiveness_section(doc, study["expressiveness"], images)
+    doc.para("Timing (s): " + ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in study["timing"].items()))
+    return doc
 
-    def figure(name: str, caption: str) -> None:
-        doc.image(name, images.get(name), caption, caption=True)
 
-    def table(header: list[str], rows: list[list[Any]]) -> None:
-        # the header is written as is (a '|' in it is not escaped in the Markdown)
-        doc.table(header, rows, escape_header=False)
-
+def _conclusions_section(doc: Document, study: dict[str, Any], verdicts: list[dict[str, Any]]) -> None:
+    """The title, the run in one line, and the conclusions: one table row per aspect, then
+    each aspect's statements."""
+    config = study["config"]
     doc.heading(TITLE, 1)
     doc.para(
         f"Run '{config['name']}' (seed {config['seed']}), {study['timing']['total_s']:.0f} s. "
@@ -476,7 +539,8 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
         "Every number below is in study.json."
     )
     doc.heading("Conclusions")
-    table(
+    study_table(
+        doc,
         ["aspect", "claim", "deciding numbers", "in short"],
         [[v["aspect"], v["verdict"], v["key"], v["statements"][-1]] for v in verdicts],
     )
@@ -484,6 +548,10 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
         doc.heading(f"{v['aspect']}: {v['verdict']}", 3)
         doc.bullets(v["statements"])
 
+
+def _consistency_section(doc: Document, c: dict[str, Any], images: dict[str, bytes]) -> None:
+    """Part 1: how the albedo was computed, the share of sets creating energy per angle
+    cap and model, and its figure."""
     doc.heading("1. Consistency: energy created by novice settings")
     doc.para(
         f"{c['phong']['count']} sets per model; albedo at {len(c['angles_deg'])} angles of incidence from "
@@ -506,15 +574,22 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
             + [_pct(caps[k]["fraction"]) for k in caps]
             + [_num(caps["80"]["excess_p95"]), _num(caps["89"]["excess_max"])]
         )
-    table(
+    study_table(
+        doc,
         ["model", "albedo > 1 up to 60°", "up to 80°", "up to 89°", "excess p95 (≤ 80°)", "largest excess (≤ 89°)"],
         rows,
     )
-    figure(
+    study_figure(
+        doc,
+        images,
         "fig-consistency.png",
         "Left: share of sets whose albedo exceeds 1 at some angle up to θ. Right: median albedo per angle (log scale).",
     )
 
+
+def _independence_section(doc: Document, d: dict[str, Any], images: dict[str, bytes]) -> None:
+    """Part 2: how the Fisher information was computed, its condition numbers and
+    correlations per parameterisation, and its figure."""
     doc.heading("2. Independence: what the same images tell about each model's parameters")
     doc.para(
         f"{d['images']} images of the conversion scene; Fisher information J^T J/σ² with σ = 1 % of each "
@@ -544,7 +619,8 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
                 ", ".join(s["most_correlated_pairs"]),
             ]
         )
-    table(
+    study_table(
+        doc,
         [
             "parameters",
             "singular",
@@ -557,12 +633,18 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
         ],
         rows,
     )
-    figure(
+    study_figure(
+        doc,
+        images,
         "fig-independence.png",
         "Median absolute posterior correlations, and the scale-free "
         "condition number of each image's Fisher information.",
     )
 
+
+def _uniformity_section(doc: Document, u: dict[str, Any], images: dict[str, bytes]) -> None:
+    """Part 3: how the sweeps were made, the evenness of every parameter's steps, and its
+    figure."""
     doc.heading("3. Uniformity: image change per equal parameter step")
     doc.para(
         f"{u['bases']} base material(s) per model drawn as in part 1 (Phong's n log-uniform, so that the "
@@ -583,12 +665,18 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
                     f"{v['largest_step_between'][0]:.4g} → {v['largest_step_between'][1]:.4g}",
                 ]
             )
-    table(["model", "parameter", "mean step ΔE", "CV of steps", "largest / mean", "largest step"], rows)
-    figure(
+    study_table(doc, ["model", "parameter", "mean step ΔE", "CV of steps", "largest / mean", "largest step"], rows)
+    study_figure(
+        doc,
+        images,
         "fig-uniformity.png",
         "ΔE2000 of each step relative to the parameter's mean step (averaged over the base materials).",
     )
 
+
+def _expressiveness_section(doc: Document, e: dict[str, Any], images: dict[str, bytes]) -> None:
+    """Part 4: the conversion scene, the residuals' distribution in each direction, and
+    its figure."""
     a, b = e["phong_to_strauss"], e["strauss_to_phong"]
     doc.heading("4. Expressiveness: converting between the models")
     doc.para(
@@ -617,10 +705,8 @@ def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images
                 _pct(dist["below_1"]),
             ]
         )
-    table(["direction", "materials", "median ΔE", "p90", "max", "ΔE < 1"], rows)
-    figure("fig-expressiveness.png", "Distribution of the conversions' residuals.")
-    doc.para("Timing (s): " + ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in study["timing"].items()))
-    return doc
+    study_table(doc, ["direction", "materials", "median ΔE", "p90", "max", "ΔE < 1"], rows)
+    study_figure(doc, images, "fig-expressiveness.png", "Distribution of the conversions' residuals.")
 
 
 def write_report(study: dict[str, Any], outdir: str | Path, *, force: bool = False) -> list[Path]:

@@ -358,94 +358,12 @@ def merl_expressiveness(
 ) -> dict[str, Any]:
     """Part 5 (module docstring): every material of Ngan's Cook–Torrance fits at ``path``
     rendered under ``scenes`` at ``size`` pixels and fitted by Strauss and Phong."""
-    from ..fit.batch import fit_many
-
     say = say or (lambda message: None)
     started = time.perf_counter()
     materials, file = read_ngan_fits(path)
     say(f"measured materials: {len(materials)} of Ngan et al.'s Cook–Torrance fits from {file}")
-    strauss_options = {
-        "strauss": FitOptions(noise=MERL_NOISE, edge_pixels="exclude", loss="linear"),
-        "strauss_default": FitOptions(noise=MERL_NOISE, edge_pixels="exclude"),  # loss "auto"
-    }
-    per_scene: dict[str, list[dict[str, Any]]] = {}
-    for scene_name in scenes:
-        scene = study_scene(scene_name, size)
-        targets: list[Target | None] = []
-        clipped: list[Target | None] = []  # None: nothing above white, the fit to the target stands
-        levels: list[float] = []
-        records: list[dict[str, Any]] = []
-        for material in materials:
-            try:
-                image, usable = render_material(material, scene, supersample)
-                if not np.all(np.isfinite(image)):
-                    raise StraussFitError("the rendered image holds a NaN or infinite value")
-                targets.append(Target(image, usable, material.name, "linear", 0, 0))
-                # white as the ΔE metric sees it (strauss_fit.color.delta_e_2000): 1, or the 99th percentile
-                level = max(1.0, float(np.percentile(image[usable], 99)))
-                over = usable & np.any(image > level, axis=-1)
-                levels.append(level)
-                clipped.append(
-                    Target(image, usable & ~over, material.name, "linear", int(over.sum()), 0) if over.any() else None
-                )
-                records.append({"peak": float(image.max()), "white": level, "clipped_pixels": int(over.sum())})
-            except Exception as exc:
-                targets.append(None)
-                clipped.append(None)
-                levels.append(math.nan)
-                records.append({"render_error": f"{type(exc).__name__}: {exc}"})
-        strauss: dict[str, dict[int, Any]] = {}
-        jobs = {
-            "strauss": (targets, strauss_options["strauss"], "least squares"),
-            "strauss_default": (targets, strauss_options["strauss_default"], "default loss"),
-            "strauss_clipped": (clipped, strauss_options["strauss"], "least squares, clipped at white"),
-        }
-        for key, (images, options, what) in jobs.items():
-            fit_index = [i for i, t in enumerate(images) if t is not None]
-            label = f"{scene_name}: Strauss ({what})"
-            step = max(1, len(fit_index) // 8)
-
-            def progress(p, label=label, every=step):
-                if p.done == p.total or p.done % every == 0:
-                    say(f"measured materials, {label} [{p.done}/{p.total}] ({p.failed} failed, {p.elapsed_s:.0f} s)")
-
-            say(f"measured materials, {label}: fitting {len(fit_index)} images ({size} px)")
-            fitted = fit_many([images[i] for i in fit_index], scene, options, progress=progress) if fit_index else []
-            strauss[key] = dict(zip(fit_index, fitted))
-        say(f"measured materials, {scene_name}: fitting Phong to {len(strauss['strauss'])} images")
-        t0 = time.perf_counter()
-        for k, (target, record) in enumerate(zip(targets, records)):
-            if target is None:
-                error = {"status": "error", "message": record["render_error"]}
-                record.update(dict.fromkeys(FITTED, error))
-                continue
-            record["strauss"] = _strauss_record(strauss["strauss"][k])
-            record["strauss_default"] = _strauss_record(strauss["strauss_default"][k])
-            record["phong"] = _phong_record(scene, target)
-            if clipped[k] is None:  # nothing above white: the fits to the target stand
-                record["strauss_clipped"], record["phong_clipped"] = record["strauss"], record["phong"]
-            else:
-                record["strauss_clipped"] = _clipped_record(
-                    strauss["strauss_clipped"][k], target.pixels, np.asarray(target.usable)
-                )
-                record["phong_clipped"] = _phong_record(scene, target, clip=levels[k])
-            if (k + 1) % max(1, len(materials) // 8) == 0 or k + 1 == len(materials):
-                say(
-                    f"measured materials, {scene_name}: Phong [{k + 1}/{len(materials)}] "
-                    f"({time.perf_counter() - t0:.0f} s)"
-                )
-        per_scene[scene_name] = records
-    rows = []
-    for i, material in enumerate(materials):
-        scenes_of = {name: per_scene[name][i] for name in scenes}
-        rows.append(
-            {
-                **material.to_dict(),
-                "class": material_class(material.name),
-                **{key: _worst([r[key] for r in scenes_of.values()]) for key in FITTED},
-                "scenes": scenes_of,
-            }
-        )
+    per_scene = {name: _merl_scene(materials, name, size, supersample, say) for name in scenes}
+    rows = _material_rows(materials, per_scene, scenes)
     by_class = {label: _summary([r for r in rows if r["class"] == label]) for label in CLASSES}
     by_scene = {name: _summary([{key: r["scenes"][name][key] for key in FITTED} for r in rows]) for name in scenes}
     return {
@@ -464,6 +382,124 @@ def merl_expressiveness(
         "materials": rows,
         "time_s": time.perf_counter() - started,
     }
+
+
+def _merl_scene(
+    materials: Sequence[NganMaterial], scene_name: str, size: int, supersample: int, say: Callable[[str], None]
+) -> list[dict[str, Any]]:
+    """One record per material under the scene ``scene_name``: its render's figures and
+    every fit of :data:`FITTED` (a material that could not be rendered: an error in each)."""
+    scene = study_scene(scene_name, size)
+    targets, clipped, levels, records = _render_targets(materials, scene, supersample)
+    strauss = _fit_strauss(targets, clipped, scene, scene_name, size, say)
+    say(f"measured materials, {scene_name}: fitting Phong to {len(strauss['strauss'])} images")
+    t0 = time.perf_counter()
+    for k, (target, record) in enumerate(zip(targets, records)):
+        if target is None:
+            error = {"status": "error", "message": record["render_error"]}
+            record.update(dict.fromkeys(FITTED, error))
+            continue
+        record["strauss"] = _strauss_record(strauss["strauss"][k])
+        record["strauss_default"] = _strauss_record(strauss["strauss_default"][k])
+        record["phong"] = _phong_record(scene, target)
+        if clipped[k] is None:  # nothing above white: the fits to the target stand
+            record["strauss_clipped"], record["phong_clipped"] = record["strauss"], record["phong"]
+        else:
+            record["strauss_clipped"] = _clipped_record(
+                strauss["strauss_clipped"][k], target.pixels, np.asarray(target.usable)
+            )
+            record["phong_clipped"] = _phong_record(scene, target, clip=levels[k])
+        if (k + 1) % max(1, len(materials) // 8) == 0 or k + 1 == len(materials):
+            say(
+                f"measured materials, {scene_name}: Phong [{k + 1}/{len(materials)}] ({time.perf_counter() - t0:.0f} s)"
+            )
+    return records
+
+
+def _render_targets(
+    materials: Sequence[NganMaterial], scene: Scene, supersample: int
+) -> tuple[list[Target | None], list[Target | None], list[float], list[dict[str, Any]]]:
+    """Every material rendered under ``scene``: its target, the target clipped at white
+    (None when nothing is above white), the white level, and its record so far (peak, white,
+    pixels clipped; or the render's error, the target then None)."""
+    targets: list[Target | None] = []
+    clipped: list[Target | None] = []  # None: nothing above white, the fit to the target stands
+    levels: list[float] = []
+    records: list[dict[str, Any]] = []
+    for material in materials:
+        try:
+            image, usable = render_material(material, scene, supersample)
+            if not np.all(np.isfinite(image)):
+                raise StraussFitError("the rendered image holds a NaN or infinite value")
+            targets.append(Target(image, usable, material.name, "linear", 0, 0))
+            # white as the ΔE metric sees it (strauss_fit.color.delta_e_2000): 1, or the 99th percentile
+            level = max(1.0, float(np.percentile(image[usable], 99)))
+            over = usable & np.any(image > level, axis=-1)
+            levels.append(level)
+            clipped.append(
+                Target(image, usable & ~over, material.name, "linear", int(over.sum()), 0) if over.any() else None
+            )
+            records.append({"peak": float(image.max()), "white": level, "clipped_pixels": int(over.sum())})
+        except Exception as exc:
+            targets.append(None)
+            clipped.append(None)
+            levels.append(math.nan)
+            records.append({"render_error": f"{type(exc).__name__}: {exc}"})
+    return targets, clipped, levels, records
+
+
+def _fit_strauss(
+    targets: list[Target | None],
+    clipped: list[Target | None],
+    scene: Scene,
+    scene_name: str,
+    size: int,
+    say: Callable[[str], None],
+) -> dict[str, dict[int, Any]]:
+    """Strauss's three fits of the rendered materials, in batches: by least squares, with
+    its default loss, and by least squares to the targets clipped at white; each by
+    material index (those without a target left out)."""
+    from ..fit.batch import fit_many
+
+    least_squares = FitOptions(noise=MERL_NOISE, edge_pixels="exclude", loss="linear")
+    jobs = {
+        "strauss": (targets, least_squares, "least squares"),
+        "strauss_default": (targets, FitOptions(noise=MERL_NOISE, edge_pixels="exclude"), "default loss"),  # "auto"
+        "strauss_clipped": (clipped, least_squares, "least squares, clipped at white"),
+    }
+    strauss: dict[str, dict[int, Any]] = {}
+    for key, (images, options, what) in jobs.items():
+        fit_index = [i for i, t in enumerate(images) if t is not None]
+        label = f"{scene_name}: Strauss ({what})"
+        step = max(1, len(fit_index) // 8)
+
+        def progress(p, label=label, every=step):
+            if p.done == p.total or p.done % every == 0:
+                say(f"measured materials, {label} [{p.done}/{p.total}] ({p.failed} failed, {p.elapsed_s:.0f} s)")
+
+        say(f"measured materials, {label}: fitting {len(fit_index)} images ({size} px)")
+        fitted = fit_many([images[i] for i in fit_index], scene, options, progress=progress) if fit_index else []
+        strauss[key] = dict(zip(fit_index, fitted))
+    return strauss
+
+
+def _material_rows(
+    materials: Sequence[NganMaterial], per_scene: dict[str, list[dict[str, Any]]], scenes: Sequence[str]
+) -> list[dict[str, Any]]:
+    """One row per material: its parameters and class, each fit's worst over the scenes
+    (:func:`_worst`), and its record in every scene."""
+    rows = []
+    for i, material in enumerate(materials):
+        scenes_of = {name: per_scene[name][i] for name in scenes}
+        rows.append(
+            {
+                **material.to_dict(),
+                "class": material_class(material.name),
+                **{key: _worst([r[key] for r in scenes_of.values()]) for key in FITTED},
+                "scenes": scenes_of,
+            }
+        )
+    return rows
 
 
 # --- 6. real photographs ----------------------------------------------------------------------

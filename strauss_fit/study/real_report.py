@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ..reporting.document import Document
 from ..reporting.figures import new_figure, png_bytes
 from ..reporting.study_report import (
     DPI,
@@ -25,6 +26,8 @@ from ..reporting.study_report import (
     conclusions,
     plots,
     study_document,
+    study_figure,
+    study_table,
     write_study_files,
 )
 from .real import CLASSES
@@ -60,6 +63,9 @@ def all_conclusions(study: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _merl_verdict(m: dict[str, Any], synthetic: dict[str, Any] | None) -> dict[str, Any]:
+    """Part 5's verdict: whether Strauss matches measured materials at least as well as
+    Phong, as rendered and clipped at white, with the shares and medians that decide it
+    (``synthetic``: part 4's figures, quoted beside them)."""
     a = m["all"]
     s, p = a["strauss"], a["phong"]
     if not s["fitted"] or not p["fitted"]:
@@ -69,6 +75,24 @@ def _merl_verdict(m: dict[str, Any], synthetic: dict[str, Any] | None) -> dict[s
             "key": "no measured material could be fitted by both models",
             "statements": [f"{s['errors']} Strauss and {p['errors']} Phong fit(s) failed; nothing to compare."],
         }
+    sc, pc = a.get("strauss_clipped"), a.get("phong_clipped")
+    clipped = bool(sc and pc and sc["fitted"] and pc["fitted"])
+    lines = _merl_overview(m) + _merl_notes(m, clipped, synthetic)
+    verdict, conclusion = _merl_conclusion(s, p, sc, pc, clipped)
+    lines.append(conclusion)
+    key = (
+        f"within 1 JND as rendered: Strauss {_pct(s['matched'])}, Phong {_pct(p['matched'])} (median ΔE2000 "
+        f"{_num(s['median_delta_e'])}, {_num(p['median_delta_e'])})"
+        + (f"; clipped at white: Strauss {_pct(sc['matched'])}, Phong {_pct(pc['matched'])}" if clipped else "")
+        + f"; Strauss out of reach {_pct(s['out_of_reach'])}"
+    )
+    return {"aspect": MERL_ASPECT, "verdict": verdict, "key": key, "statements": lines}
+
+
+def _merl_overview(m: dict[str, Any]) -> list[str]:
+    """The statements of how many materials each model matches, over all and by class."""
+    a = m["all"]
+    s, p = a["strauss"], a["phong"]
     lines = [
         f"On {a['materials']} MERL materials (Ngan et al.'s Cook–Torrance fits, rendered under "
         f"{len(m['scenes'])} scene(s) at {m['image_size']} px; a material's ΔE is its largest over the scenes), "
@@ -89,6 +113,15 @@ def _merl_verdict(m: dict[str, Any], synthetic: dict[str, Any] | None) -> dict[s
         )
     if parts:
         lines.append("By class: " + "; ".join(parts) + ".")
+    return lines
+
+
+def _merl_notes(m: dict[str, Any], clipped: bool, synthetic: dict[str, Any] | None) -> list[str]:
+    """The statements beside the overview: Strauss out of reach, failed fits, the fits
+    clipped at white (when ``clipped``), Strauss's default loss and part 4's medians."""
+    a = m["all"]
+    s, p = a["strauss"], a["phong"]
+    lines = []
     if s["out_of_reach"]:
         lines.append(
             f"Strauss's fit is out of reach on {_pct(s['out_of_reach'])} of the materials (median ΔE there "
@@ -96,12 +129,10 @@ def _merl_verdict(m: dict[str, Any], synthetic: dict[str, Any] | None) -> dict[s
             "material can be under the scene's lights, or the fit pins the colour at 1 or s at a bound while the "
             "highlight holds the residual — the highlight bound r_s ≤ 1."
         )
-    errors = s["errors"] + p["errors"]
-    if errors:
+    if s["errors"] + p["errors"]:
         lines.append(f"{s['errors']} Strauss and {p['errors']} Phong fit(s) failed and are excluded.")
-    sc, pc = a.get("strauss_clipped"), a.get("phong_clipped")
-    clipped = bool(sc and pc and sc["fitted"] and pc["fitted"])
     if clipped:
+        sc, pc = a["strauss_clipped"], a["phong_clipped"]
         over = sum(
             1
             for r in m["materials"]
@@ -128,29 +159,36 @@ def _merl_verdict(m: dict[str, Any], synthetic: dict[str, Any] | None) -> dict[s
                 f"On the models' own renders (part 4) the medians were {_num(x['median'])} (Strauss fitting Phong "
                 f"images) and {_num(y['median'])} (Phong fitting Strauss images)."
             )
+    return lines
+
+
+def _merl_conclusion(
+    s: dict[str, Any], p: dict[str, Any], sc: dict[str, Any] | None, pc: dict[str, Any] | None, clipped: bool
+) -> tuple[str, str]:
+    """The verdict and the sentence that draws it: the comparison as rendered (``s``, ``p``),
+    and when ``clipped`` also clipped at white (``sc``, ``pc``); "mixed" when the two differ."""
     rendered = _compare(s, p)
     verdict = rendered if not clipped else (rendered if _compare(sc, pc) == rendered else "mixed")
     if verdict == "Strauss ≥ Phong":
-        lines.append(
+        return verdict, (
             "So on measured materials Strauss is at least as expressive as Phong"
             + (" both as rendered and clipped at white" if clipped else "")
             + " (both fitted by least squares; the capture fitter's Phong has a white highlight)."
         )
-    elif verdict == "Strauss < Phong":
-        lines.append(
+    if verdict == "Strauss < Phong":
+        return verdict, (
             "So on measured materials, too, Strauss is the less expressive model: it matches fewer of them, and less "
             "closely" + (", both as rendered and clipped at white." if clipped else ".")
         )
-    elif clipped:
+    if clipped:
         phrase = {
             "Strauss ≥ Phong": "at least as expressive as Phong",
             "Strauss < Phong": "less expressive than Phong",
             "mixed": "neither more nor less expressive than Phong (the share matched and the median disagree)",
         }
-        after = _compare(sc, pc)
-        lines.append(
+        return verdict, (
             f"So the answer depends on what is compared: as rendered Strauss is {phrase[rendered]}, clipped at "
-            f"white {phrase[after]}"
+            f"white {phrase[_compare(sc, pc)]}"
             + (
                 ": the gap lies in highlights brighter than white, which Strauss's r_s ≤ 1 cannot reach and which "
                 "least squares lets pull the rest of the sphere."
@@ -158,22 +196,11 @@ def _merl_verdict(m: dict[str, Any], synthetic: dict[str, Any] | None) -> dict[s
                 else "."
             )
         )
-    else:
-        lines.append(
-            "So on measured materials neither model is more expressive overall: "
-            + (
-                "Strauss matches at least as many within one JND but with a larger median ΔE."
-                if s["matched"] >= p["matched"]
-                else "Strauss has the smaller median ΔE but matches fewer within one JND."
-            )
-        )
-    key = (
-        f"within 1 JND as rendered: Strauss {_pct(s['matched'])}, Phong {_pct(p['matched'])} (median ΔE2000 "
-        f"{_num(s['median_delta_e'])}, {_num(p['median_delta_e'])})"
-        + (f"; clipped at white: Strauss {_pct(sc['matched'])}, Phong {_pct(pc['matched'])}" if clipped else "")
-        + f"; Strauss out of reach {_pct(s['out_of_reach'])}"
+    return verdict, "So on measured materials neither model is more expressive overall: " + (
+        "Strauss matches at least as many within one JND but with a larger median ΔE."
+        if s["matched"] >= p["matched"]
+        else "Strauss has the smaller median ΔE but matches fewer within one JND."
     )
-    return {"aspect": MERL_ASPECT, "verdict": verdict, "key": key, "statements": lines}
 
 
 def _compare(s: dict[str, Any], p: dict[str, Any]) -> str:
@@ -299,200 +326,221 @@ def _rgb(values: list[float]) -> str:
     return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
 
 
-def add_sections(doc: Any, study: dict[str, Any], images: dict[str, bytes]) -> None:
+def add_sections(doc: Document, study: dict[str, Any], images: dict[str, bytes]) -> None:
     """Sections 5 and 6 (for the parts the study ran) appended to ``doc``."""
-
-    def table(header: list[str], rows: list[list[Any]]) -> None:
-        doc.table(header, rows, escape_header=False)
-
     if "merl" in study:
-        m = study["merl"]
-        doc.heading("5. Expressiveness on measured materials (MERL, Ngan et al. 2005)")
-        doc.para(
-            f"{len(m['materials'])} materials of {m['source']} ('{m['fits']}': kd/π plus bbm's NganCookTorrance, "
-            f"formulas of bbm commit {m['bbm_commit'][:12]}), each rendered under {', '.join(m['scenes'])} at "
-            f"{m['image_size']}×{m['image_size']} px ({m['supersample']}×{m['supersample']} points per fully covered "
-            "pixel), then fitted by Strauss (single-target fit) and Phong (capture fitter, lights known) by least "
-            "squares on the same pixels: to the radiance as rendered; clipped at white (pixels brighter than the "
-            "ΔE metric's white left out of both fits, as a camera exposed for the sphere saturates them, and the "
-            "fit judged on every pixel); and by Strauss with its default loss (a robust refit when the least-squares "
-            "fit visibly misses). ΔE: mean CIEDE2000 over the sphere, the largest over the scenes; matched: ΔE ≤ "
-            f"{m['jnd']:g}. Out of reach: Strauss's fit to the radiance warns highlight-out-of-reach, or pins the "
-            "colour at 1 or s at a bound with the highlight holding the residual. Classes by name keyword: "
-            + "; ".join(f"{label}: {', '.join(words)}" for label, words in m["class_keywords"].items())
-            + "; the rest: other."
-        )
+        _merl_section(doc, study["merl"], images)
+    if "capture" in study:
+        _capture_section(doc, study["capture"])
 
-        def pair(entry: dict[str, Any] | None) -> str:
-            entry = entry or {}
-            return f"{_pct(entry.get('matched'))}, {_num(entry.get('median_delta_e'))}"
 
-        groups = [(label, m["by_class"][label]) for label in CLASSES] + [("all", m["all"])]
-        rows = []
-        for label, c in groups:
-            if not c["materials"]:
-                continue
-            s, p = c["strauss"], c["phong"]
-            rows.append(
-                [
-                    label,
-                    str(c["materials"]),
-                    _pct(s["matched"]),
-                    _num(s["median_delta_e"]),
-                    _pct(s["out_of_reach"]),
-                    _pct(p["matched"]),
-                    _num(p["median_delta_e"]),
-                    _pct(c["strauss_better"]),
-                ]
-            )
-        doc.para("As rendered (least squares to the radiance):")
-        table(
-            [
-                "class",
-                "materials",
-                "Strauss: ΔE ≤ 1",
-                "Strauss: median ΔE",
-                "Strauss: out of reach",
-                "Phong: ΔE ≤ 1",
-                "Phong: median ΔE",
-                "Strauss closer",
-            ],
-            rows,
-        )
-        rows = [
+def _merl_section(doc: Document, m: dict[str, Any], images: dict[str, bytes]) -> None:
+    """Section 5: how the measured materials were rendered, fitted and judged; the shares
+    matched by class and by scene, the figure, and one row per material."""
+    doc.heading("5. Expressiveness on measured materials (MERL, Ngan et al. 2005)")
+    doc.para(
+        f"{len(m['materials'])} materials of {m['source']} ('{m['fits']}': kd/π plus bbm's NganCookTorrance, "
+        f"formulas of bbm commit {m['bbm_commit'][:12]}), each rendered under {', '.join(m['scenes'])} at "
+        f"{m['image_size']}×{m['image_size']} px ({m['supersample']}×{m['supersample']} points per fully covered "
+        "pixel), then fitted by Strauss (single-target fit) and Phong (capture fitter, lights known) by least "
+        "squares on the same pixels: to the radiance as rendered; clipped at white (pixels brighter than the "
+        "ΔE metric's white left out of both fits, as a camera exposed for the sphere saturates them, and the "
+        "fit judged on every pixel); and by Strauss with its default loss (a robust refit when the least-squares "
+        "fit visibly misses). ΔE: mean CIEDE2000 over the sphere, the largest over the scenes; matched: ΔE ≤ "
+        f"{m['jnd']:g}. Out of reach: Strauss's fit to the radiance warns highlight-out-of-reach, or pins the "
+        "colour at 1 or s at a bound with the highlight holding the residual. Classes by name keyword: "
+        + "; ".join(f"{label}: {', '.join(words)}" for label, words in m["class_keywords"].items())
+        + "; the rest: other."
+    )
+    _merl_class_tables(doc, m)
+    _merl_scene_table(doc, m)
+    study_figure(
+        doc,
+        images,
+        MERL_FIGURE,
+        "Each measured material's ΔE under Strauss against Phong, as rendered and clipped at white (log scales; "
+        "dotted: one JND; ×: Strauss out of reach).",
+    )
+    _merl_material_table(doc, m)
+
+
+def _matched_pair(entry: dict[str, Any] | None) -> str:
+    """A group's share matched and median ΔE under one fit, as one cell."""
+    entry = entry or {}
+    return f"{_pct(entry.get('matched'))}, {_num(entry.get('median_delta_e'))}"
+
+
+def _merl_class_tables(doc: Document, m: dict[str, Any]) -> None:
+    """The two tables by class (and all materials): as rendered, then clipped at white and
+    with Strauss's default loss."""
+    groups = [(label, m["by_class"][label]) for label in CLASSES] + [("all", m["all"])]
+    groups = [(label, c) for label, c in groups if c["materials"]]
+    rows = []
+    for label, c in groups:
+        s, p = c["strauss"], c["phong"]
+        rows.append(
             [
                 label,
-                pair(c.get("strauss_clipped")),
-                pair(c.get("phong_clipped")),
-                _pct(c.get("strauss_better_clipped")),
-                pair(c.get("strauss_default")),
+                str(c["materials"]),
+                _pct(s["matched"]),
+                _num(s["median_delta_e"]),
+                _pct(s["out_of_reach"]),
+                _pct(p["matched"]),
+                _num(p["median_delta_e"]),
+                _pct(c["strauss_better"]),
             ]
-            for label, c in groups
-            if c["materials"]
+        )
+    doc.para("As rendered (least squares to the radiance):")
+    study_table(
+        doc,
+        [
+            "class",
+            "materials",
+            "Strauss: ΔE ≤ 1",
+            "Strauss: median ΔE",
+            "Strauss: out of reach",
+            "Phong: ΔE ≤ 1",
+            "Phong: median ΔE",
+            "Strauss closer",
+        ],
+        rows,
+    )
+    rows = [
+        [
+            label,
+            _matched_pair(c.get("strauss_clipped")),
+            _matched_pair(c.get("phong_clipped")),
+            _pct(c.get("strauss_better_clipped")),
+            _matched_pair(c.get("strauss_default")),
         ]
-        doc.para("Clipped at white (both by least squares), and Strauss with its default loss (ΔE ≤ 1, median ΔE):")
-        table(
-            ["class", "clipped: Strauss", "clipped: Phong", "clipped: Strauss closer", "Strauss, default loss"],
-            rows,
-        )
-        rows = []
-        for name, c in m["by_scene"].items():
-            rows.append(
-                [
-                    name,
-                    pair(c["strauss"]),
-                    _pct(c["strauss"]["out_of_reach"]),
-                    pair(c["phong"]),
-                    pair(c.get("strauss_clipped")),
-                    pair(c.get("phong_clipped")),
-                ]
-            )
-        table(
-            ["scene", "Strauss", "Strauss: out of reach", "Phong", "clipped: Strauss", "clipped: Phong"],
-            rows,
-        )
-        doc.image(
-            MERL_FIGURE,
-            images.get(MERL_FIGURE),
-            "Each measured material's ΔE under Strauss against Phong, as rendered and clipped at white (log scales; "
-            "dotted: one JND; ×: Strauss out of reach).",
-            caption=True,
-        )
+        for label, c in groups
+    ]
+    doc.para("Clipped at white (both by least squares), and Strauss with its default loss (ΔE ≤ 1, median ΔE):")
+    study_table(
+        doc,
+        ["class", "clipped: Strauss", "clipped: Phong", "clipped: Strauss closer", "Strauss, default loss"],
+        rows,
+    )
 
-        def cell(entry: dict[str, Any] | None) -> str:
-            if not entry:
-                return ""
-            return _num(entry["delta_e2000_mean"]) if entry["status"] == "ok" else f"error: {entry['message']}"
 
-        rows = []
-        for r in sorted(m["materials"], key=lambda r: (CLASSES.index(r["class"]), r["name"])):
-            s = r["strauss"]
-            clipped = max((scene.get("clipped_pixels", 0) for scene in r.get("scenes", {}).values()), default=0)
-            rows.append(
-                [
-                    r["name"],
-                    r["class"],
-                    _rgb(r["kd"]),
-                    _rgb(r["ks"]),
-                    f"{r['f0']:.3g}",
-                    f"{r['roughness']:.3g}",
-                    cell(s),
-                    ("yes" if s["out_of_reach"] else "no") if s["status"] == "ok" else "",
-                    cell(r["phong"]),
-                    str(clipped),
-                    cell(r.get("strauss_clipped")),
-                    cell(r.get("phong_clipped")),
-                    cell(r.get("strauss_default")),
-                ]
-            )
-        table(
+def _merl_scene_table(doc: Document, m: dict[str, Any]) -> None:
+    """The table by scene: each fit's share matched and median ΔE, Strauss's share out of reach."""
+    rows = []
+    for name, c in m["by_scene"].items():
+        rows.append(
             [
-                "material",
-                "class",
-                "kd",
-                "ks",
-                "F0",
-                "m",
-                "Strauss ΔE",
-                "out of reach",
-                "Phong ΔE",
-                "pixels above white",
-                "clipped: Strauss ΔE",
-                "clipped: Phong ΔE",
-                "Strauss ΔE, default loss",
-            ],
-            rows,
+                name,
+                _matched_pair(c["strauss"]),
+                _pct(c["strauss"]["out_of_reach"]),
+                _matched_pair(c["phong"]),
+                _matched_pair(c.get("strauss_clipped")),
+                _matched_pair(c.get("phong_clipped")),
+            ]
         )
+    study_table(
+        doc,
+        ["scene", "Strauss", "Strauss: out of reach", "Phong", "clipped: Strauss", "clipped: Phong"],
+        rows,
+    )
 
-    if "capture" in study:
-        c = study["capture"]
-        doc.heading("6. Real photographs: held-out error and stability of every model")
-        doc.para(
-            f"{c['source']}: {c['pixels']} sphere pixels × {c['images']} images. Each model is fitted to "
-            f"{c['fitted_images']} images and predicts the {c['held_out_images']} others (held out: "
-            f"{_held_out_phrase(c['holdout'])}); its lobe parameters are fitted again on two disjoint halves of the "
-            "fitted images (odd and even), stable when each half's value lies within the other's perceptual "
-            "equivalence range."
-        )
-        rows = []
-        for name, e in c["models"].items():
-            if e["status"] != "ok":
-                rows.append([name, f"error: {e['message']}", "", "", "", "", ""])
-                continue
-            rows.append(
-                [
-                    name,
-                    _num(e["fit"]["delta_e2000_mean"]),
-                    _num(e["held_out"]["delta_e2000_mean"]),
-                    _num(e["held_out"]["relative_rms"]),
-                    str(e["fit"].get("verdict")),
-                    _stability_phrase(e)
-                    or (
-                        f"error: {e['stability']['message']}"
-                        if e.get("stability")
-                        else "n/a (no parameter compared for this model)"
-                    ),
-                    f"{e['time_s']:.0f}",
-                ]
-            )
-        table(
+
+def _delta_e_cell(entry: dict[str, Any] | None) -> str:
+    """One fit's ΔE of a material, its error when it failed, nothing when it did not run."""
+    if not entry:
+        return ""
+    return _num(entry["delta_e2000_mean"]) if entry["status"] == "ok" else f"error: {entry['message']}"
+
+
+def _merl_material_table(doc: Document, m: dict[str, Any]) -> None:
+    """One row per measured material, by class and name: its Cook–Torrance parameters and
+    every fit's ΔE."""
+    rows = []
+    for r in sorted(m["materials"], key=lambda r: (CLASSES.index(r["class"]), r["name"])):
+        s = r["strauss"]
+        clipped = max((scene.get("clipped_pixels", 0) for scene in r.get("scenes", {}).values()), default=0)
+        rows.append(
             [
-                "model",
-                "fit ΔE",
-                "held-out ΔE",
-                "held-out relative RMS",
-                "verdict",
-                "halves (odd / even)",
-                "time (s)",
-            ],
-            rows,
+                r["name"],
+                r["class"],
+                _rgb(r["kd"]),
+                _rgb(r["ks"]),
+                f"{r['f0']:.3g}",
+                f"{r['roughness']:.3g}",
+                _delta_e_cell(s),
+                ("yes" if s["out_of_reach"] else "no") if s["status"] == "ok" else "",
+                _delta_e_cell(r["phong"]),
+                str(clipped),
+                _delta_e_cell(r.get("strauss_clipped")),
+                _delta_e_cell(r.get("phong_clipped")),
+                _delta_e_cell(r.get("strauss_default")),
+            ]
         )
+    study_table(
+        doc,
+        [
+            "material",
+            "class",
+            "kd",
+            "ks",
+            "F0",
+            "m",
+            "Strauss ΔE",
+            "out of reach",
+            "Phong ΔE",
+            "pixels above white",
+            "clipped: Strauss ΔE",
+            "clipped: Phong ΔE",
+            "Strauss ΔE, default loss",
+        ],
+        rows,
+    )
+
+
+def _capture_section(doc: Document, c: dict[str, Any]) -> None:
+    """Section 6: the capture, how the models were fitted and checked, and one row per
+    model (its fit and held-out error, verdict, stability over two halves and time)."""
+    doc.heading("6. Real photographs: held-out error and stability of every model")
+    doc.para(
+        f"{c['source']}: {c['pixels']} sphere pixels × {c['images']} images. Each model is fitted to "
+        f"{c['fitted_images']} images and predicts the {c['held_out_images']} others (held out: "
+        f"{_held_out_phrase(c['holdout'])}); its lobe parameters are fitted again on two disjoint halves of the "
+        "fitted images (odd and even), stable when each half's value lies within the other's perceptual "
+        "equivalence range."
+    )
+    rows = []
+    for name, e in c["models"].items():
+        if e["status"] != "ok":
+            rows.append([name, f"error: {e['message']}", "", "", "", "", ""])
+            continue
+        rows.append(
+            [
+                name,
+                _num(e["fit"]["delta_e2000_mean"]),
+                _num(e["held_out"]["delta_e2000_mean"]),
+                _num(e["held_out"]["relative_rms"]),
+                str(e["fit"].get("verdict")),
+                _stability_phrase(e)
+                or (
+                    f"error: {e['stability']['message']}"
+                    if e.get("stability")
+                    else "n/a (no parameter compared for this model)"
+                ),
+                f"{e['time_s']:.0f}",
+            ]
+        )
+    study_table(
+        doc,
+        ["model", "fit ΔE", "held-out ΔE", "held-out relative RMS", "verdict", "halves (odd / even)", "time (s)"],
+        rows,
+    )
 
 
 # --- writing ----------------------------------------------------------------------------------
 
 
-def study_markdown_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images: dict[str, bytes]):
+def study_markdown_document(
+    study: dict[str, Any], verdicts: list[dict[str, Any]], images: dict[str, bytes]
+) -> Document:
     """The whole report as a :class:`~strauss_fit.reporting.document.Document`: the four
     parts, then sections 5 and 6, then the timing line."""
     doc = study_document(study, verdicts, images)

@@ -65,7 +65,7 @@ from ..convert.phong_fit import LOG_MAX_EXPONENT, vector_from_material
 from ..errors import StraussFitError
 from ..fit.identifiability import reference_noise_level
 from ..fit.options import FitOptions
-from ..fit.problem import build_problem
+from ..fit.problem import Problem, build_problem
 from ..io.targets import Target
 from ..models.albedo import DEFAULT_NODES, phong_reflectance, quadrature_error, strauss_reflectance
 from ..models.material import FRACTION_NAMES, REFLECTION_NAMES, Material
@@ -470,9 +470,42 @@ def _phong_user_transform(x: np.ndarray, material: dict[str, Any]) -> np.ndarray
     return t
 
 
+#: The four parameterisations whose Fisher information part 2 reports, with their labels.
+PARAMETERISATIONS = (
+    ("strauss", STRAUSS_LABELS),
+    ("strauss_with_t", STRAUSS_T_LABELS),
+    ("phong", PHONG_LABELS),
+    ("phong_user", PHONG_USER_LABELS),
+)
+#: The figures of each image's Fisher information the study keeps per image.
+PER_IMAGE_KEYS = ("condition_scale_free", "condition_unit_range", "max_abs_correlation", "max_pair", "rank")
+
+
 def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, Any]:
+    """Part 2 (module docstring): the Fisher information of both models, in every
+    parameterisation, on the images of the conversions that succeeded (``run``: what
+    :func:`conversions` returns), summarised over the images and kept per image."""
     converter: Converter = run["converter"]
     say("independence: Fisher information of both models on the same images")
+    with_t = _problem_with_transparency(converter)
+    records = [
+        _image_fisher(converter, with_t, origin, target, strauss_values, phong_values)
+        for origin, target, strauss_values, phong_values in _independence_images(run)
+    ]
+    return {
+        "images": len(records),
+        "by_origin": {o: sum(r["origin"] == o for r in records) for o in ("phong", "strauss")},
+        "summary": _independence_summary(records),
+        "per_image": [
+            {"origin": r["origin"], **{k: {kk: r[k][kk] for kk in PER_IMAGE_KEYS} for k, _ in PARAMETERISATIONS}}
+            for r in records
+        ],
+    }
+
+
+def _problem_with_transparency(converter: Converter) -> Problem:
+    """The conversion scene's Strauss problem with t freed too (C, s, m, t), on the pixels
+    the conversions fit; its target is replaced per image."""
     base = Material(transparency=0.0)
     height, width = converter.scene.shape
     dummy = Target(np.ones((height, width, 3)), np.ones((height, width), dtype=bool), "<study>", "linear", 0, 0)
@@ -484,7 +517,14 @@ def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, A
         plan_render(converter.scene, base, transparent=True),
         FitOptions(edge_pixels="exclude"),  # the pixels the conversions fit
     )
-    records = []
+    return with_t
+
+
+def _independence_images(run: dict[str, Any]) -> list[tuple[str, np.ndarray, dict[str, Any], dict[str, Any]]]:
+    """The images part 2 analyses: each conversion that succeeded with an uncertainty, as
+    (the model that rendered it, the image, Strauss's values, Phong's values) — the truth
+    for the model's own render, the fitted conversion for the other's."""
+    converter: Converter = run["converter"]
     images = []
     for entry, result in zip(run["phong_entries"], run["p2s"]):
         if result["status"] == "ok" and result["uncertainty"] is not None:
@@ -496,42 +536,54 @@ def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, A
             images.append(
                 ("strauss", converter.strauss_target(entry.material), entry.material.to_dict(), result["phong"])
             )
-    for origin, target, strauss_values, phong_values in images:
-        sigma = reference_noise_level(target)
-        t_target = jnp.asarray(target)
-        s_problem = dataclasses.replace(converter.strauss, target=t_target)
-        xs = converter.strauss.layout.join(strauss_values)
-        j_s = np.asarray(laplace.jacobian(s_problem, jnp.asarray(xs)))
-        xt = with_t.layout.join({**strauss_values, "transparency": 0.0})
-        j_t = np.asarray(laplace.jacobian(dataclasses.replace(with_t, target=t_target), jnp.asarray(xt)))
-        pm = PhongMaterial.from_dict(phong_values)
-        xp = vector_from_material(pm)
-        p_problem = dataclasses.replace(converter.phong_template, target=t_target, ambient_ka=jnp.asarray(0.0))
-        j_p = np.asarray(laplace.jacobian(p_problem, jnp.asarray(xp)))
-        j_u = j_p @ _phong_user_transform(
-            xp,
-            {
-                **phong_values,
-                "kd": float(np.max(np.atleast_1d(phong_values["kd"]))),
-                "ks": float(np.max(np.atleast_1d(phong_values["ks"]))),
-            },
-        )
-        records.append(
-            {
-                "origin": origin,
-                "strauss": _fisher_metrics(j_s, sigma, STRAUSS_LABELS),
-                "strauss_with_t": _fisher_metrics(j_t, sigma, STRAUSS_T_LABELS),
-                "phong": _fisher_metrics(j_p, sigma, PHONG_LABELS),
-                "phong_user": _fisher_metrics(j_u, sigma, PHONG_USER_LABELS),
-            }
-        )
+    return images
+
+
+def _image_fisher(
+    converter: Converter,
+    with_t: Problem,
+    origin: str,
+    target: np.ndarray,
+    strauss_values: dict[str, Any],
+    phong_values: dict[str, Any],
+) -> dict[str, Any]:
+    """One image's Fisher metrics in every parameterisation: the Jacobians of Strauss (with
+    and without t) and Phong (identifiable products, and as users set it) at their values,
+    σ the image's reference noise level."""
+    sigma = reference_noise_level(target)
+    t_target = jnp.asarray(target)
+    s_problem = dataclasses.replace(converter.strauss, target=t_target)
+    xs = converter.strauss.layout.join(strauss_values)
+    j_s = np.asarray(laplace.jacobian(s_problem, jnp.asarray(xs)))
+    xt = with_t.layout.join({**strauss_values, "transparency": 0.0})
+    j_t = np.asarray(laplace.jacobian(dataclasses.replace(with_t, target=t_target), jnp.asarray(xt)))
+    pm = PhongMaterial.from_dict(phong_values)
+    xp = vector_from_material(pm)
+    p_problem = dataclasses.replace(converter.phong_template, target=t_target, ambient_ka=jnp.asarray(0.0))
+    j_p = np.asarray(laplace.jacobian(p_problem, jnp.asarray(xp)))
+    j_u = j_p @ _phong_user_transform(
+        xp,
+        {
+            **phong_values,
+            "kd": float(np.max(np.atleast_1d(phong_values["kd"]))),
+            "ks": float(np.max(np.atleast_1d(phong_values["ks"]))),
+        },
+    )
+    return {
+        "origin": origin,
+        "strauss": _fisher_metrics(j_s, sigma, STRAUSS_LABELS),
+        "strauss_with_t": _fisher_metrics(j_t, sigma, STRAUSS_T_LABELS),
+        "phong": _fisher_metrics(j_p, sigma, PHONG_LABELS),
+        "phong_user": _fisher_metrics(j_u, sigma, PHONG_USER_LABELS),
+    }
+
+
+def _independence_summary(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per parameterisation, the images' Fisher metrics summarised: the share singular,
+    the condition numbers' median (and p90), the correlations' medians and the pairs most
+    often the most correlated (none without images)."""
     summary = {}
-    for key, labels in (
-        ("strauss", STRAUSS_LABELS),
-        ("strauss_with_t", STRAUSS_T_LABELS),
-        ("phong", PHONG_LABELS),
-        ("phong_user", PHONG_USER_LABELS),
-    ):
+    for key, labels in PARAMETERISATIONS:
         metrics = [r[key] for r in records]
         if not metrics:
             continue
@@ -555,30 +607,7 @@ def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, A
             .round(4)
             .tolist(),
         }
-    return {
-        "images": len(records),
-        "by_origin": {o: sum(r["origin"] == o for r in records) for o in ("phong", "strauss")},
-        "summary": summary,
-        "per_image": [
-            {
-                "origin": r["origin"],
-                **{
-                    k: {
-                        kk: r[k][kk]
-                        for kk in (
-                            "condition_scale_free",
-                            "condition_unit_range",
-                            "max_abs_correlation",
-                            "max_pair",
-                            "rank",
-                        )
-                    }
-                    for k in ("strauss", "strauss_with_t", "phong", "phong_user")
-                },
-            }
-            for r in records
-        ],
-    }
+    return summary
 
 
 def _finite_percentile(values: np.ndarray, q: float) -> float | None:
