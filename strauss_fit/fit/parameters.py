@@ -34,11 +34,7 @@ LOWER_BOUNDED = "lower"
 def light_parameter_names(lights: Lights) -> list[str]:
     """Names of the light intensities a fit can free: ``directional_intensity_1``,
     ``point_intensity_1``, ... (in scene-file order within each kind) and ``ambient_intensity``."""
-    names = []
-    if lights.directional is not None:
-        names += [f"directional_intensity_{i + 1}" for i in range(lights.directional.intensity.shape[0])]
-    if lights.point is not None:
-        names += [f"point_intensity_{i + 1}" for i in range(lights.point.intensity.shape[0])]
+    names = [f"{kind.KIND}_intensity_{i + 1}" for kind in lights.present() for i in range(kind.intensity.shape[0])]
     if lights.ambient is not None:
         names.append("ambient_intensity")
     return names
@@ -181,11 +177,7 @@ def lights_with(base: Lights, values: dict[str, Array]) -> Lights:
 
 def intensity_vector(lights: Lights) -> Any:
     """The directional then point intensities as one vector (None without such lights)."""
-    parts = []
-    if lights.directional is not None:
-        parts.append(lights.directional.intensity)
-    if lights.point is not None:
-        parts.append(lights.point.intensity)
+    parts = [kind.intensity for kind in lights.present()]
     return jnp.concatenate(parts) if parts else None
 
 

@@ -9,7 +9,7 @@ A point light at distance d is attenuated by :math:`1/(c_0 + c_1 d + c_2 d^2)`.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -28,6 +28,19 @@ class DirectionalLights(eqx.Module):
     intensity: Array
     color: Array
 
+    #: The kind's name in scene files, in :meth:`Lights.intensities` and in results.
+    KIND: ClassVar[str] = "directional"
+
+    def sample(self, position: Array) -> tuple[Array, Array, Array]:
+        """``(to_light, irradiance, color)`` at the points ``position`` (..., 3): the same
+        direction and intensity everywhere, broadcast to the points."""
+        batch, k = position.shape[:-1], self.intensity.shape[0]
+        return (
+            jnp.broadcast_to(self.direction, batch + (k, 3)),
+            jnp.broadcast_to(self.intensity, batch + (k,)),
+            self.color,
+        )
+
 
 class PointLights(eqx.Module):
     """K point lights: ``position`` (K, 3), ``intensity`` (K,), ``color`` (K, 3) and
@@ -38,6 +51,26 @@ class PointLights(eqx.Module):
     color: Array
     attenuation: Array
 
+    KIND: ClassVar[str] = "point"
+
+    def sample(self, position: Array) -> tuple[Array, Array, Array]:
+        """``(to_light, irradiance, color)`` at the points ``position`` (..., 3): the unit
+        vector to each light and its intensity over :math:`c_0 + c_1 d + c_2 d^2`."""
+        offset = self.position - position[..., None, :]
+        distance = jnp.sqrt(dot(offset, offset))
+        c0, c1, c2 = self.attenuation[:, 0], self.attenuation[:, 1], self.attenuation[:, 2]
+        falloff = c0 + c1 * distance + c2 * distance**2
+        return safe_normalize(offset), safe_divide(self.intensity, falloff), self.color
+
+
+#: The kinds of light with a direction, in the order their lights are numbered and shaded
+#: (a scene's directional lights come first). The ambient light has no direction: it is
+#: one summed intensity, :attr:`Lights.ambient`. A new kind is a class with ``KIND``,
+#: ``intensity`` and ``sample`` added here and as a field of :class:`Lights`.
+LIGHT_KINDS: tuple[type[DirectionalLights] | type[PointLights], ...] = (DirectionalLights, PointLights)
+#: Every kind's name, the ambient light's last.
+KIND_NAMES: tuple[str, ...] = (*(kind.KIND for kind in LIGHT_KINDS), "ambient")
+
 
 class Lights(eqx.Module):
     """All the lights of a scene. ``ambient`` is the summed ambient intensity (scalar)."""
@@ -46,23 +79,20 @@ class Lights(eqx.Module):
     point: PointLights | None = None
     ambient: Array | None = None
 
+    def present(self) -> tuple[DirectionalLights | PointLights, ...]:
+        """The lights of the scene with a direction, kind by kind (:data:`LIGHT_KINDS`'
+        order), the kinds it does not have left out."""
+        found = (getattr(self, kind.KIND) for kind in LIGHT_KINDS)
+        return tuple(lights for lights in found if lights is not None)
+
     @property
     def count(self) -> int:
         """Number of directional and point lights (ambient not counted)."""
-        n = 0
-        if self.directional is not None:
-            n += self.directional.intensity.shape[0]
-        if self.point is not None:
-            n += self.point.intensity.shape[0]
-        return n
+        return sum(lights.intensity.shape[0] for lights in self.present())
 
     def intensities(self) -> dict[str, Array]:
         """The differentiable intensity arrays, by kind (only the kinds present)."""
-        out: dict[str, Array] = {}
-        if self.directional is not None:
-            out["directional"] = self.directional.intensity
-        if self.point is not None:
-            out["point"] = self.point.intensity
+        out: dict[str, Array] = {lights.KIND: lights.intensity for lights in self.present()}
         if self.ambient is not None:
             out["ambient"] = self.ambient
         return out
@@ -71,10 +101,10 @@ class Lights(eqx.Module):
     def with_intensities(self, intensities: dict[str, ArrayLike]) -> Lights:
         """A copy with the intensities of :meth:`intensities` replaced."""
         lights = self
-        if "directional" in intensities:
-            lights = eqx.tree_at(lambda l: l.directional.intensity, lights, jnp.asarray(intensities["directional"]))
-        if "point" in intensities:
-            lights = eqx.tree_at(lambda l: l.point.intensity, lights, jnp.asarray(intensities["point"]))
+        for kind in LIGHT_KINDS:
+            if kind.KIND in intensities:
+                new = jnp.asarray(intensities[kind.KIND])
+                lights = eqx.tree_at(lambda l, name=kind.KIND: getattr(l, name).intensity, lights, new)
         if "ambient" in intensities:
             lights = eqx.tree_at(lambda l: l.ambient, lights, jnp.asarray(intensities["ambient"]))
         return lights
@@ -98,31 +128,15 @@ def sample_lights(lights: Lights, position: ArrayLike) -> LightSamples | None:
     """Directions and attenuated intensities of every non-ambient light at ``position``
     (shape ``(..., 3)``); ``None`` if the scene has only ambient light."""
     position = jnp.asarray(position)
-    batch = position.shape[:-1]
-    to_light, irradiance, color = [], [], []
-    if lights.directional is not None:
-        d = lights.directional
-        k = d.intensity.shape[0]
-        to_light.append(jnp.broadcast_to(d.direction, batch + (k, 3)))
-        irradiance.append(jnp.broadcast_to(d.intensity, batch + (k,)))
-        color.append(d.color)
-    if lights.point is not None:
-        p = lights.point
-        offset = p.position - position[..., None, :]
-        distance = jnp.sqrt(dot(offset, offset))
-        c0, c1, c2 = p.attenuation[:, 0], p.attenuation[:, 1], p.attenuation[:, 2]
-        falloff = c0 + c1 * distance + c2 * distance**2
-        to_light.append(safe_normalize(offset))
-        irradiance.append(safe_divide(p.intensity, falloff))
-        color.append(p.color)
-    if not to_light:
+    present = lights.present()
+    if not present:
         return None
-    if len(to_light) == 1 and lights.point is None:
+    if len(present) == 1 and isinstance(present[0], DirectionalLights):
         # directional lights only: keep (K, 3) and let the shading broadcast it, rather
         # than materialising a copy per pixel
-        return LightSamples(
-            to_light=lights.directional.direction, irradiance=lights.directional.intensity, color=color[0]
-        )
+        only = present[0]
+        return LightSamples(to_light=only.direction, irradiance=only.intensity, color=only.color)
+    to_light, irradiance, color = zip(*(kind.sample(position) for kind in present))
     return LightSamples(
         to_light=jnp.concatenate(to_light, axis=-2),
         irradiance=jnp.concatenate(irradiance, axis=-1),
