@@ -1,5 +1,7 @@
-"""Options and helpers shared by several subcommands (the quality presets themselves live in
-the library: :data:`strauss_fit.fit.options.QUALITY_PRESETS`)."""
+"""Helpers shared by several subcommands: argparse types, checks, escaping what input files
+bring to the terminal, progress lines. The option groups themselves are added by
+:mod:`strauss_fit_cli._options`; the quality presets live in the library
+(:data:`strauss_fit.fit.options.QUALITY_PRESETS`)."""
 
 from __future__ import annotations
 
@@ -8,35 +10,12 @@ import re
 import sys
 
 from strauss_fit.errors import StraussFitError
-from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS
-from strauss_fit.models.modes import DEFAULT_TABLE_SIZE, MODES
-
-
-def add_evaluator_options(parser: argparse.ArgumentParser) -> None:
-    """--mode, --table-size and --precision."""
-    parser.add_argument(
-        "--mode",
-        choices=MODES,
-        default="exact",
-        help="evaluator: closed-form F and G (exact), tabulated F and G (table), "
-        "or a 2-D table of j (j-table); default: exact",
-    )
-    parser.add_argument(
-        "--table-size",
-        type=bounded_int(-(2**31), 2**31),
-        default=DEFAULT_TABLE_SIZE,
-        metavar="N",
-        help=f"entries of the F/G tables, or per axis of the j table (default {DEFAULT_TABLE_SIZE})",
-    )
-    parser.add_argument(
-        "--precision",
-        choices=("float32", "float64"),
-        default="float64",
-        help="floating-point precision of the computation (default float64)",
-    )
+from strauss_fit.fit.options import QUALITY_PRESETS
 
 
 def check_evaluator_options(args: argparse.Namespace) -> None:
+    """Refuse a ``--table-size`` outside what ``--mode`` can hold (below 2, or above the
+    tables' limits), before any work."""
     if args.table_size < 2:
         raise StraussFitError(f"--table-size must be at least 2, got {args.table_size}")
     limit = MAX_J_TABLE_SIZE if getattr(args, "mode", None) == "j-table" else MAX_TABLE_SIZE
@@ -148,13 +127,3 @@ def by_quality(setting: str) -> str:
     :data:`~strauss_fit.fit.options.QUALITY_PRESETS` (for help texts, which so always say
     what the presets use)."""
     return ", ".join(f"{name} {values[setting]:g}" for name, values in QUALITY_PRESETS.items())
-
-
-def add_quality_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--quality",
-        choices=tuple(QUALITY_PRESETS),
-        default=DEFAULT_QUALITY,
-        help=f"speed/accuracy preset (default {DEFAULT_QUALITY}; see docs/benchmarks.md#quality-presets); "
-        "options given explicitly override it",
-    )

@@ -10,6 +10,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._options import (
+    add_capture_inputs,
+    add_force_option,
+    add_image_inputs,
+    add_noise_options,
+    add_output_option,
+    add_quiet_option,
+)
 from .common import escape, positive_int, progress_printer
 
 
@@ -24,21 +32,16 @@ def add_parser(subparsers) -> None:
         "difference is visible (CIEDE2000 between the two fits ≥ 1). Writes COMPARE.json and a PNG beside it "
         "(one image: the target, each model's prediction and residual). See docs/commands/compare.md.",
     )
-    parser.add_argument("target", metavar="TARGET", nargs="?", help="one reference image (with --scene)")
-    parser.add_argument("--scene", metavar="SCENE.toml", help="the scene TARGET was taken in")
-    parser.add_argument(
-        "--capture",
-        nargs="+",
-        metavar="PATH",
-        help="a capture instead of TARGET: a manifest, a folder, or image files with --lights (docs/captures.md)",
+    add_image_inputs(
+        parser,
+        target=dict(nargs="?", help="one reference image (with --scene)"),
+        scene="the scene TARGET was taken in",
+        encoding="how the images' values are encoded (default: TARGET by its file type; a capture as it states)",
     )
-    parser.add_argument("--lights", metavar="LIGHTS.toml", help="--capture images' lights, by order")
-    parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
-    parser.add_argument(
-        "--encoding",
-        choices=("auto", "linear", "srgb"),
-        default="auto",
-        help="how the images' values are encoded (default: TARGET by its file type; a capture as it states)",
+    add_capture_inputs(
+        parser,
+        capture="a capture instead of TARGET: a manifest, a folder, or image files with --lights (docs/captures.md)",
+        lights="--capture images' lights, by order",
     )
     parser.add_argument(
         "--models",
@@ -46,9 +49,10 @@ def add_parser(subparsers) -> None:
         help="comma-separated models to fit (default: every model the fitter knows, e.g. "
         "strauss,lambert,phong,blinn-phong)",
     )
-    parser.add_argument("-o", "--output", required=True, metavar="COMPARE.json", help="the comparison (JSON)")
-    parser.add_argument(
-        "--noise",
+    add_output_option(parser, metavar="COMPARE.json", help="the comparison (JSON)")
+    add_noise_options(
+        parser,
+        reference=False,  # only the noise: compare takes no --reference-noise
         metavar="SIGMA|R,G,B",
         help="the noise σ (linear), when known: χ²/dof and AIC/BIC from it (default: TARGET's sidecar, else "
         "unknown: σ profiled out)",
@@ -71,8 +75,8 @@ def add_parser(subparsers) -> None:
         metavar="K",
         help="the image the figure shows (1-based; default 1)",
     )
-    parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    parser.add_argument("--quiet", action="store_true", help="print only the table and the verdict")
+    add_force_option(parser)
+    add_quiet_option(parser, "print only the table and the verdict")
     parser.set_defaults(run=run)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._options import add_capture_inputs
 from .common import escape, progress_printer
 
 #: Options of ``fit`` that the capture fitter does not take: refused, never silently ignored.
@@ -68,15 +69,11 @@ def refuse_ignored(args: argparse.Namespace, how: str, *, scene: bool = True) ->
 
 def add_capture_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("captures (many photographs of one sphere, docs/captures.md)")
-    group.add_argument(
-        "--capture",
-        nargs="+",
-        metavar="PATH",
-        help="a capture manifest (TOML), a folder holding capture.toml or in the DiLiGenT layout, or image files "
+    add_capture_inputs(
+        group,
+        capture="a capture manifest (TOML), a folder holding capture.toml or in the DiLiGenT layout, or image files "
         "(with --lights)",
-    )
-    group.add_argument(
-        "--lights", metavar="LIGHTS.toml", help="each image's lights, by order (what 'strauss-fit lights' writes)"
+        lights="each image's lights, by order (what 'strauss-fit lights' writes)",
     )
     group.add_argument(
         "--model",

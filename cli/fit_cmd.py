@@ -6,14 +6,23 @@ import argparse
 import os
 from pathlib import Path
 
-from .common import (
+from ._options import (
+    add_equivalence_options,
     add_evaluator_options,
+    add_fitting_options,
+    add_force_option,
+    add_image_inputs,
+    add_noise_options,
+    add_output_option,
     add_quality_option,
+    add_quiet_option,
+    add_search_options,
+)
+from .common import (
     bounded_int,
     by_quality,
     check_evaluator_options,
     escape,
-    finite_float,
     positive_int,
     progress_printer,
 )
@@ -23,11 +32,6 @@ from .common import (
 #: start-up; beyond that a cluster belongs on --scheduler.
 WORKERS_PER_CPU = 2
 MAX_WORKERS = WORKERS_PER_CPU * (os.cpu_count() or 1)
-
-PARAMETER_HELP = (
-    "color, smoothness, metalness, transparency, ior "
-    "(and with --fit-lights: directional_intensity_1, ..., ambient_intensity)"
-)
 
 
 def add_parser(subparsers) -> None:
@@ -41,121 +45,48 @@ def add_parser(subparsers) -> None:
         "folders, @LIST files, or --manifest) are fitted together into the folder -o OUTDIR: "
         "OUTDIR/<stem>.json per target and OUTDIR/summary.csv (see docs/commands/fit.md).",
     )
-    parser.add_argument(
-        "target",
-        metavar="TARGET",
-        nargs="*",
-        help="reference image(s) (.exr/.hdr/.tif linear; .png/.jpg sRGB), folders of images, or @LIST files",
+    add_image_inputs(
+        parser,
+        target=dict(
+            nargs="*",
+            help="reference image(s) (.exr/.hdr/.tif linear; .png/.jpg sRGB), folders of images, or @LIST files",
+        ),
+        scene="the scene the target(s) were taken in",
+        encoding="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)",
     )
-    parser.add_argument("--scene", metavar="SCENE.toml", help="the scene the target(s) were taken in")
-    parser.add_argument(
-        "-o", "--output", required=True, metavar="RESULT.json|OUTDIR", help="fit result (JSON), or a folder"
-    )
-    parser.add_argument("--mask", metavar="MASK", help="mask image: pixels where it is non-zero are used")
-    parser.add_argument(
-        "--encoding",
-        choices=("auto", "linear", "srgb"),
-        default="auto",
-        help="how TARGET's values are encoded (default: sRGB for .png/.jpg, linear otherwise)",
-    )
-    parser.add_argument(
-        "--solver",
-        choices=("lm", "gauss-newton", "bfgs"),
-        default="lm",
-        help="Levenberg-Marquardt (default), Gauss-Newton, or the quasi-Newton minimiser BFGS",
-    )
-    parser.add_argument(
-        "--starts",
-        type=positive_int,
-        metavar="N",
-        help="number of starts: the N best distinct minima of the global search, or the closed-form guess plus "
-        f"N-1 fixed points (--search; default: from --quality: {by_quality('starts')})",
-    )
+    add_output_option(parser, metavar="RESULT.json|OUTDIR", help="fit result (JSON), or a folder")
+    add_fitting_options(parser)
     parser.add_argument(
         "--max-steps",
         type=positive_int,
         metavar="N",
         help=f"solver step limit of the polish (default: from --quality: {by_quality('max_steps')})",
     )
-    parser.add_argument(
-        "--free",
-        metavar="NAMES",
-        help=f"comma-separated parameters to fit, overriding the automatic choice: {PARAMETER_HELP}",
-    )
-    parser.add_argument(
-        "--fix",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="hold a parameter at a value (repeatable); color takes R,G,B",
-    )
-    parser.add_argument("--fit-lights", action="store_true", help="also consider the light intensities as parameters")
-    parser.add_argument(
-        "--reference-noise",
-        type=finite_float(0.0, open_low=True),
-        metavar="SIGMA",
-        help="noise level used to decide what the image constrains (default: 1%% of the target's 98th percentile)",
-    )
-    parser.add_argument(
-        "--noise",
-        metavar="SIGMA",
-        help="the target's noise (standard deviation, linear; one value or R,G,B) when known; default: from "
-        "the target's sidecar, else estimated from the image",
-    )
-    parser.add_argument(
-        "--loss",
-        choices=("auto", "linear", "perceptual", "huber", "cauchy"),
-        default="auto",
-        help="what the fit minimises (default auto: least squares, then Huber when the model visibly "
-        "cannot reproduce the target)",
-    )
+    add_noise_options(parser)
+    add_search_options(parser)
     parser.add_argument(
         "--fit-exposure", action="store_true", help="also fit one global exposure (a scale on the whole image)"
     )
-    parser.add_argument(
-        "--edge-pixels",
-        choices=("auto", "exclude", "include"),
-        default="auto",
-        help="silhouette pixels the sphere covers only partly: fit them as sphere pixels when the target is "
-        "point-sampled there (auto, the default: checked against the scene's background), leave them out, or "
-        "always include them",
-    )
-    parser.add_argument(
-        "--search",
-        choices=("auto", "grid", "starts"),
-        default="auto",
-        help="where the solves start: grid, a global search over smoothness and metalness with the colour solved "
-        "in closed form (an opaque material fitted by least squares, no light or exposure free; the multi-start "
-        "elsewhere); starts, the closed-form guess and fixed points; auto, the default: the grid wherever it "
-        "applies (docs/fitting.md#starts)",
-    )
-    parser.add_argument(
-        "--equivalence",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="also compute each parameter's range that looks the same (default: on with --quality accurate; "
-        "--no-equivalence turns it off)",
-    )
-    parser.add_argument(
-        "--equivalence-de",
-        type=finite_float(0.0, open_low=True),
-        default=None,
-        metavar="DE",
-        help="the mean CIEDE2000 within which images look the same (default 1, one just-noticeable difference); "
-        "implies --equivalence",
-    )
+    add_equivalence_options(parser)
     parser.add_argument(
         "--render-fit",
         metavar="OUT",
         help="write the fitted image to OUT and a target | fit | residual | residual/noise PNG beside it "
         "(OUT.compare.png); one target only",
     )
-    parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    parser.add_argument("--quiet", action="store_true", help="print only the result table")
+    add_force_option(parser)
+    add_quiet_option(parser, "print only the result table")
     from .fit_capture import add_capture_options
 
     add_capture_options(parser)
-    batch = parser.add_argument_group("several targets (-o is a folder)")
+    _add_batch_options(parser.add_argument_group("several targets (-o is a folder)"))
+    add_evaluator_options(parser)
+    add_quality_option(parser)
+    parser.set_defaults(run=run)
+
+
+def _add_batch_options(batch: argparse._ArgumentGroup) -> None:
+    """The options of several targets fitted into a folder."""
     batch.add_argument(
         "--manifest",
         metavar="FILE",
@@ -180,9 +111,6 @@ def add_parser(subparsers) -> None:
         "here; a larger cluster runs on --scheduler)",
     )
     batch.add_argument("--scheduler", metavar="ADDRESS", help="run on the Dask cluster at ADDRESS (tcp://host:8786)")
-    add_evaluator_options(parser)
-    add_quality_option(parser)
-    parser.set_defaults(run=run)
 
 
 def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]], ...]:

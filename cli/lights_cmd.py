@@ -7,6 +7,9 @@ import os
 import sys
 from pathlib import Path
 
+from strauss_fit.io.table_formats import IMAGE_ENCODINGS
+
+from ._options import add_encoding_option, add_force_option, add_output_option, add_quiet_option
 from .common import escape, finite_float, progress_printer
 
 
@@ -22,7 +25,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument(
         "images", metavar="CHROME_IMAGE", nargs="+", help="photographs of the mirror ball, one light each"
     )
-    parser.add_argument("-o", "--output", required=True, metavar="LIGHTS.toml", help="the lights file to write")
+    add_output_option(parser, metavar="LIGHTS.toml", help="the lights file to write")
     parser.add_argument(
         "--mask",
         metavar="MASK",
@@ -51,9 +54,9 @@ def add_parser(subparsers) -> None:
         metavar=("PX", "PY"),
         help="perspective: the principal point in pixels (default: the image centre)",
     )
-    parser.add_argument(
-        "--encoding",
-        choices=("linear", "srgb"),
+    add_encoding_option(
+        parser,
+        choices=tuple(encoding for encoding in IMAGE_ENCODINGS if encoding != "auto"),  # no auto: as stored unless told
         default="linear",
         help="how the images' values are decoded (default linear: as stored; the highlight's position does not "
         "depend on it, its intensity needs linear values)",
@@ -65,8 +68,8 @@ def add_parser(subparsers) -> None:
         help="stored values at or above LEVEL (a fraction of full scale, at most 1) are saturated (default: the "
         "largest code of an integer file, none for a float file)",
     )
-    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
-    parser.add_argument("--quiet", action="store_true", help="print only the table")
+    add_force_option(parser, "overwrite an existing output")
+    add_quiet_option(parser, "print only the table")
     parser.set_defaults(run=run)
 
 

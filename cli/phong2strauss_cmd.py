@@ -11,7 +11,8 @@ import sys
 
 from strauss_fit.io.table_formats import describe_suffixes, output_suffixes
 
-from .common import add_quality_option, by_quality, image_side, positive_int, progress_printer
+from ._options import add_force_option, add_output_option, add_quality_option, add_quiet_option
+from .common import by_quality, image_side, positive_int, progress_printer
 
 FORMATS_HELP = {
     "phong2strauss": "one Phong material as KEY=VALUE pairs (ka kd ks exponent|n|Ns diffuse_color|Cd "
@@ -41,9 +42,7 @@ def add_parser(subparsers) -> None:
         parser.add_argument(
             "input", nargs="+", metavar="INPUT", help=FORMATS_HELP[direction] + " (several files are read in turn)"
         )
-        parser.add_argument(
-            "-o", "--output", required=True, metavar="OUTPUT", help=f"results: {outputs} (by extension)"
-        )
+        add_output_option(parser, metavar="OUTPUT", help=f"results: {outputs} (by extension)")
         parser.add_argument(
             "--scene",
             metavar="SCENE.toml",
@@ -66,16 +65,12 @@ def add_parser(subparsers) -> None:
         add_quality_option(parser)
         if direction == "strauss2phong":
             parser.add_argument("--blinn", action="store_true", help="fit Blinn-Phong (half-vector highlight)")
-        mode = parser.add_mutually_exclusive_group()
-        mode.add_argument(
-            "--force", action="store_true", help="overwrite an existing OUTPUT (and start again over OUTPUT.partial)"
+        add_force_option(
+            parser,
+            "overwrite an existing OUTPUT (and start again over OUTPUT.partial)",
+            resume="continue the interrupted conversion saved in OUTPUT.partial (same inputs and options)",
         )
-        mode.add_argument(
-            "--resume",
-            action="store_true",
-            help="continue the interrupted conversion saved in OUTPUT.partial (same inputs and options)",
-        )
-        parser.add_argument("--quiet", action="store_true", help="no progress lines (warnings are still shown)")
+        add_quiet_option(parser, "no progress lines (warnings are still shown)")
         parser.set_defaults(run=run, direction=direction)
 
 

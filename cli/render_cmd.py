@@ -6,18 +6,21 @@ import argparse
 import dataclasses
 import sys
 
-from .common import add_evaluator_options, check_evaluator_options, image_side, positive_int
+from strauss_fit.io.table_formats import IMAGE_FORMATS, describe_image_formats, describe_suffixes
+
+from ._options import add_evaluator_options, add_force_option, add_output_option
+from .common import check_evaluator_options, image_side, positive_int
 
 
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
         "render",
         help="render a scene file to an image",
-        description="Render the sphere of SCENE (its [material]) to OUT. .exr/.hdr/.tif are written "
-        "as linear float; .png/.jpg are sRGB-encoded and clipped to 8 bits.",
+        description=f"Render the sphere of SCENE (its [material]) to OUT, in the format its extension names: "
+        f"{describe_image_formats()}.",
     )
     parser.add_argument("scene", metavar="SCENE.toml", help="scene file (see docs/formats.md, 'Scene files')")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT", help="output image")
+    add_output_option(parser, metavar="OUT", help=f"output image ({describe_suffixes(IMAGE_FORMATS)})")
     parser.add_argument(
         "--width", type=image_side, help="override the camera's width in pixels (at most 8192, as in scene files)"
     )
@@ -43,7 +46,7 @@ def add_parser(subparsers) -> None:
         help="with --model: the model's parameters, a JSON object of them or a fit result (its 'values'); "
         "missing ones take the model's defaults",
     )
-    parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    add_force_option(parser)
     add_evaluator_options(parser)
     parser.set_defaults(run=run)
 

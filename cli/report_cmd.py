@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ._options import add_capture_inputs, add_force_option, add_image_inputs, add_output_option
+
 
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -30,39 +32,27 @@ def add_parser(subparsers) -> None:
     parser.add_argument(
         "--target", metavar="TARGET", help="the reference image (default: the one recorded in the fit or chain)"
     )
-    parser.add_argument(
-        "--scene", metavar="SCENE.toml", help="the scene file (default: the one recorded in the fit or chain)"
+    add_image_inputs(
+        parser,
+        target=None,  # an option here (--target): the fit result or chain records it
+        scene="the scene file (default: the one recorded in the fit or chain)",
+        mask="mask image, as given to fit/sample (default: the chain's, if any)",
+        encoding="how TARGET's values are encoded (default: as recorded, else auto)",
+        encoding_default=None,
     )
-    parser.add_argument(
-        "--mask", metavar="MASK", help="mask image, as given to fit/sample (default: the chain's, if any)"
-    )
-    parser.add_argument(
-        "--encoding",
-        choices=("auto", "linear", "srgb"),
-        default=None,
-        help="how TARGET's values are encoded (default: as recorded, else auto)",
-    )
-    parser.add_argument(
-        "-o",
-        "--output",
-        required=True,
+    add_output_option(
+        parser,
         metavar="REPORT.html",
         help="the HTML page; REPORT.md and the folder REPORT_files/ are written beside it",
     )
-    parser.add_argument(
-        "--capture",
-        nargs="+",
-        metavar="PATH",
-        help="for a capture's fit result: read the capture from here (a manifest, a folder or image files) instead "
-        "of the paths the result records",
-    )
-    parser.add_argument(
-        "--lights",
-        metavar="LIGHTS.toml",
-        help="for a capture's fit result: the lights file instead of the recorded one",
+    add_capture_inputs(
+        parser,
+        capture="for a capture's fit result: read the capture from here (a manifest, a folder or image files) "
+        "instead of the paths the result records",
+        lights="for a capture's fit result: the lights file instead of the recorded one",
     )
     parser.add_argument("--title", help="the report's title")
-    parser.add_argument("--force", action="store_true", help="overwrite an existing report")
+    add_force_option(parser, "overwrite an existing report")
     parser.set_defaults(run=run)
 
 

@@ -13,10 +13,18 @@ import time
 from typing import Any
 
 from strauss_fit.fit.options import QUALITY_PRESETS
-from strauss_fit.models.modes import DEFAULT_TABLE_SIZE, MODES
+from strauss_fit.models.modes import DEFAULT_TABLE_SIZE
 
-from .common import (
+from ._options import (
+    add_evaluator_options,
+    add_fitting_options,
+    add_force_option,
+    add_image_inputs,
+    add_output_option,
     add_quality_option,
+    add_quiet_option,
+)
+from .common import (
     bounded_int,
     by_quality,
     check_evaluator_options,
@@ -68,19 +76,20 @@ def add_parser(subparsers) -> None:
         "CAPTURE_RESULT.json (strauss-fit fit --capture), samples the capture's material instead: the capture it "
         "records is read again, and TARGET, --scene, --mask and --encoding do not apply.",
     )
-    parser.add_argument(
-        "target",
-        metavar="TARGET",
-        nargs="?",
-        help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB); with --fit, default: the one the fit "
-        "result records",
+    add_image_inputs(
+        parser,
+        target=dict(
+            nargs="?",
+            help="reference image (.exr/.hdr/.tif linear; .png/.jpg sRGB); with --fit, default: the one the fit "
+            "result records",
+        ),
+        scene="the scene the target was taken in; with --fit, default: the one the fit result records",
+        mask="mask image: pixels where it is non-zero are used (with --fit, default: the one the fit result records)",
+        encoding="how TARGET's values are encoded (default: as the fit result records, with --fit; else auto: sRGB "
+        "for .png/.jpg, linear otherwise)",
+        encoding_default=None,
     )
-    parser.add_argument(
-        "--scene",
-        metavar="SCENE.toml",
-        help="the scene the target was taken in; with --fit, default: the one the fit result records",
-    )
-    parser.add_argument("-o", "--output", required=True, metavar="CHAIN.h5", help="chain file (HDF5)")
+    add_output_option(parser, metavar="CHAIN.h5", help="chain file (HDF5)")
     parser.add_argument(
         "--fit",
         metavar="RESULT.json",
@@ -88,18 +97,25 @@ def add_parser(subparsers) -> None:
         "fit (fit --loss linear): the likelihood sampled is least squares. TARGET, --scene, --mask and "
         "--encoding default to the ones it records",
     )
-    parser.add_argument(
-        "--mask",
-        metavar="MASK",
-        help="mask image: pixels where it is non-zero are used (with --fit, default: the one the fit result records)",
+    _add_sampling_options(parser)
+    parser.add_argument("--resume", action="store_true", help="continue the chain in CHAIN.h5 up to --max-steps")
+    add_force_option(parser, "replace an existing CHAIN.h5 and CHAIN.json")
+    add_quiet_option(parser, "no progress output")
+    fitting = parser.add_argument_group("fitting first (without --fit)")
+    add_fitting_options(fitting, as_for_fit=True)
+    add_evaluator_options(
+        fitting,
+        mode="evaluator, as for 'fit' (default exact); a fit result (--fit) brings its own",
+        table_size=f"table entries for the table modes (default {DEFAULT_TABLE_SIZE})",
+        precision=False,
     )
-    parser.add_argument(
-        "--encoding",
-        choices=("auto", "linear", "srgb"),
-        default=None,
-        help="how TARGET's values are encoded (default: as the fit result records, with --fit; else auto: sRGB "
-        "for .png/.jpg, linear otherwise)",
-    )
+    add_quality_option(parser)
+    parser.set_defaults(run=run)
+
+
+def _add_sampling_options(parser: argparse.ArgumentParser) -> None:
+    """The sampler's own options: the likelihood (``--sigma``, ``--adjust``, ``--prior``,
+    ``--values``), the ensemble and when it stops."""
     parser.add_argument(
         "--sigma",
         type=finite_float(0.0, open_low=True),
@@ -174,32 +190,6 @@ def add_parser(subparsers) -> None:
         f"random subsample of sphere pixels through the difference estimator (default {_DEFAULT_VALUES}; all: "
         "every value, exact)",
     )
-    parser.add_argument("--resume", action="store_true", help="continue the chain in CHAIN.h5 up to --max-steps")
-    parser.add_argument("--force", action="store_true", help="replace an existing CHAIN.h5 and CHAIN.json")
-    parser.add_argument("--quiet", action="store_true", help="no progress output")
-    fitting = parser.add_argument_group("fitting first (without --fit)")
-    fitting.add_argument("--free", metavar="NAMES", help="comma-separated parameters to fit (as for 'fit')")
-    fitting.add_argument(
-        "--fix", action="append", default=[], metavar="NAME=VALUE", help="hold a parameter (as for 'fit')"
-    )
-    fitting.add_argument("--fit-lights", action="store_true", help="also consider the light intensities (as for 'fit')")
-    fitting.add_argument("--solver", choices=("lm", "gauss-newton", "bfgs"), default="lm", help="as for 'fit'")
-    fitting.add_argument("--starts", type=positive_int, metavar="N", help="as for 'fit'")
-    fitting.add_argument(
-        "--mode",
-        choices=MODES,
-        default="exact",
-        help="evaluator, as for 'fit' (default exact); a fit result (--fit) brings its own",
-    )
-    fitting.add_argument(
-        "--table-size",
-        type=bounded_int(-(2**31), 2**31),
-        default=DEFAULT_TABLE_SIZE,
-        metavar="N",
-        help=f"table entries for the table modes (default {DEFAULT_TABLE_SIZE})",
-    )
-    add_quality_option(parser)
-    parser.set_defaults(run=run)
 
 
 class ProgressBar:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ._options import add_force_option, add_output_option, add_quiet_option
 from .common import progress_printer
 
 
@@ -17,12 +18,8 @@ def add_parser(subparsers) -> None:
         "real photographs) — and write OUTDIR/study.html (self-contained), study.md with PNG plots, and "
         "study.json with every figure, all or none. See docs/study.md.",
     )
-    parser.add_argument(
-        "-o",
-        "--output",
-        required=True,
-        metavar="OUTDIR",
-        help="folder for the report (created if missing; its parent must exist)",
+    add_output_option(
+        parser, metavar="OUTDIR", help="folder for the report (created if missing; its parent must exist)"
     )
     parser.add_argument(
         "--size",
@@ -44,8 +41,8 @@ def add_parser(subparsers) -> None:
         help="also fit every capture model to these real photographs (a capture folder or manifest, e.g. "
         "DiLiGenT's ballPNG): held-out error and stability over two halves (docs/study.md, part 6)",
     )
-    parser.add_argument("--force", action="store_true", help="overwrite an existing report in OUTDIR")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_force_option(parser, "overwrite an existing report in OUTDIR")
+    add_quiet_option(parser, "no progress lines")
     parser.set_defaults(run=run)
 
 

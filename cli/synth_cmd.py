@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ._options import add_force_option, add_output_option, add_quiet_option
 from .common import bounded_int, positive_int
 
 
@@ -20,14 +21,12 @@ def add_parser(subparsers) -> None:
         "scene is unusable, its rendering not finite) is reported and skipped, and the exit status is 1.",
     )
     parser.add_argument("spec", metavar="SPEC.toml", help="dataset spec (see docs/datasets.md and docs/formats.md)")
-    parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="dataset folder (created if missing)")
-    mode = parser.add_mutually_exclusive_group()
-    mode.add_argument(
-        "--force",
-        action="store_true",
-        help="replace the dataset in a non-empty OUTDIR (removes the files its index lists)",
+    add_output_option(parser, metavar="OUTDIR", help="dataset folder (created if missing)")
+    add_force_option(
+        parser,
+        "replace the dataset in a non-empty OUTDIR (removes the files its index lists)",
+        resume="continue the dataset in OUTDIR, skipping complete samples",
     )
-    mode.add_argument("--resume", action="store_true", help="continue the dataset in OUTDIR, skipping complete samples")
     parser.add_argument(
         "--seed", type=bounded_int(0, 2**63 - 1), metavar="N", help="override the spec's seed (an integer >= 0)"
     )
@@ -37,7 +36,7 @@ def add_parser(subparsers) -> None:
         metavar="N",
         help="write at most N samples in this run (continue later with --resume)",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress lines, only the summary")
+    add_quiet_option(parser, "no progress lines, only the summary")
     parser.set_defaults(run=run)
 
 

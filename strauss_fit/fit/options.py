@@ -17,6 +17,7 @@ from typing import Any
 
 from ..errors import StraussFitError
 from ..models.modes import DEFAULT_TABLE_SIZE
+from .losses import LOSS_CHOICES, LOSSES
 
 #: A parameter is fitted when its predicted standard deviation at the reference noise is
 #: at most this fraction of its scale (:mod:`strauss_fit.fit.identifiability`).
@@ -69,6 +70,9 @@ MISMATCH_LOSS = "huber"
 VISIBLE_DELTA_E = 1.0
 #: What ``FitOptions.edge_pixels`` accepts.
 EDGE_PIXELS = ("auto", "exclude", "include")
+#: What ``FitOptions.solver`` accepts (:func:`strauss_fit.fit.solvers.solver`): plain names
+#: here, so that the command line lists them without importing JAX.
+SOLVERS = ("lm", "gauss-newton", "bfgs")
 #: What ``FitOptions.search`` accepts: ``"grid"`` (the global search of
 #: :mod:`strauss_fit.fit.search` where :func:`~strauss_fit.fit.search.grid_applies`, the
 #: multi-start elsewhere), ``"starts"`` (the multi-start always) and ``"auto"``, which is
@@ -137,7 +141,7 @@ class FitOptions:
     #: target's sidecar, else estimated from the image
     #: (:func:`strauss_fit.stats.noise.describe_noise`).
     noise: float | tuple[float, float, float] | None = None
-    #: What the solver minimises (:data:`~strauss_fit.fit.problem.LOSSES`): ``"linear"``
+    #: What the solver minimises (:data:`~strauss_fit.fit.losses.LOSS_REGISTRY`): ``"linear"``
     #: least squares, ``"perceptual"`` (cube-root), ``"huber"``, ``"cauchy"``; ``"auto"``:
     #: linear, then, if the model cannot reproduce the target visibly, refitted with
     #: :data:`MISMATCH_LOSS` (chosen by ``benchmarks/external.py``, see docs/fitting.md).
@@ -200,9 +204,8 @@ class FitOptions:
     def validate(self) -> None:
         """Raise :class:`~strauss_fit.errors.StraussFitError` naming the first bad setting."""
         from ..stats.noise import check_noise_level
-        from .problem import LOSSES
 
-        if self.loss not in ("auto", *LOSSES):
+        if self.loss not in LOSS_CHOICES:
             raise StraussFitError(f"unknown loss {self.loss!r}; expected one of auto, {', '.join(LOSSES)}")
         if self.search not in SEARCHES:
             raise StraussFitError(f"search must be one of {', '.join(SEARCHES)}, got {self.search!r}")

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
@@ -45,6 +46,10 @@ from ..render.coverage import fully_covered, pixel_coverage, silhouette_blend
 from ..render.strauss import Prepared, RenderPlan, first_pixels, prepare, shade_prepared, take_pixels
 from ..scene.lights import Lights
 from ..scene.loading import Scene
+from .losses import FOLDED_LOSSES as FOLDED_LOSSES  # re-exported: other modules import the names from here
+from .losses import LEAST_SQUARES, LOSS_REGISTRY, loss_named
+from .losses import LOSSES as LOSSES
+from .losses import ROBUST_LOSSES as ROBUST_LOSSES
 from .parameters import Layout, intensity_vector, lights_with, material_with
 
 if TYPE_CHECKING:
@@ -184,7 +189,7 @@ class Problem(eqx.Module):
         its own model value and target value alone (the loss, the padding's weight and the
         scale act value by value), which lets the noise sandwich take their derivatives
         value by value (:func:`strauss_fit.stats.laplace.objective_terms`)."""
-        if self.loss == "linear":
+        if self.loss == LEAST_SQUARES:
             return self._masked(model - target).ravel() / self.residual_scale
         return self._masked(loss_residual(self, model, target)).ravel() / self.residual_scale
 
@@ -197,17 +202,17 @@ class Problem(eqx.Module):
 #: and the background together), the usual unknown of a photograph or a foreign render.
 EXPOSURE = "exposure"
 
-#: The losses a fit can minimise (:func:`loss_residual`).
-LOSSES = ("linear", "perceptual", "huber", "cauchy")
-#: The losses that scale each residual by its value's own noise (``weights``).
-ROBUST_LOSSES = ("huber", "cauchy")
-#: The losses whose problems share their compiled programs (:meth:`Problem.kernel_form`).
-FOLDED_LOSSES = ("linear", "huber", "cauchy")
-#: A kernel form's ``loss``: one of :data:`FOLDED_LOSSES`, the one ``loss_code`` names.
-LOSS_BY_CODE = "linear, huber or cauchy, by loss_code"
+# The losses themselves (their names, which are robust, which fold into the kernel) are plain
+# data in :mod:`strauss_fit.fit.losses`, whose LOSSES, ROBUST_LOSSES and FOLDED_LOSSES are
+# imported above and stay importable from here; how each loss computes is LOSS_RESIDUALS below.
+
+#: A kernel form's ``loss``: one of :data:`FOLDED_LOSSES`, the one ``loss_code`` names
+#: ("linear, huber or cauchy, by loss_code"). A static field, so part of the compiled
+#: program's key: one string for every folded loss.
+LOSS_BY_CODE = f"{', '.join(FOLDED_LOSSES[:-1])} or {FOLDED_LOSSES[-1]}, by loss_code"
 #: Each folded loss's code, one array each (the same object for every problem: a batch of
 #: them passes it once, see :func:`strauss_fit.engine._stack_items`).
-_LOSS_CODES = {name: np.asarray(code, dtype=np.int32) for code, name in enumerate(FOLDED_LOSSES)}
+_LOSS_CODES = {name: np.asarray(LOSS_REGISTRY[name].code, dtype=np.int32) for name in FOLDED_LOSSES}
 
 
 @functools.lru_cache(maxsize=16)
@@ -250,25 +255,56 @@ def loss_residual(problem: Problem, model: Array, target: Array | None = None) -
     compared with (default the problem's own).
     """
     target = problem.target if target is None else target
-    difference = model - target
-    if problem.loss == "linear":
-        return difference
-    if problem.loss == "perceptual":
-        offset, norm = problem.loss_offset, problem.loss_norm
-        return (jnp.cbrt(model + offset) - jnp.cbrt(target + offset)) / norm
+    if problem.loss == LOSS_BY_CODE:
+        return _folded_residual(problem, model, target)
+    return LOSS_RESIDUALS[problem.loss](problem, model, target)
+
+
+def _least_squares_residual(problem: Problem, model: Array, target: Array) -> Array:
+    """The linear loss's residual: model minus target."""
+    return model - target
+
+
+def _perceptual_residual(problem: Problem, model: Array, target: Array) -> Array:
+    """The perceptual loss's residual: cube roots' difference over f'(L) (:func:`loss_residual`)."""
+    offset, norm = problem.loss_offset, problem.loss_norm
+    return (jnp.cbrt(model + offset) - jnp.cbrt(target + offset)) / norm
+
+
+def _noise_scaled(problem: Problem, difference: Array) -> tuple[Array, Array]:
+    """The noise-scaled residual z = (I − T)/σ of a robust loss and σ_ref, the unit its ψ(z)
+    is returned in (:func:`loss_residual`)."""
     weights = 1.0 if problem.weights is None else problem.weights
     values = problem.target.size if problem.count is None else 3 * problem.count
     reference = problem.residual_scale / jnp.sqrt(values)  # σ_ref
-    z = difference * weights / reference
-    if problem.loss == "huber":
-        return _huber_psi(z) * reference
-    if problem.loss == "cauchy":
-        return _cauchy_psi(z) * reference
-    # LOSS_BY_CODE (a kernel form): every candidate, the code's selected (a select copies:
-    # the value is the one its own loss computes above, the same operations on the same z)
+    return difference * weights / reference, reference
+
+
+def _robust_residual(psi: Callable[[Array], Array]) -> Callable[[Problem, Array, Array], Array]:
+    """A robust loss's residual function: ψ of the noise-scaled residual, times σ_ref."""
+
+    def residual(problem: Problem, model: Array, target: Array) -> Array:
+        z, reference = _noise_scaled(problem, model - target)
+        return psi(z) * reference
+
+    return residual
+
+
+def _folded_residual(problem: Problem, model: Array, target: Array) -> Array:
+    """A kernel form's residual (:data:`LOSS_BY_CODE`): every folded loss's candidate, the one
+    ``loss_code`` names selected. A select copies: the value is the one the loss's own
+    residual function computes, the same operations on the same z. The folded losses are
+    least squares and robust ones (``tests/test_registries.py`` holds it): least squares
+    needs no z, each robust loss is its ψ(z) times σ_ref."""
+    difference = model - target
+    z, reference = _noise_scaled(problem, difference)
     code = problem.loss_code
-    robust = jnp.where(code == FOLDED_LOSSES.index("huber"), _huber_psi(z), _cauchy_psi(z))
-    return jnp.where(code == FOLDED_LOSSES.index("linear"), difference, robust * reference)
+    # traced in the order of their codes, then selected from the last code back
+    candidates = [(LOSS_REGISTRY[name].code, ROBUST_PSI[name](z)) for name in FOLDED_LOSSES if name in ROBUST_PSI]
+    robust = candidates[-1][1]
+    for number, value in reversed(candidates[:-1]):
+        robust = jnp.where(code == number, value, robust)
+    return jnp.where(code == LOSS_REGISTRY[LEAST_SQUARES].code, difference, robust * reference)
 
 
 def _huber_psi(z: Array) -> Array:
@@ -283,6 +319,28 @@ def _cauchy_psi(z: Array) -> Array:
     small = jnp.abs(z) < _CAUCHY_SMALL
     safe = jnp.where(small, 1.0, z)
     return jnp.where(small, z, jnp.sign(safe) * CAUCHY_C * jnp.sqrt(jnp.log1p((safe / CAUCHY_C) ** 2)))
+
+
+#: The robust losses' ψ on the noise-scaled residual z (ψ²/2 = ρ), by name.
+ROBUST_PSI: dict[str, Callable[[Array], Array]] = {"huber": _huber_psi, "cauchy": _cauchy_psi}
+
+#: How each loss of :data:`strauss_fit.fit.losses.LOSS_REGISTRY` transforms the residuals,
+#: keyed by the same names (``tests/test_registries.py`` checks that the two agree): a
+#: function of the problem, the model radiance and the target, (N, 3) each, returning the
+#: residuals in units of the reference noise (:func:`loss_residual`).
+LOSS_RESIDUALS: dict[str, Callable[[Problem, Array, Array], Array]] = {
+    LEAST_SQUARES: _least_squares_residual,
+    "perceptual": _perceptual_residual,
+    **{name: _robust_residual(psi) for name, psi in ROBUST_PSI.items()},
+}
+
+
+def _perceptual_fields(pixels: np.ndarray) -> dict[str, np.ndarray]:
+    """The perceptual loss's :class:`Problem` fields for a target's usable ``pixels``: its
+    offset ε and slope normalisation f'(L) (:func:`loss_residual`)."""
+    level = max(float(np.percentile(pixels, 98)), 1e-12)
+    offset = PERCEPTUAL_OFFSET * level
+    return {"loss_offset": np.asarray(offset), "loss_norm": np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)}
 
 
 def scaled(prepared: Prepared, lights: Lights) -> Prepared:
@@ -469,16 +527,12 @@ def build_problem_steps(
     if pad:
         extra["valid"] = valid_rows(index.size, rows.size)
         extra["count"] = np.asarray(index.size)
-    if loss != "linear":
-        if loss not in LOSSES:
-            raise StraussFitError(f"unknown loss {loss!r}; expected one of {', '.join(LOSSES)}")
+    if loss != LEAST_SQUARES:
+        spec = loss_named(loss)  # an unknown name is a one-line error listing the losses
         extra["loss"] = loss
-        if loss == "perceptual":
-            level = max(float(np.percentile(pixels, 98)), 1e-12)
-            offset = PERCEPTUAL_OFFSET * level
-            extra["loss_offset"] = np.asarray(offset)
-            extra["loss_norm"] = np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)
-        elif noise_sigma is not None:
+        if spec.name in LOSS_FIELDS:  # fields of the target's pixels (the perceptual offset)
+            extra.update(LOSS_FIELDS[spec.name](pixels))
+        elif spec.robust and noise_sigma is not None:
             sigma = np.asarray(noise_sigma, dtype=np.float64).reshape(-1, 3)[index[rows]]
             extra["weights"] = reference_noise / np.maximum(sigma, 1e-300)
     if exposure is not None and float(exposure) != 1.0:
@@ -550,6 +604,9 @@ def used_pixels(
 #: enough not to flatten dark regions (CIELAB's own linear toe is at 0.9 % of white), large
 #: enough that the cube root's slope stays finite at black.
 PERCEPTUAL_OFFSET = 1e-3
+#: The losses whose residuals need fields computed from the target's usable pixels
+#: (:func:`build_problem_steps`): a function of those pixels (M, 3) giving the fields.
+LOSS_FIELDS: dict[str, Callable[[np.ndarray], dict[str, np.ndarray]]] = {"perceptual": _perceptual_fields}
 
 
 def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray) -> Problem | None:

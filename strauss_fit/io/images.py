@@ -23,10 +23,10 @@ from __future__ import annotations
 import os
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
@@ -34,8 +34,12 @@ from ..color import srgb_decode, srgb_encode
 from ..errors import ImageError
 from .files import Outputs, check_input_file, check_writable
 
-HDR_EXTENSIONS = (".exr", ".hdr", ".tif", ".tiff", ".pfm")
-LDR_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga")
+# The extensions and how each is written are plain data in table_formats (the command line
+# reads them without NumPy); HDR_EXTENSIONS and LDR_EXTENSIONS stay importable from here.
+from .table_formats import HDR_EXTENSIONS as HDR_EXTENSIONS
+from .table_formats import IMAGE_ENCODINGS, IMAGE_FORMATS
+from .table_formats import LDR_EXTENSIONS as LDR_EXTENSIONS
+
 #: OpenImageIO format names whose integer pixels are sRGB-encoded (decoded from sRGB by default).
 LDR_FORMATS = ("png", "jpeg", "bmp", "targa", "gif", "webp", "ico", "pnm", "jpeg2000")
 Encoding = Literal["auto", "linear", "srgb"]
@@ -59,8 +63,10 @@ def _oiio():
 
 
 def default_encoding(path: str | Path) -> str:
-    """``"srgb"`` for LDR extensions, ``"linear"`` otherwise."""
-    return "srgb" if Path(path).suffix.lower() in LDR_EXTENSIONS else "linear"
+    """``"srgb"`` for LDR extensions, ``"linear"`` otherwise
+    (:attr:`strauss_fit.io.table_formats.ImageFormat.encoding`)."""
+    image_format = IMAGE_FORMATS.get(Path(path).suffix.lower())
+    return "linear" if image_format is None else image_format.encoding
 
 
 def _first_line(text: str, fallback: str) -> str:
@@ -97,7 +103,7 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
     :class:`~strauss_fit.errors.ImageError`.
     """
     path = check_input_file(path, "image", ImageError)  # never open a FIFO: it blocks
-    if encoding not in ("auto", "linear", "srgb"):
+    if encoding not in IMAGE_ENCODINGS:
         raise ImageError(f"unknown encoding {encoding!r}; expected auto, linear or srgb")
     oiio = _oiio()
     # The colour channels as stored: OpenImageIO would otherwise premultiply them by an
@@ -160,8 +166,44 @@ def check_image_output(path: str | Path, force: bool = False) -> Path:
     output = oiio.ImageOutput.create(str(path))
     if output is None:
         oiio.geterror()  # clear OpenImageIO's pending message; ours says it in one line
-        raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
+        raise _no_writer(path)
     return path
+
+
+def _no_writer(path: Path) -> ImageError:
+    """The error for an image output whose extension no image writer knows, listing the
+    formats of :data:`~strauss_fit.io.table_formats.IMAGE_FORMATS`."""
+    return ImageError(
+        f"no image writer for {path.suffix or 'files without extension'}: {path}; "
+        f"expected one of {', '.join(IMAGE_FORMATS)}"
+    )
+
+
+#: How :func:`encode_image` stores pixels: a function of the linear image (H, W, C), the
+#: encoding (``"linear"`` or ``"srgb"``), the output path and the OpenImageIO module,
+#: giving the array to write and its OpenImageIO pixel type.
+PixelWriter = Callable[[np.ndarray, str, Path, Any], tuple[np.ndarray, Any]]
+
+
+def _eight_bit(image: np.ndarray, encoding: str, path: Path, oiio: Any) -> tuple[np.ndarray, Any]:
+    """LDR files: 8-bit values, sRGB-encoded (or, with ``encoding="linear"``, as they are),
+    clipped to [0, 1]."""
+    encoded = srgb_encode(image) if encoding == "srgb" else np.clip(image, 0.0, 1.0)
+    return np.round(encoded * 255.0).astype(np.uint8), oiio.UINT8
+
+
+def _float32(image: np.ndarray, encoding: str, path: Path, oiio: Any) -> tuple[np.ndarray, Any]:
+    """HDR files (and any other extension OpenImageIO writes): float32 linear values."""
+    if np.max(np.abs(image)) > np.finfo(np.float32).max:  # would be written as infinity
+        raise ImageError(f"refusing to write pixel values that overflow float32 (above 3.4e38) to {path}")
+    return np.ascontiguousarray(image.astype(np.float32)), oiio.FLOAT
+
+
+#: The pixel writer of each image format (:data:`~strauss_fit.io.table_formats.IMAGE_FORMATS`,
+#: keyed by the same extensions); another extension is written by :func:`_float32`.
+IMAGE_WRITERS: dict[str, PixelWriter] = {
+    suffix: _eight_bit if image_format.ldr else _float32 for suffix, image_format in IMAGE_FORMATS.items()
+}
 
 
 def _memory_file(name: str) -> int | None:
@@ -248,19 +290,11 @@ def encode_image(image: np.ndarray, path: str | Path, *, encoding: Encoding = "a
     if encoding not in ("linear", "srgb"):
         raise ImageError(f"unknown encoding {encoding!r}; expected auto, linear or srgb")
     oiio = _oiio()
-    if path.suffix.lower() in LDR_EXTENSIONS:
-        encoded = srgb_encode(image) if encoding == "srgb" else np.clip(image, 0.0, 1.0)
-        data = np.round(encoded * 255.0).astype(np.uint8)
-        pixel_type = oiio.UINT8
-    else:
-        if np.max(np.abs(image)) > np.finfo(np.float32).max:  # would be written as infinity
-            raise ImageError(f"refusing to write pixel values that overflow float32 (above 3.4e38) to {path}")
-        data = np.ascontiguousarray(image.astype(np.float32))
-        pixel_type = oiio.FLOAT
+    data, pixel_type = IMAGE_WRITERS.get(path.suffix.lower(), _float32)(image, encoding, path, oiio)
     output = oiio.ImageOutput.create(str(path))
     if output is None:
         oiio.geterror()
-        raise ImageError(f"no image writer for {path.suffix or 'files without extension'}: {path}")
+        raise _no_writer(path)
     spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], pixel_type)
     if pixel_type == oiio.FLOAT:
         spec.attribute("compression", "zip")
