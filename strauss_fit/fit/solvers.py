@@ -52,6 +52,7 @@ from jax import Array
 from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
 from ..precision import uses_float64
+from .options import SOLVERS as SOLVERS  # plain data, kept with the options (the CLI reads it)
 from .options import FitOptions
 from .parameters import Layout, jsonable
 from .problem import Problem, costs, physical_values
@@ -63,7 +64,7 @@ if TYPE_CHECKING:
 # optimistix is imported where it is used: importing the package (and starting the command
 # line) does not pay for it.
 
-SOLVERS = ("lm", "gauss-newton", "bfgs")
+
 #: Actual-to-predicted reduction ratio above which the trust region grows.
 GROW_RATIO = 0.75
 #: Actual-to-predicted reduction ratio below which a step of a fit of an image is rejected

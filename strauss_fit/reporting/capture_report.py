@@ -55,6 +55,7 @@ from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..io.files import read_json
 from .document import (
     Document,
+    check_html_name,
     correlation_table,
     fmt,
     generated_by,
@@ -1202,8 +1203,7 @@ def capture_report_from_files(
     out = Path(output_html)
     if fit_json_path is None and chain is None:
         raise ReportError("give a capture's fit result (--fit RESULT.json), its chain (--chain CHAIN.h5), or both")
-    if out.suffix.lower() not in (".html", ".htm"):
-        raise StraussFitError(f"the report is HTML: give -o a .html name, got {output_html}")
+    check_html_name(output_html)
     loaded = load_chain(chain, required=True) if chain is not None else None
     if loaded is not None and not is_capture_chain(loaded.meta):
         raise ReportError(

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import StraussFitError
+
 
 @dataclass
 class _Block:
@@ -229,3 +231,15 @@ def posterior_cells(percentiles: dict[str, Any]) -> list[str]:
     """One parameter's median and percentiles (a posterior summary's entry) as cells; the
     prior's cell follows them (:func:`prior_text`)."""
     return [fmt(percentiles[key]) for key in PERCENTILES]
+
+
+#: The suffixes of a report file (the reports are HTML, their Markdown twin written beside).
+HTML_SUFFIXES = (".html", ".htm")
+
+
+def check_html_name(path: Any) -> None:
+    """Refuse a report name that is not HTML, in one line, before any work."""
+    from pathlib import Path
+
+    if Path(path).suffix.lower() not in HTML_SUFFIXES:
+        raise StraussFitError(f"the report is HTML: give -o a .html name, got {path}")

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..color import srgb_encode
 from ..errors import StraussFitError
+from ..fit.losses import ROBUST_LOSSES
 from ..fit.result import FitResult
 from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..inference.summaries import ChainPosterior, Laplace, chain_posterior, degeneracy_warnings, loss_warning
@@ -42,6 +43,7 @@ from ..scene.loading import Scene, load_scene
 from ..stats import laplace as _laplace
 from .document import (
     Document,
+    check_html_name,
     correlation_table,
     fmt,
     generated_by,
@@ -617,7 +619,7 @@ def _statistical_meaning(fit: FitResult) -> str:
             "image were taken again with fresh noise — an interval for the best Strauss approximation of this image"
         )
         loss = (fit.solver or {}).get("loss")
-        if loss in ("huber", "cauchy"):  # a robust loss's pseudo-truth (docs/uncertainty.md)
+        if loss in ROBUST_LOSSES:  # a robust loss's pseudo-truth (docs/uncertainty.md)
             text += (
                 f" (with the {loss} loss: the value its fit converges to at this noise level, the minimiser of the "
                 "expected loss, not its fit of the noise-free image)"
@@ -802,8 +804,7 @@ def report_from_files(
     files written."""
     if not fit and not chain:
         raise StraussFitError("give a fit result (--fit RESULT.json), a chain (--chain CHAIN.h5), or both")
-    if Path(output).suffix.lower() not in (".html", ".htm"):
-        raise StraussFitError(f"the report is HTML: give -o a .html name, got {output}")
+    check_html_name(output)
     check_report_outputs(output, force)
     loaded_chain = load_chain(chain, required=True) if chain else None
     meta = loaded_chain.meta if loaded_chain is not None else {}
