@@ -33,7 +33,11 @@ COMMAND_MODULES = (
 def _load_numeric_libraries() -> None:
     """Import NumPy and JAX while an interrupt is only recorded: raised inside their
     compiled modules' imports, it would come back wrapped in an ImportError with a
-    traceback in its message."""
+    traceback in its message. First, the CPU devices: the command's process is its own, so it
+    asks JAX for one per core before JAX starts (docs/commands/index.md#cpu-devices)."""
+    from strauss_fit.runtime import use_cpu_cores
+
+    use_cpu_cores()
     import jax.numpy  # noqa: F401
     import numpy  # noqa: F401
 
