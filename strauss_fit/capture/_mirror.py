@@ -252,13 +252,45 @@ def estimate_light(
     ``circle``: the ball's circle (cone); ``mask``: (H, W) bool, where to look (besides
     inside the circle); ``saturation``: stored values at or above it (any channel) are
     saturated; ``clipped``: (H, W) bool, pixels known saturated (the reader's)."""
-    from scipy import ndimage
-
     camera = camera or Camera()
     pixels = _rgb(image)
     shape = pixels.shape[:2]
-    height, width = shape
     geometry, geometry_sd = _geometry(circle, camera, shape)
+    region = _ball_region(circle, camera, shape, mask)
+    saturated = _saturated_pixels(pixels, clipped, saturation)
+    # work inside the ball's bounding box (plus a margin): the rest of the frame is not looked at
+    box = _bounding_box(region)
+    rgb, inside, sat = pixels[box], region[box], saturated[box]
+    lum = rgb.mean(axis=-1)
+    spot = _highlight(lum, inside)
+    aperture, total, point, point_cov = _centroid(spot, lum, inside, rgb, box)
+    direction, angular_cov = _direction_covariance(point, point_cov, geometry, geometry_sd, camera, shape)
+    direction_sd = math.degrees(math.sqrt(max(float(np.trace(angular_cov)), 0.0)))
+    notes: list[str] = []
+    saturated_count = int(sat[aperture].sum())
+    intensity: tuple[float, float, float] | None
+    if saturated_count:
+        intensity = None
+        notes.append(f"{saturated_count} saturated pixels in the highlight: its intensity is unknown")
+    else:
+        intensity = _intensity(spot, rgb, inside, aperture, box, geometry, camera, shape, circle.radius)
+    notes += _highlight_notes(spot, lum, total, circle, camera, shape, box)
+    return LightEstimate(
+        direction=tuple(float(v) for v in direction),  # type: ignore[arg-type]
+        direction_sd_deg=direction_sd,
+        intensity=intensity,
+        pixel=(float(point[0]), float(point[1])),
+        pixel_sd=(math.sqrt(max(point_cov[0, 0], 0.0)), math.sqrt(max(point_cov[1, 1], 0.0))),
+        notes=tuple(notes),
+        saturated_pixels=saturated_count,
+        circle=circle,
+    )
+
+
+def _ball_region(circle: Circle, camera: Camera, shape: tuple[int, int], mask: np.ndarray | None) -> np.ndarray:
+    """Where to look for the highlight (H, W): the ball's pixels, within ``mask`` if given;
+    a one-line error when that is under ten pixels."""
+    height, width = shape
     sphere = sphere_geometry(circle, shape, camera, clip=True)
     region = np.zeros(shape, dtype=bool)
     region[sphere.rows, sphere.cols] = True
@@ -269,30 +301,58 @@ def estimate_light(
         region &= mask
     if region.sum() < 10:
         raise CaptureError(f"the mirror ball ({circle.describe()}) covers only {int(region.sum())} pixels")
-    saturated = np.zeros(shape, dtype=bool)
+    return region
+
+
+def _saturated_pixels(pixels: np.ndarray, clipped: np.ndarray | None, saturation: float | None) -> np.ndarray:
+    """The saturated pixels (H, W): those the reader found clipped and those with a value at
+    or above ``saturation`` in any channel."""
+    saturated = np.zeros(pixels.shape[:2], dtype=bool)
     if clipped is not None:
         saturated |= np.asarray(clipped, dtype=bool)
     if saturation is not None:
         saturated |= np.any(pixels >= saturation, axis=-1)
+    return saturated
 
-    # work inside the ball's bounding box (plus a margin): the rest of the frame is not looked at
+
+def _bounding_box(region: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of ``region``'s bounding box, with a margin of three pixels
+    (within the frame)."""
+    height, width = region.shape
     rows_any, cols_any = np.nonzero(region)
     i0, i1 = max(rows_any.min() - 3, 0), min(rows_any.max() + 4, height)
     k0, k1 = max(cols_any.min() - 3, 0), min(cols_any.max() + 4, width)
-    box = (slice(i0, i1), slice(k0, k1))
-    rgb, inside, sat = pixels[box], region[box], saturated[box]
-    lum = rgb.mean(axis=-1)
+    return slice(i0, i1), slice(k0, k1)
+
+
+@dataclass
+class _Highlight:
+    """The highlight found in the ball's bounding box (module docstring, step 1)."""
+
+    #: the brightest raw pixel next to the smoothed peak (row, column in the box)
+    seed: tuple[int, int]
+    #: its luminance
+    peak: float
+    #: the connected regions above the half level (:func:`scipy.ndimage.label`)
+    labels: np.ndarray
+    #: the highlight: the region of the seed
+    blob: np.ndarray
+    #: the ring around it the background is measured in
+    ring: np.ndarray
+    #: the background's median luminance and noise (1.4826 × MAD)
+    background: float
+    noise: float
+
+
+def _highlight(lum: np.ndarray, inside: np.ndarray) -> _Highlight:
+    """The highlight on the ball (``inside``) of the luminance ``lum``: the connected
+    pixels above half its peak over the background, found twice (against the ball's
+    median, then against the ring around the blob); a one-line error when nothing stands
+    out."""
+    from scipy import ndimage
 
     background, noise = _robust(lum[inside])
-    weight = ndimage.gaussian_filter(inside.astype(np.float64), 1.0)
-    smooth = ndimage.gaussian_filter(np.where(inside, lum, 0.0), 1.0) / np.maximum(weight, 1e-12)
-    smooth = np.where(inside, smooth, -np.inf)
-    pi, pk = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
-    # the brightest raw pixel next to the smoothed peak: the blob's seed, above any half level
-    window = (slice(max(pi - 1, 0), pi + 2), slice(max(pk - 1, 0), pk + 2))
-    local = np.where(inside[window], lum[window], -np.inf)
-    wi, wk = np.unravel_index(int(np.argmax(local)), local.shape)
-    seed = (window[0].start + wi, window[1].start + wk)
+    seed = _seed(lum, inside)
     peak = float(lum[seed])
     if not peak - background > max(MIN_HIGHLIGHT_SIGMAS * noise, 0.0):
         raise CaptureError(
@@ -300,8 +360,6 @@ def estimate_light(
             f"ball's median ({background:.4g}, noise {noise:.2g})"
         )
     structure = np.ones((3, 3), dtype=bool)
-    labels = None
-    blob = np.zeros_like(inside)
     ring = np.zeros_like(inside)
     for _ in range(2):  # against the ball's median, then against the ring around the blob
         level = background + 0.5 * (peak - background)
@@ -321,67 +379,106 @@ def estimate_light(
     level = background + 0.5 * (peak - background)
     labels, _count = ndimage.label(inside & (lum > level), structure=structure)
     blob = labels == labels[seed]
-    channel_background = np.median(rgb[ring], axis=0) if ring.sum() >= 10 else np.median(rgb[inside], axis=0)
+    return _Highlight(seed, peak, labels, blob, ring, background, noise)
 
-    # the centroid over the blob grown by two pixels: the pixels the spot covers only partly
-    # (below the half level) count with their share, so a spot of a few pixels is not pulled
-    # toward whichever side the sampling grid happens to favour
-    aperture = ndimage.binary_dilation(blob, structure=structure, iterations=APERTURE_GROWTH_PX) & inside
+
+def _seed(lum: np.ndarray, inside: np.ndarray) -> tuple[int, int]:
+    """The highlight's seed: the peak of the ball's luminance smoothed by a Gaussian of
+    1 px (a hot pixel or noise does not win), moved to the brightest raw pixel next to it
+    (which lies above any half level)."""
+    from scipy import ndimage
+
+    weight = ndimage.gaussian_filter(inside.astype(np.float64), 1.0)
+    smooth = ndimage.gaussian_filter(np.where(inside, lum, 0.0), 1.0) / np.maximum(weight, 1e-12)
+    smooth = np.where(inside, smooth, -np.inf)
+    pi, pk = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
+    window = (slice(max(pi - 1, 0), pi + 2), slice(max(pk - 1, 0), pk + 2))
+    local = np.where(inside[window], lum[window], -np.inf)
+    wi, wk = np.unravel_index(int(np.argmax(local)), local.shape)
+    return (window[0].start + wi, window[1].start + wk)
+
+
+def _centroid(
+    spot: _Highlight, lum: np.ndarray, inside: np.ndarray, rgb: np.ndarray, box: tuple[slice, slice]
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """The highlight's sub-pixel centre (module docstring, step 2): the aperture summed
+    over, the total weight, the centre (x, y) in the frame and its 2 × 2 covariance from
+    the pixel noise.
+
+    The centroid runs over the blob grown by two pixels: the pixels the spot covers only
+    partly (below the half level) count with their share, so a spot of a few pixels is not
+    pulled toward whichever side the sampling grid happens to favour."""
+    from scipy import ndimage
+
+    structure = np.ones((3, 3), dtype=bool)
+    aperture = ndimage.binary_dilation(spot.blob, structure=structure, iterations=APERTURE_GROWTH_PX) & inside
     rows, cols = np.nonzero(aperture)
-    weights = lum[rows, cols] - background
+    weights = lum[rows, cols] - spot.background
     total = float(weights.sum())  # > 0: the blob's pixels lie above the half level, the rim's near 0
     if not total > 0:
         raise CaptureError("no highlight on the mirror ball: nothing stands above its surroundings")
-    x = cols + k0 + 0.5
-    y = rows + i0 + 0.5
+    x = cols + box[1].start + 0.5
+    y = rows + box[0].start + 0.5
     cx_bar = float(np.sum(weights * x) / total)
     cy_bar = float(np.sum(weights * y) / total)
-    around = aperture | ring
-    sigma = max(noise, _rounding_noise(rgb[around].ravel()))
+    around = aperture | spot.ring
+    sigma = max(spot.noise, _rounding_noise(rgb[around].ravel()))
     dx, dy = x - cx_bar, y - cy_bar
     point_cov = sigma**2 / total**2 * np.array([[np.sum(dx * dx), np.sum(dx * dy)], [np.sum(dx * dy), np.sum(dy * dy)]])
-    point = np.array([cx_bar, cy_bar])
-    direction, angular_cov = _direction_covariance(point, point_cov, geometry, geometry_sd, camera, shape)
-    direction_sd = math.degrees(math.sqrt(max(float(np.trace(angular_cov)), 0.0)))
+    return aperture, total, np.array([cx_bar, cy_bar]), point_cov
 
-    notes: list[str] = []
-    saturated_count = int(sat[aperture].sum())
-    intensity: tuple[float, float, float] | None
-    if saturated_count:
-        intensity = None
-        notes.append(f"{saturated_count} saturated pixels in the highlight: its intensity is unknown")
-    else:
-        ar, ac = np.nonzero(aperture)
-        solid = _solid_angles(ac + k0 + 0.5, ar + i0 + 0.5, geometry, camera, shape, circle.radius)
-        sums = ((rgb[ar, ac] - channel_background) * solid[:, None]).sum(axis=0)
-        intensity = tuple(float(max(v, 0.0)) for v in sums)  # type: ignore[assignment]
-    # a highlight at the ball's edge: a light near grazing, seen foreshortened and cut
+
+def _intensity(
+    spot: _Highlight,
+    rgb: np.ndarray,
+    inside: np.ndarray,
+    aperture: np.ndarray,
+    box: tuple[slice, slice],
+    geometry: tuple[float, ...],
+    camera: Camera,
+    shape: tuple[int, int],
+    radius: float,
+) -> tuple[float, float, float]:
+    """The light's relative RGB intensity (module docstring): the aperture's values above
+    the background, each times its pixel's solid angle of reflected directions."""
+    ring = spot.ring
+    channel_background = np.median(rgb[ring], axis=0) if ring.sum() >= 10 else np.median(rgb[inside], axis=0)
+    ar, ac = np.nonzero(aperture)
+    solid = _solid_angles(ac + box[1].start + 0.5, ar + box[0].start + 0.5, geometry, camera, shape, radius)
+    sums = ((rgb[ar, ac] - channel_background) * solid[:, None]).sum(axis=0)
+    return tuple(float(max(v, 0.0)) for v in sums)  # type: ignore[return-value]
+
+
+def _highlight_notes(
+    spot: _Highlight,
+    lum: np.ndarray,
+    total: float,
+    circle: Circle,
+    camera: Camera,
+    shape: tuple[int, int],
+    box: tuple[slice, slice],
+) -> list[str]:
+    """What the estimate should be read with: a highlight at the ball's edge (a light near
+    grazing, seen foreshortened and cut), and another bright region that was ignored."""
+    notes = []
     edge = np.zeros(shape, dtype=bool)
     try:
         inner = sphere_geometry(circle, shape, camera, margin=1.5, clip=True)
         edge[inner.rows, inner.cols] = True
     except CaptureError:
         pass
-    if np.any(blob & ~edge[box]):
+    if np.any(spot.blob & ~edge[box]):
         notes.append("the highlight reaches the ball's edge: the light is near grazing and its direction less certain")
-    energy = np.bincount(labels.ravel(), weights=np.maximum(lum - background, 0.0).ravel())
+    labels = spot.labels
+    energy = np.bincount(labels.ravel(), weights=np.maximum(lum - spot.background, 0.0).ravel())
     energy[0] = 0.0
-    energy[labels[seed]] = 0.0
+    energy[labels[spot.seed]] = 0.0
     if energy.size and energy.max() > SECOND_HIGHLIGHT_FRACTION * total:
         notes.append(
             f"another bright region ({100 * energy.max() / total:.0f} % of the highlight's energy) was ignored: "
             "a second light or a reflection"
         )
-    return LightEstimate(
-        direction=tuple(float(v) for v in direction),  # type: ignore[arg-type]
-        direction_sd_deg=direction_sd,
-        intensity=intensity,
-        pixel=(cx_bar, cy_bar),
-        pixel_sd=(math.sqrt(max(point_cov[0, 0], 0.0)), math.sqrt(max(point_cov[1, 1], 0.0))),
-        notes=tuple(notes),
-        saturated_pixels=saturated_count,
-        circle=circle,
-    )
+    return notes
 
 
 def _read_mask(path: str | Path, shape: tuple[int, int] | None) -> np.ndarray:

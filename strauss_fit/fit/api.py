@@ -175,6 +175,65 @@ def fit_steps(
     (a dict) may be shared by the fits of one scene, which then prepare it once."""
     say = progress or (lambda message: None)
     started = time.perf_counter()
+    setup = _set_up(scene, target, options, say)
+    # one prepared scene per render plan, for every problem of this fit
+    prepared_cache: dict = {} if cache is None else cache
+    first = yield from _first_guess_steps(setup, options, prepared_cache, say)
+    options, target = first.options, setup.target
+    loss = "linear" if options.loss == "auto" else options.loss
+    # the robust losses scale residuals by each value's noise: at the target's level, the
+    # only one there is before a fit (a whole image's worth: only for a loss that reads it)
+    noise_sigma = _image_noise(first.noise, target) if loss in ROBUST_LOSSES else None
+    sigma_ref = reference_noise(target, options)
+    context = _Context(
+        target, options, setup.candidates, setup.fixed, sigma_ref, prepared_cache, loss, noise_sigma, say
+    )
+    say("deciding which parameters the image constrains")
+    decision = yield from decide_free_steps(
+        setup.scene,
+        target,
+        options,
+        setup.material,
+        first.guess,
+        setup.candidates,
+        setup.fixed,
+        sigma_ref,
+        cache=prepared_cache,
+    )
+    solve_started = time.perf_counter()
+    kept, fits_done = yield from _rounds_steps(
+        context, decision, first.guess, setup.material, setup.scene, setup.exposure
+    )
+    kept, outcome = yield from _verdict_steps(context, kept, first.noise)
+    solve_time = time.perf_counter() - solve_started
+    result = yield from _result(
+        kept, outcome, setup.fixed, target, options, first.noise, sigma_ref, fits_done, started, solve_time
+    )
+    result.notes.extend(note for note in (setup.reduction, first.edge_note) if note)
+    return result
+
+
+@dataclass
+class _SetUp:
+    """A fit's inputs checked and made ready: the scene with the user's fixed values in it."""
+
+    scene: Scene
+    #: the target as fitted (:func:`~strauss_fit.io.targets.reduce_target`: its size may be reduced)
+    target: Target
+    #: the scene's material with the fixed material values
+    material: Material
+    #: the parameters the fit may free (:func:`candidate_names`)
+    candidates: list[str]
+    #: the user's fixed values (:func:`parse_fixed`)
+    fixed: dict[str, Any]
+    exposure: float
+    #: what the reduction of the target did, if anything (a note for the result)
+    reduction: str | None
+
+
+def _set_up(scene: Scene, target: Target, options: FitOptions, say: Callable[[str], None]) -> _SetUp:
+    """The options checked, the target reduced and the fixed values put into the scene,
+    before any work: a bad option is a one-line error, not a failure halfway."""
     options.validate()
     scene, target, reduction = reduce_target(scene, target)
     if reduction:
@@ -198,19 +257,50 @@ def fit_steps(
             raise StraussFitError(
                 f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}"
             )
+    return _SetUp(scene, target, material, candidates, fixed, exposure, reduction)
+
+
+@dataclass
+class _FirstGuess:
+    """What a fit knows before it decides what to free."""
+
+    #: the options with the edge pixels resolved (what the result records)
+    options: FitOptions
+    #: why the edge pixels were included or left out, if that was decided (a note)
+    edge_note: str | None
+    #: a value for every candidate parameter (:func:`~strauss_fit.fit.guess.initial_guess`)
+    guess: dict[str, Any]
+    #: the target's noise at the pixels used (:func:`~strauss_fit.stats.noise.describe_noise`)
+    noise: NoiseModel
+
+
+def _first_guess_steps(setup: _SetUp, options: FitOptions, prepared_cache: dict, say: Callable[[str], None]) -> Steps:
+    """Steps giving the :class:`_FirstGuess`: the edge pixels resolved, the pixels to fit
+    chosen, the closed-form guess from them, and the target's noise there."""
+    scene, target, material, exposure = setup.scene, setup.target, setup.material, setup.exposure
     probe_plan = plan_render(scene, material, transparent=False)
-    # one prepared scene per render plan, for every problem of this fit
-    prepared_cache: dict = {} if cache is None else cache
     edge_pixels, edge_note = yield from resolve_edge_pixels_steps(
         scene, target, probe_plan, options, prepared_cache, exposure
     )
     options = dataclasses.replace(options, edge_pixels=edge_pixels)  # what the result records
-    guess_problem, prepared_full, index = yield from build_problem_steps(
+    guess_problem, _prepared_full, index = yield from build_problem_steps(
         scene, target, ["color"], material, probe_plan, options, cache=prepared_cache, exposure=exposure, pad=True
     )
     if edge_note:
         say(edge_note)  # after the check that there are pixels to fit
     say("computing the first guess")
+    guess = _initial_guess(guess_problem, index, scene, material, exposure)
+    used_mask = np.zeros(target.pixels.shape[:2], dtype=bool)
+    used_mask.reshape(-1)[index] = True
+    noise = describe_noise(target.pixels, used_mask, encoding=target.encoding, path=target.path, given=options.noise)
+    return _FirstGuess(options, edge_note, guess, noise)
+
+
+def _initial_guess(
+    guess_problem: Problem, index: np.ndarray, scene: Scene, material: Material, exposure: float
+) -> dict[str, Any]:
+    """The closed-form first guess (:func:`~strauss_fit.fit.guess.initial_guess`) of every
+    candidate parameter from the pixels of ``guess_problem``, the exposure included."""
     direct = guess_problem.prepared.direct
     real = guess_problem.real  # host arrays, NumPy only: nothing here compiles per pixel count
     guess = initial_guess(
@@ -228,20 +318,33 @@ def fit_steps(
         },
     )
     guess[EXPOSURE] = exposure
-    used_mask = np.zeros(target.pixels.shape[:2], dtype=bool)
-    used_mask.reshape(-1)[index] = True
-    noise = describe_noise(target.pixels, used_mask, encoding=target.encoding, path=target.path, given=options.noise)
-    loss = "linear" if options.loss == "auto" else options.loss
-    # the robust losses scale residuals by each value's noise: at the target's level, the
-    # only one there is before a fit (a whole image's worth: only for a loss that reads it)
-    noise_sigma = _image_noise(noise, target) if loss in ROBUST_LOSSES else None
+    return guess
 
-    sigma_ref = reference_noise(target, options)
-    say("deciding which parameters the image constrains")
-    decision = yield from decide_free_steps(
-        scene, target, options, material, guess, candidates, fixed, sigma_ref, cache=prepared_cache
-    )
-    solve_started = time.perf_counter()
+
+@dataclass
+class _Context:
+    """What stays the same through every round of one fit."""
+
+    target: Target
+    options: FitOptions
+    candidates: list[str]
+    fixed: dict[str, Any]
+    #: the reference noise level (:func:`reference_noise`)
+    sigma_ref: float
+    prepared_cache: dict
+    loss: str
+    #: every value's noise σ for a robust loss, else None (:func:`_image_noise`)
+    noise_sigma: np.ndarray | None
+    say: Callable[[str], None]
+
+
+def _rounds_steps(
+    context: _Context, decision: Decision, guess: dict[str, Any], material: Material, scene: Scene, exposure: float
+) -> Steps:
+    """Steps giving the :class:`Round` that stands and the number of fits run: the fit
+    under ``decision``, then, while the decision taken again at its optimum is new, the
+    fit under that one (at most :data:`~strauss_fit.fit.identifiability.MAX_DECISIONS`)."""
+    options, sigma_ref, say = context.options, context.sigma_ref, context.say
     kept: Round | None = None  # the fit that stands
     tried = [decision_key(decision, material, scene.lights, exposure)]
     best_rss = np.inf
@@ -253,24 +356,7 @@ def fit_steps(
                 "no parameter is left to fit: the scene constrains none of the candidates "
                 f"({'; '.join(f'{k}: {v}' for k, v in decision.held.items())})"
             )
-        transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
-        plan = plan_render(scene, material, transparent=transparent)
-        problem, prepared_full, index = yield from build_problem_steps(
-            scene,
-            target,
-            decision.free,
-            material,
-            plan,
-            options,
-            sigma_ref,
-            cache=prepared_cache,
-            loss=loss,
-            noise_sigma=noise_sigma,
-            exposure=exposure,
-            pad=True,
-        )
-        coarse = yield from coarse_problem_steps(problem, prepared_full, index)
-        solved = yield from solve_steps(problem, guess, options, say, coarse, exact_first=attempt > 0)
+        current = yield from _round_steps(context, decision, guess, material, scene, exposure, attempt > 0)
         fits_done = attempt + 1
         # Holding a parameter never lowers the cost; a refit under a new decision stands
         # unless it costs significantly more at the reference noise than the best fit before:
@@ -279,68 +365,16 @@ def fit_steps(
         # had good reason for (a mirror's m at 1, at Δχ² = 1.4) and left C and m "free" at ±2.
         if (
             kept is not None
-            and solved.rss > best_rss + chi2_95(newly_held(kept.problem.layout, decision)) * sigma_ref**2
+            and current.solved.rss > best_rss + chi2_95(newly_held(kept.problem.layout, decision)) * sigma_ref**2
         ):
             say("the refit was worse: keeping the fit before it")
             break
-        kept = Round(decision, problem, prepared_full, index, solved, plan, material, scene, exposure)
-        best_rss = min(solved.rss, best_rss)
+        kept = current
+        best_rss = min(current.solved.rss, best_rss)
         if options.free is not None or attempt == MAX_DECISIONS - 1:
             break
-        # The decision was taken at the first guess, which may be far from the truth (a
-        # metal mistaken for plastic, say): take it again at the optimum, probing exactly
-        # where the fit landed, bounds included (a mirror, s = 1, or an opaque glass, t = 0,
-        # must be seen as such, not as the generic material a first guess is), and refit
-        # from there if the answer is new.
-        fitted = {
-            **guess,
-            **{name: value_of(name, material, scene.lights, exposure) for name in decision.held},
-            **jsonable(problem.layout.split(solved.x)),
-        }
-        pinned = np.asarray(solved.problem.pinned)
-        at_bound = frozenset(
-            name
-            for name, size, offset in zip(problem.layout.names, problem.layout.sizes, problem.layout.offsets)
-            if size == 1 and pinned[offset]
-        )
-        again = yield from decide_free_steps(
-            scene,
-            target,
-            options,
-            material,
-            fitted,
-            candidates,
-            fixed,
-            sigma_ref,
-            margin=0.0,
-            at_bound=at_bound,
-            cache=prepared_cache,
-        )
-        yield from hold_ior_without_significant_transparency_steps(again, solved)
-        held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
-        yield from hold_jointly_dead_at_fit_steps(
-            again,
-            decision,
-            fitted,
-            solved,
-            material,
-            scene.lights,
-            sigma_ref,
-            held_values,
-            reasons_at_optimum,
-            exposure,
-        )
-        again.held.update(reasons_at_optimum)
-        next_material = material_with(material, {k: v for k, v in held_values.items() if k in MATERIAL_SIZES})
-        next_scene = eqx.tree_at(
-            lambda s: s.lights,
-            scene,
-            lights_with(
-                scene.lights,
-                {k: jnp.asarray(float(v)) for k, v in held_values.items() if k not in MATERIAL_SIZES and k != EXPOSURE},
-            ),
-        )
-        next_exposure = float(held_values.get(EXPOSURE, exposure))
+        again, fitted, held_values = yield from _decide_at_optimum_steps(context, kept, guess)
+        next_material, next_scene, next_exposure = _with_held(material, scene, exposure, held_values)
         # a decision is new if it frees other parameters or holds one at another value
         # (a mirror's metalness held at 1 rather than at the scene's 0, say)
         key = decision_key(again, next_material, next_scene.lights, next_exposure)
@@ -350,18 +384,125 @@ def fit_steps(
         say(f"at the optimum the image constrains {', '.join(again.free) or 'nothing'}: fitting again from there")
         decision, guess, material, scene = again, {**fitted, **held_values}, next_material, next_scene
         exposure = next_exposure
+    return kept, fits_done
+
+
+def _round_steps(
+    context: _Context,
+    decision: Decision,
+    guess: dict[str, Any],
+    material: Material,
+    scene: Scene,
+    exposure: float,
+    exact_first: bool,
+) -> Steps:
+    """Steps giving the :class:`Round` of one decision: its problem built and solved from
+    ``guess`` (``exact_first``: a refit, which starts with the exact solve)."""
+    transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
+    plan = plan_render(scene, material, transparent=transparent)
+    problem, prepared_full, index = yield from build_problem_steps(
+        scene,
+        context.target,
+        decision.free,
+        material,
+        plan,
+        context.options,
+        context.sigma_ref,
+        cache=context.prepared_cache,
+        loss=context.loss,
+        noise_sigma=context.noise_sigma,
+        exposure=exposure,
+        pad=True,
+    )
+    coarse = yield from coarse_problem_steps(problem, prepared_full, index)
+    solved = yield from solve_steps(problem, guess, context.options, context.say, coarse, exact_first=exact_first)
+    return Round(decision, problem, prepared_full, index, solved, plan, material, scene, exposure)
+
+
+def _decide_at_optimum_steps(context: _Context, kept: Round, guess: dict[str, Any]) -> Steps:
+    """Steps giving the decision taken again at ``kept``'s optimum, the values there
+    (``fitted``) and the values it holds at (``held_values``).
+
+    The decision was taken at the first guess, which may be far from the truth (a metal
+    mistaken for plastic, say): it is taken again at the optimum, probing exactly where the
+    fit landed, bounds included (a mirror, s = 1, or an opaque glass, t = 0, must be seen as
+    such, not as the generic material a first guess is)."""
+    decision, problem, solved = kept.decision, kept.problem, kept.solved
+    material, scene, exposure = kept.material, kept.scene, kept.exposure
+    fitted = {
+        **guess,
+        **{name: value_of(name, material, scene.lights, exposure) for name in decision.held},
+        **jsonable(problem.layout.split(solved.x)),
+    }
+    pinned = np.asarray(solved.problem.pinned)
+    at_bound = frozenset(
+        name
+        for name, size, offset in zip(problem.layout.names, problem.layout.sizes, problem.layout.offsets)
+        if size == 1 and pinned[offset]
+    )
+    again = yield from decide_free_steps(
+        scene,
+        context.target,
+        context.options,
+        material,
+        fitted,
+        context.candidates,
+        context.fixed,
+        context.sigma_ref,
+        margin=0.0,
+        at_bound=at_bound,
+        cache=context.prepared_cache,
+    )
+    yield from hold_ior_without_significant_transparency_steps(again, solved)
+    held_values, reasons_at_optimum = held_at_optimum(again, decision, fitted)
+    yield from hold_jointly_dead_at_fit_steps(
+        again,
+        decision,
+        fitted,
+        solved,
+        material,
+        scene.lights,
+        context.sigma_ref,
+        held_values,
+        reasons_at_optimum,
+        exposure,
+    )
+    again.held.update(reasons_at_optimum)
+    return again, fitted, held_values
+
+
+def _with_held(
+    material: Material, scene: Scene, exposure: float, held_values: dict[str, Any]
+) -> tuple[Material, Scene, float]:
+    """The material, scene (its lights) and exposure with ``held_values`` put in: where
+    the next round starts from."""
+    next_material = material_with(material, {k: v for k, v in held_values.items() if k in MATERIAL_SIZES})
+    next_scene = eqx.tree_at(
+        lambda s: s.lights,
+        scene,
+        lights_with(
+            scene.lights,
+            {k: jnp.asarray(float(v)) for k, v in held_values.items() if k not in MATERIAL_SIZES and k != EXPOSURE},
+        ),
+    )
+    next_exposure = float(held_values.get(EXPOSURE, exposure))
+    return next_material, next_scene, next_exposure
+
+
+def _verdict_steps(context: _Context, kept: Round, noise: NoiseModel) -> Steps:
+    """Steps giving the round that stands and its :class:`_Outcome`: the verdict on
+    ``kept``, and with the ``auto`` loss, when the model visibly cannot reproduce the
+    target, the fit again under :data:`~strauss_fit.fit.options.MISMATCH_LOSS` instead."""
+    target, options, loss, say = context.target, context.options, context.loss, context.say
     outcome = yield from _conclude(kept, target, options, noise, loss, say)
     visible = float(np.mean(outcome.delta_e)) >= VISIBLE_DELTA_E
     if options.loss == "auto" and outcome.diagnosis.verdict == "mismatch" and visible and MISMATCH_LOSS != loss:
         say(f"the model cannot reproduce the target: fitting again with the {MISMATCH_LOSS} loss")
         robust_sigma = _image_noise(noise, target) if MISMATCH_LOSS in ROBUST_LOSSES else None
-        refit = yield from _refit_with_loss(kept, target, options, MISMATCH_LOSS, robust_sigma, sigma_ref, say)
+        refit = yield from _refit_with_loss(kept, target, options, MISMATCH_LOSS, robust_sigma, context.sigma_ref, say)
         outcome = yield from _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
         kept = refit
-    solve_time = time.perf_counter() - solve_started
-    result = yield from _result(kept, outcome, fixed, target, options, noise, sigma_ref, fits_done, started, solve_time)
-    result.notes.extend(note for note in (reduction, edge_note) if note)
-    return result
+    return kept, outcome
 
 
 def _refit_with_loss(
@@ -485,27 +626,99 @@ def _result(
     started: float,
     solve_time: float,
 ) -> Steps:
-    """The :class:`FitResult` of the round that stands."""
-    decision, solved, scene, plan, material = kept.decision, kept.solved, kept.scene, kept.plan, kept.material
+    """Steps giving the :class:`FitResult` of the round that stands: its uncertainties
+    (:func:`_uncertainty_steps`), notes, equivalence ranges and warnings, and what the fit
+    records of its residual, solver and settings."""
+    solved, scene, material = kept.solved, kept.scene, kept.material
+    problem, x_best = solved.problem, solved.x
+    layout, pinned = problem.layout, np.asarray(solved.problem.pinned)
+    residual = outcome.model - problem.real(problem.target)
+    rss = float(np.sum(residual**2))
+    uncertainty = yield from _uncertainty_steps(solved, outcome, noise, rss)
+    fitted_values = layout.split(x_best)
+    fitted_material = material_with(material, fitted_values)
+    fitted_lights = lights_with(scene.lights, fitted_values)
+    exposure = float(fitted_values[EXPOSURE]) if EXPOSURE in layout.names else kept.exposure
+    notes = _notes(solved, fitted_values)
+    equivalence = None
+    if options.equivalence and layout.size:
+        equivalence = yield from equivalence_ranges_steps(problem, x_best, delta_e=options.equivalence_de)
+    free_covariance = yield from _free_covariance_steps(solved, outcome, noise, uncertainty.parts, rss, residual.size)
+    warnings = outcome.diagnosis.warnings + uncertainty_warnings(
+        layout,
+        np.zeros((layout.size, layout.size)) if uncertainty.covariance is None else uncertainty.covariance,
+        np.asarray(x_best),
+        pinned,
+        free_covariance,
+        equivalence,
+    )
+    result = FitResult(
+        material=fitted_material,
+        free=list(layout.names),
+        held=_held(kept, fixed),
+        lights={n: float(v) for n, v in zip(light_parameter_names(fitted_lights), all_intensities(fitted_lights))},
+        uncertainty=uncertainty.deviations,
+        correlation=uncertainty.correlation,
+        residual=_residual_record(residual, rss, outcome, noise),
+        solver=_solver_record(solved, options, fits_done),
+        starts=[finite_or_none(record) for record in solved.starts],
+        start_spread=solved.spread,
+        wall_time_s=time.perf_counter() - started,
+        compile_and_solve={"solve_s": solve_time},
+        pixels_used=int(kept.index.size),
+        notes=notes,
+        settings=_settings_record(kept, target, options, noise, sigma_ref),
+        fitted_image=outcome.full,
+        mask=np.asarray(kept.prepared_full.hit),
+        problem=problem,
+        x=x_best,
+        warnings=warnings,
+        exposure=exposure,
+        equivalence=equivalence,
+        uncertainty_method=uncertainty.method,
+        uncertainty_laplace=uncertainty.laplace_deviations,
+        used_index=kept.index,
+        standardized_residual=outcome.diagnosis.standardized,
+        target_image=target.pixels,
+    )
+    # a figure that came out NaN or infinite is a computation that broke down: a one-line
+    # error naming it (to_json checks every number), never a NaN passed on or written
+    result.to_json()
+    return result
+
+
+def _held(kept: Round, fixed: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Every held parameter's value and why it is held: the decision's reasons, and the
+    values the user fixed."""
     held = {
-        name: {"value": value_of(name, material, scene.lights, kept.exposure), "reason": reason}
-        for name, reason in decision.held.items()
+        name: {"value": value_of(name, kept.material, kept.scene.lights, kept.exposure), "reason": reason}
+        for name, reason in kept.decision.held.items()
     }
     for name, value in fixed.items():
         held[name] = {"value": value, "reason": "fixed by the user (--fix)"}
+    return held
+
+
+@dataclass
+class _Uncertainty:
+    """The fitted values' deviations, as the result reports them."""
+
+    #: the reported ± by parameter name (the noise sandwich's when the noise is known, else Laplace's)
+    deviations: dict[str, Any]
+    correlation: dict[str, Any]
+    covariance: np.ndarray | None
+    #: what the ± is (the result's ``uncertainty_method``)
+    method: dict[str, Any]
+    laplace_deviations: dict[str, Any]
+    #: the noise sandwich's parts (:func:`~strauss_fit.stats.laplace.sandwich_parts_kernel`),
+    #: None when the noise is unknown
+    parts: Any
+
+
+def _uncertainty_steps(solved: Solved, outcome: _Outcome, noise: NoiseModel, rss: float) -> Steps:
+    """Steps giving the :class:`_Uncertainty` of the fit: the noise sandwich when the noise
+    is known, else the Laplace approximation (which is computed either way)."""
     problem, x_best = solved.problem, solved.x
-    layout, pinned, status = problem.layout, np.asarray(solved.problem.pinned), solved.status
-    # a start that diverged has no cost or end values: null (its status says how it ended)
-    starts, spread = [finite_or_none(record) for record in solved.starts], solved.spread
-    notes = [
-        f"equally good fits (within Δχ² = 1 of the best) disagree on {label} by {value:.2g}: "
-        "the image may not pin it down"
-        for label, value in spread.items()
-        if value > 0.05
-    ]
-    model, diagnosis = outcome.model, outcome.diagnosis
-    residual = model - problem.real(problem.target)
-    rss = float(np.sum(residual**2))
     # JᵀJ of the physical residuals: the polish's (least squares), else one kernel's (with
     # the noise sandwich's parts when the noise is known: one call for both)
     information = solved.information if problem.loss == "linear" else None
@@ -515,41 +728,50 @@ def _result(
         parts = yield sandwich_parts_kernel.call(problem, np.asarray(x_best, dtype=np.float64), noise_sd)
         information = np.asarray(parts["information"]) if information is None else information
     laplace_sd, laplace_corr, laplace_cov = yield from problem_laplace_steps(problem, x_best, rss, None, information)
-    if noise.known:
-        uncertainty, correlation, covariance, extra = sandwich_from_parts(problem, parts)
-        method = {
-            "name": "noise sandwich",
-            "noise_source": noise.source,
-            "conditional_on_model": False,
-            "meaning": (
-                "how far the fitted values would move with fresh noise: the spread around the best Strauss "
-                "approximation of this image"
-                + (
-                    ", not around the true material (the model cannot reproduce the target)"
-                    if diagnosis.verdict == "mismatch"
-                    else ""
-                )
-                + (
-                    f"; for the {problem.loss} loss that approximation is the value its fit converges to at this "
-                    "noise level (the minimiser of the expected loss), not its fit of the noise-free image"
-                    if problem.loss in ("huber", "cauchy")  # the robust losses (docs/uncertainty.md)
-                    else ""
-                )
-            ),
-            **extra,
-        }
-    else:
-        uncertainty, correlation, covariance = laplace_sd, laplace_corr, laplace_cov
+    if not noise.known:
         method = {
             "name": "laplace",
             "noise_source": "residual",
             "conditional_on_model": True,
             "meaning": "σ² (JᵀJ)⁻¹ with σ² = RSS/(N − P): valid only if the model reproduces the target",
         }
-    fitted_values = layout.split(x_best)
-    fitted_material = material_with(material, fitted_values)
-    fitted_lights = lights_with(scene.lights, fitted_values)
-    exposure = float(fitted_values[EXPOSURE]) if EXPOSURE in layout.names else kept.exposure
+        return _Uncertainty(laplace_sd, laplace_corr, laplace_cov, method, laplace_sd, parts)
+    uncertainty, correlation, covariance, extra = sandwich_from_parts(problem, parts)
+    method = {
+        "name": "noise sandwich",
+        "noise_source": noise.source,
+        "conditional_on_model": False,
+        "meaning": _sandwich_meaning(outcome.diagnosis.verdict, problem.loss),
+        **extra,
+    }
+    return _Uncertainty(uncertainty, correlation, covariance, method, laplace_sd, parts)
+
+
+def _sandwich_meaning(verdict: str, loss: str) -> str:
+    """What the noise sandwich's ± means, for the fit's ``verdict`` and ``loss``."""
+    return (
+        "how far the fitted values would move with fresh noise: the spread around the best Strauss "
+        "approximation of this image"
+        + (", not around the true material (the model cannot reproduce the target)" if verdict == "mismatch" else "")
+        + (
+            f"; for the {loss} loss that approximation is the value its fit converges to at this "
+            "noise level (the minimiser of the expected loss), not its fit of the noise-free image"
+            if loss in ("huber", "cauchy")  # the robust losses (docs/uncertainty.md)
+            else ""
+        )
+    )
+
+
+def _notes(solved: Solved, fitted_values: dict[str, Any]) -> list[str]:
+    """The result's notes on the solve: equally good starts that disagree, a solver that
+    did not succeed, values on their bounds."""
+    layout, status = solved.problem.layout, solved.status
+    notes = [
+        f"equally good fits (within Δχ² = 1 of the best) disagree on {label} by {value:.2g}: "
+        "the image may not pin it down"
+        for label, value in solved.spread.items()
+        if value > 0.05
+    ]
     if status != "successful":
         notes.append(f"the solver ended with status '{status}'")
     for name in layout.names:
@@ -560,29 +782,34 @@ def _result(
         value = np.atleast_1d(np.asarray(fitted_values[name]))
         if np.any(np.isclose(value, lo, atol=1e-6)) or np.any(np.isclose(value, hi, atol=1e-6)):
             notes.append(f"{name} sits on its bound; its deviation is not a symmetric interval there")
-    equivalence = None
-    if options.equivalence and layout.size:
-        equivalence = yield from equivalence_ranges_steps(problem, x_best, delta_e=options.equivalence_de)
-    free_covariance = None
-    if pinned.any():  # what the pinned entries' deviations would be, were they free
-        variance = float(np.mean(outcome.sigma**2)) if noise.known else rss / max(residual.size - layout.size, 1)
-        if parts is None:
-            jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, np.asarray(x_best))))
-            free_information = laplace.information(jacobian)
-        else:
-            free_information = np.asarray(parts["information"])
-        free_covariance = laplace.covariance(free_information, variance)
-    warnings = diagnosis.warnings + uncertainty_warnings(
-        layout,
-        np.zeros((layout.size, layout.size)) if covariance is None else covariance,
-        np.asarray(x_best),
-        pinned,
-        free_covariance,
-        equivalence,
-    )
+    return notes
+
+
+def _free_covariance_steps(
+    solved: Solved, outcome: _Outcome, noise: NoiseModel, parts: Any, rss: float, values: int
+) -> Steps:
+    """Steps giving the covariance the fit would have with its pinned entries free (what
+    their deviations would be; for the warnings), None when nothing is pinned. ``values``:
+    the number of residual values."""
+    problem, x_best = solved.problem, solved.x
+    layout, pinned = problem.layout, np.asarray(solved.problem.pinned)
+    if not pinned.any():
+        return None
+    variance = float(np.mean(outcome.sigma**2)) if noise.known else rss / max(values - layout.size, 1)
+    if parts is None:
+        jacobian = np.asarray((yield laplace.jacobian_kernel.call(problem, np.asarray(x_best))))
+        free_information = laplace.information(jacobian)
+    else:
+        free_information = np.asarray(parts["information"])
+    return laplace.covariance(free_information, variance)
+
+
+def _residual_record(residual: np.ndarray, rss: float, outcome: _Outcome, noise: NoiseModel) -> dict[str, Any]:
+    """The result's ``residual``: its size, the noise and the verdict."""
+    diagnosis = outcome.diagnosis
     # NoiseModel.typical at the fitted radiance, from its σ already computed
     noise_typical = np.sqrt(np.mean(outcome.sigma**2, axis=0)) if noise.known else None
-    residual_stats = {
+    return {
         "rms": float(np.sqrt(np.mean(residual**2))),
         "max_abs": float(np.max(np.abs(residual))),
         "delta_e2000_mean": float(np.mean(outcome.delta_e)),
@@ -597,54 +824,34 @@ def _result(
         "regions": diagnosis.regions,
         **diagnosis.bound_keys(),
     }
-    result = FitResult(
-        material=fitted_material,
-        free=list(layout.names),
-        held=held,
-        lights={n: float(v) for n, v in zip(light_parameter_names(fitted_lights), all_intensities(fitted_lights))},
-        uncertainty=uncertainty,
-        correlation=correlation,
-        residual=residual_stats,
-        solver={
-            "name": options.solver,
-            "steps": solved.steps,
-            "status": status,
-            "best_start": solved.best,
-            "polish_steps": solved.polish_steps,
-            "attempts": fits_done,
-            "at_bound": [label for label, p in zip(layout.labels(), pinned) if p],
-            "loss": problem.loss,
-        },
-        starts=starts,
-        start_spread=spread,
-        wall_time_s=time.perf_counter() - started,
-        compile_and_solve={"solve_s": solve_time},
-        pixels_used=int(kept.index.size),
-        notes=notes,
-        settings={
-            **options.as_dict(),
-            "reference_noise_used": sigma_ref,
-            "target_encoding": target.encoding,
-            "clipped_pixels_excluded": target.clipped_count,
-            "mask_excluded": target.masked_out_count,
-            "depth": scene.depth,
-            "traced": {"reflection": plan.reflect, "transmission": plan.transmit},
-            "noise_model": noise.to_dict(),
-        },
-        fitted_image=outcome.full,
-        mask=np.asarray(kept.prepared_full.hit),
-        problem=problem,
-        x=x_best,
-        warnings=warnings,
-        exposure=exposure,
-        equivalence=equivalence,
-        uncertainty_method=method,
-        uncertainty_laplace=laplace_sd,
-        used_index=kept.index,
-        standardized_residual=diagnosis.standardized,
-        target_image=target.pixels,
-    )
-    # a figure that came out NaN or infinite is a computation that broke down: a one-line
-    # error naming it (to_json checks every number), never a NaN passed on or written
-    result.to_json()
-    return result
+
+
+def _solver_record(solved: Solved, options: FitOptions, fits_done: int) -> dict[str, Any]:
+    """The result's ``solver``: how the solve went."""
+    layout, pinned = solved.problem.layout, np.asarray(solved.problem.pinned)
+    return {
+        "name": options.solver,
+        "steps": solved.steps,
+        "status": solved.status,
+        "best_start": solved.best,
+        "polish_steps": solved.polish_steps,
+        "attempts": fits_done,
+        "at_bound": [label for label, p in zip(layout.labels(), pinned) if p],
+        "loss": solved.problem.loss,
+    }
+
+
+def _settings_record(
+    kept: Round, target: Target, options: FitOptions, noise: NoiseModel, sigma_ref: float
+) -> dict[str, Any]:
+    """The result's ``settings``: the options and what the fit decided about its input."""
+    return {
+        **options.as_dict(),
+        "reference_noise_used": sigma_ref,
+        "target_encoding": target.encoding,
+        "clipped_pixels_excluded": target.clipped_count,
+        "mask_excluded": target.masked_out_count,
+        "depth": kept.scene.depth,
+        "traced": {"reflection": kept.plan.reflect, "transmission": kept.plan.transmit},
+        "noise_model": noise.to_dict(),
+    }

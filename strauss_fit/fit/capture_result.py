@@ -47,6 +47,7 @@ from .capture import (
     _by_name,
     _labels,
     _offsets,
+    _Param,
     _parameters,
     _predict,
     _terms,
@@ -373,22 +374,68 @@ def fit_capture(
         terms = _terms(train)
     verdict, warnings = _verdict(train, fit)
     regions = _regions(train, fit, terms)
-    floor = np.asarray(verdict["noise_floor"])
+    warnings += _fit_warnings(samples, fit, regions, np.asarray(verdict["noise_floor"]), options)
+    result = _capture_record(samples, train, fit, verdict, regions, warnings, options, holdout)
+    delta_e = DEFAULT_DELTA_E if equivalence_de is None else float(equivalence_de)
+    if equivalence or equivalence_de is not None:
+        log("equivalence ranges")
+        result["equivalence"] = capture_equivalence(train, fit, delta_e=delta_e)
+        result["equivalence_delta_e"] = delta_e
+    if stability:
+        result["stability"] = _stability(train, fit, options, delta_e, log)
+        if not result["stability"]["stable"]:
+            result["warnings"].append(_unstable_warning(result["stability"]))
+    if held:
+        result["holdout"] = _validation_by_model(samples, train, held, fit, options, compare, log)
+    if inputs:
+        result.update(inputs)
+    result["timing"] = {"read_s": t_read, **fit.timing}
+    result["wall_time_s"] = time.perf_counter() - t0
+    return result
+
+
+def _fit_warnings(
+    samples: CaptureSamples,
+    fit: CaptureFit,
+    regions: dict[str, Any],
+    floor: np.ndarray,
+    options: CaptureFitOptions,
+) -> list[dict[str, str]]:
+    """The warnings about the capture besides the verdict's: light the capture does not
+    state (on the shadowed side, or in the frame away from the sphere) and fitted values
+    that trade off. ``floor``: the noise floor per channel."""
+    warnings = []
     room = _room_light_warning(regions, floor, options)
     if room is not None:
         warnings.append(room)
+    stray = _stray_light_warning(samples, floor)
+    if stray is not None:
+        warnings.append(stray)
+    correlated = _correlation_warning(fit)
+    if correlated is not None:
+        warnings.append(correlated)
+    return warnings
+
+
+def _stray_light_warning(samples: CaptureSamples, floor: np.ndarray) -> dict[str, str] | None:
+    """A warning when the frame away from the sphere is bright beside the sphere: stray
+    light or a black level not subtracted; None otherwise."""
     background = samples.background
     sphere_median = float(np.median(samples.values[samples.usable])) if samples.usable.any() else 0.0
     stray = float(np.median(background))
     if sphere_median > 0 and stray > max(3 * float(np.max(floor)), 0.02 * sphere_median):
-        warnings.append(
-            {
-                "code": "stray-light",
-                "message": f"the frame away from the sphere reads {stray:.3g} "
-                f"({100 * stray / sphere_median:.1f} % of the "
-                "sphere's median): stray light or a black level not subtracted (set black_level in the manifest)",
-            }
-        )
+        return {
+            "code": "stray-light",
+            "message": f"the frame away from the sphere reads {stray:.3g} "
+            f"({100 * stray / sphere_median:.1f} % of the "
+            "sphere's median): stray light or a black level not subtracted (set black_level in the manifest)",
+        }
+    return None
+
+
+def _correlation_warning(fit: CaptureFit) -> dict[str, str] | None:
+    """A warning naming the fitted values that trade off (correlation beyond ±0.95 in the
+    image-cluster covariance); None when none do."""
     pairs = []
     cov = fit.clustered
     for i, a in enumerate(fit.labels):
@@ -396,11 +443,24 @@ def fit_capture(
             denom = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
             if denom > 0 and abs(cov[i, j] / denom) > 0.95:
                 pairs.append(f"{a} and {fit.labels[j]} ({cov[i, j] / denom:+.2f})")
-    if pairs:
-        more = f" and {len(pairs) - 3} more pairs" if len(pairs) > 3 else ""
-        warnings.append(
-            {"code": "strong-correlation", "message": "values that trade off: " + ", ".join(pairs[:3]) + more}
-        )
+    if not pairs:
+        return None
+    more = f" and {len(pairs) - 3} more pairs" if len(pairs) > 3 else ""
+    return {"code": "strong-correlation", "message": "values that trade off: " + ", ".join(pairs[:3]) + more}
+
+
+def _capture_record(
+    samples: CaptureSamples,
+    train: CaptureSamples,
+    fit: CaptureFit,
+    verdict: dict[str, Any],
+    regions: dict[str, Any],
+    warnings: list[dict[str, str]],
+    options: CaptureFitOptions,
+    holdout: str | int | Sequence[int] | None,
+) -> dict[str, Any]:
+    """The capture's result (JSON) but for its optional parts: the fitted values and their
+    deviations, the residual and verdict, per image, the sphere and what was fitted."""
     residual = (fit.predicted - train.values)[train.usable]
     result: dict[str, Any] = {
         "model": fit.model,
@@ -451,49 +511,60 @@ def fit_capture(
             f"{int(samples.saturated.sum())} saturated pixels in {int((samples.saturated > 0).sum())} images "
             "were left out"
         )
-    delta_e = DEFAULT_DELTA_E if equivalence_de is None else float(equivalence_de)
-    if equivalence or equivalence_de is not None:
-        log("equivalence ranges")
-        result["equivalence"] = capture_equivalence(train, fit, delta_e=delta_e)
-        result["equivalence_delta_e"] = delta_e
-    if stability:
-        result["stability"] = {
-            **capture_stability.halves(train, options, delta_e=delta_e, progress=log),
-            "single_images": capture_stability.single_images(
-                train, fit, options, verdict=lambda one, f: _verdict(one, f)[0]["verdict"], progress=log
-            ),
-        }
-        if not result["stability"]["stable"]:
-            differ = [name for name, ok in result["stability"]["agree"].items() if not ok]
-            result["warnings"].append(
-                {
-                    "code": "unstable",
-                    "message": "two disjoint halves of the images give materials that do not look the same "
-                    f"({', '.join(differ)} outside each other's equivalence ranges)",
-                }
-            )
-    if held:
-        test = samples.select(held)
-        log(f"predicting {test.count} held-out images")
-        models = [fit.model] + [m for m in (COMPARED if compare is None else compare) if m != fit.model]
-        validation = {"held_out": [samples.files[i] for i in held], "models": {fit.model: _validation(test, fit)}}
-        for other in models[1:]:
-            if other not in MODELS:
-                raise CaptureError(f"unknown model {other!r} to compare with; expected one of {', '.join(MODELS)}")
-            log(f"fitting {other} to the same images")
-            other_options = replace(
-                options, model=other, exposure="per-image" if options.exposure == "per-image" else "global"
-            )
-            other_fit = fit_capture_samples(train, other_options)
-            entry = _validation(test, other_fit)
-            entry["fit"] = _fit_summary(train, other_fit)
-            validation["models"][other] = entry
-        result["holdout"] = validation
-    if inputs:
-        result.update(inputs)
-    result["timing"] = {"read_s": t_read, **fit.timing}
-    result["wall_time_s"] = time.perf_counter() - t0
     return result
+
+
+def _stability(
+    train: CaptureSamples, fit: CaptureFit, options: CaptureFitOptions, delta_e: float, log: Callable[[str], Any]
+) -> dict[str, Any]:
+    """The result's ``stability``: two disjoint halves of the images fitted and compared
+    within ``delta_e``, and each image fitted alone (:mod:`strauss_fit.fit.capture_stability`)."""
+    return {
+        **capture_stability.halves(train, options, delta_e=delta_e, progress=log),
+        "single_images": capture_stability.single_images(
+            train, fit, options, verdict=lambda one, f: _verdict(one, f)[0]["verdict"], progress=log
+        ),
+    }
+
+
+def _unstable_warning(stability: dict[str, Any]) -> dict[str, str]:
+    """The warning of a capture whose two halves give materials that look different."""
+    differ = [name for name, ok in stability["agree"].items() if not ok]
+    return {
+        "code": "unstable",
+        "message": "two disjoint halves of the images give materials that do not look the same "
+        f"({', '.join(differ)} outside each other's equivalence ranges)",
+    }
+
+
+def _validation_by_model(
+    samples: CaptureSamples,
+    train: CaptureSamples,
+    held: list[int],
+    fit: CaptureFit,
+    options: CaptureFitOptions,
+    compare: Sequence[str] | None,
+    log: Callable[[str], Any],
+) -> dict[str, Any]:
+    """The result's ``holdout``: the held-out images (indices ``held`` of ``samples``)
+    predicted by ``fit`` and by each model of ``compare`` (default :data:`COMPARED`) fitted
+    to the same images ``train``."""
+    test = samples.select(held)
+    log(f"predicting {test.count} held-out images")
+    models = [fit.model] + [m for m in (COMPARED if compare is None else compare) if m != fit.model]
+    validation = {"held_out": [samples.files[i] for i in held], "models": {fit.model: _validation(test, fit)}}
+    for other in models[1:]:
+        if other not in MODELS:
+            raise CaptureError(f"unknown model {other!r} to compare with; expected one of {', '.join(MODELS)}")
+        log(f"fitting {other} to the same images")
+        other_options = replace(
+            options, model=other, exposure="per-image" if options.exposure == "per-image" else "global"
+        )
+        other_fit = fit_capture_samples(train, other_options)
+        entry = _validation(test, other_fit)
+        entry["fit"] = _fit_summary(train, other_fit)
+        validation["models"][other] = entry
+    return validation
 
 
 def _recorded(path: str, base: Path | None) -> str:
@@ -588,7 +659,37 @@ def reload_capture_fit(
         raise CaptureError("not a capture's fit result (no images_fitted, circle and settings)")
     check_capture_result(result)
     options = capture_options(result)
-    folder = None if base is None else Path(base)
+    samples = _fitted_samples(result, None if base is None else Path(base), capture)
+    params = _parameters(options, samples.count)
+    values = result.get("values") or {name: result[name] for name in result.get("free") or [] if name in result}
+    physical = _by_parameter(values, params, "values", "value")
+    sd_clustered = _by_parameter(result.get("uncertainty") or {}, params, "uncertainties", "uncertainty")
+    sd_laplace = _by_parameter(
+        result.get("uncertainty_laplace") or {}, params, "Laplace uncertainties", "Laplace uncertainty"
+    )
+    corr = _finite_numbers((result.get("correlation") or {}).get("matrix", np.eye(physical.size)), "correlations")
+    if corr.shape != (physical.size, physical.size):
+        corr = np.eye(physical.size)
+    with float64():
+        predicted = np.asarray(_predict(options.model, params, jnp.asarray(physical), _terms(samples, options.model)))
+    fit = CaptureFit(
+        model=options.model,
+        params=params,
+        physical=physical,
+        labels=_labels(params),
+        laplace=np.diag(sd_laplace**2),
+        clustered=corr * np.outer(sd_clustered, sd_clustered),
+        predicted=predicted,
+        steps=int((result.get("solver") or {}).get("steps", 0)),
+        status=str((result.get("solver") or {}).get("status", "")),
+    )
+    return samples, fit
+
+
+def _fitted_samples(result: dict[str, Any], folder: Path | None, capture: Capture | None) -> CaptureSamples:
+    """The images a capture's result was fitted to, read again: ``capture`` if given, else
+    the capture or the target and scene the result records (relative to ``folder``), with
+    the images it held out left out."""
     if capture is None and result.get("scene") and result.get("target") and not result.get("capture"):
         # one target and its scene (``fit --model``): the scene states the sphere and lights
         from ..io.targets import load_target
@@ -626,48 +727,34 @@ def reload_capture_fit(
     if holdout is not None:
         held = set(holdout_indices(holdout, samples.count))
         samples = samples.select([i for i in range(samples.count) if i not in held])
-    params = _parameters(options, samples.count)
-    values = result.get("values") or {name: result[name] for name in result.get("free") or [] if name in result}
+    return samples
 
-    def finite(value: Any, what: str) -> np.ndarray:
-        try:
-            out = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise CaptureError(f"the capture's result is damaged: its {what} are not numbers") from None
-        if not np.all(np.isfinite(out)):
-            raise CaptureError(f"the capture's result is damaged: its {what} are not all finite")
-        return out
 
-    def by_parameter(field: dict[str, Any], what: str, one: str) -> np.ndarray:
-        try:
-            parts = [np.atleast_1d(finite(field[p.name], what)) for p in params]
-        except KeyError as missing:
-            raise CaptureError(f"the capture's result has no {one} for {missing.args[0]}") from None
-        out = np.concatenate(parts)
-        if out.size != _offsets(params)[-1]:
-            raise CaptureError("the capture's result does not match its settings (parameter sizes differ)")
-        return out
+def _finite_numbers(value: Any, what: str) -> np.ndarray:
+    """``value`` (a number or nested lists of them) as a float64 array; a one-line
+    :class:`~strauss_fit.errors.CaptureError` naming ``what`` when it holds anything but
+    finite numbers (a damaged result)."""
+    try:
+        out = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise CaptureError(f"the capture's result is damaged: its {what} are not numbers") from None
+    if not np.all(np.isfinite(out)):
+        raise CaptureError(f"the capture's result is damaged: its {what} are not all finite")
+    return out
 
-    physical = by_parameter(values, "values", "value")
-    sd_clustered = by_parameter(result.get("uncertainty") or {}, "uncertainties", "uncertainty")
-    sd_laplace = by_parameter(result.get("uncertainty_laplace") or {}, "Laplace uncertainties", "Laplace uncertainty")
-    corr = finite((result.get("correlation") or {}).get("matrix", np.eye(physical.size)), "correlations")
-    if corr.shape != (physical.size, physical.size):
-        corr = np.eye(physical.size)
-    with float64():
-        predicted = np.asarray(_predict(options.model, params, jnp.asarray(physical), _terms(samples, options.model)))
-    fit = CaptureFit(
-        model=options.model,
-        params=params,
-        physical=physical,
-        labels=_labels(params),
-        laplace=np.diag(sd_laplace**2),
-        clustered=corr * np.outer(sd_clustered, sd_clustered),
-        predicted=predicted,
-        steps=int((result.get("solver") or {}).get("steps", 0)),
-        status=str((result.get("solver") or {}).get("status", "")),
-    )
-    return samples, fit
+
+def _by_parameter(field: dict[str, Any], params: Sequence[_Param], what: str, one: str) -> np.ndarray:
+    """A result's ``field`` (values or deviations by parameter name) as one vector in the
+    order of ``params``; a one-line error when one is missing (``one`` names it) or the
+    sizes do not match the settings."""
+    try:
+        parts = [np.atleast_1d(_finite_numbers(field[p.name], what)) for p in params]
+    except KeyError as missing:
+        raise CaptureError(f"the capture's result has no {one} for {missing.args[0]}") from None
+    out = np.concatenate(parts)
+    if out.size != _offsets(params)[-1]:
+        raise CaptureError("the capture's result does not match its settings (parameter sizes differ)")
+    return out
 
 
 def format_capture_table(result: dict[str, Any]) -> str:

@@ -41,7 +41,7 @@ import numpy as np
 from ..capture._samples import CaptureSamples
 from ..errors import CaptureError
 from . import capture as _capture
-from .capture import CaptureFitOptions, delta_e_mean, fit_capture_samples, relative_rms
+from .capture import CaptureFit, CaptureFitOptions, delta_e_mean, fit_capture_samples, relative_rms
 from .capture_result import holdout_indices, predict
 
 #: ΔBIC above which the worse model is "very strongly" disfavoured (Kass & Raftery 1995).
@@ -169,8 +169,7 @@ def fit_models(
     train = samples.select(train_idx) if held else samples
     test = samples.select(held) if held else None
     sigma = None if sigma_all is None else sigma_all[train_idx]
-    usable = np.asarray(train.usable)
-    n = int(usable.sum())
+    n = int(np.asarray(train.usable).sum())
     if n == 0:
         raise CaptureError("no usable values: every sphere pixel is saturated or under-exposed in every image")
 
@@ -180,69 +179,18 @@ def fit_models(
     held_predictions: dict[str, np.ndarray] = {}
     for number, name in enumerate(names, 1):
         log(f"fitting {name} ({number} of {len(names)}) to {train.count} image{'s' * (train.count != 1)}")
-        t_model = time.perf_counter()
-        try:
-            fit = fit_capture_samples(train, CaptureFitOptions(model=name, exposure=exposure))
-            held_out = None
-            if test is not None:
-                held_pred, scales = predict(test, fit)
-                held_predictions[name] = held_pred
-                held_out = {
-                    "relative_rms": _finite(relative_rms(held_pred, test.values, test.usable)),
-                    "delta_e2000_mean": _finite(delta_e_mean(held_pred, test.values, test.usable)),
-                    "exposure_scales": scales if "image_exposure" in {p.name for p in fit.params} else None,
-                }
-        except Exception as exc:  # one model failing does not stop the others
-            entries[name] = {
-                "model": name,
-                "status": "failed",
-                "error": f"{type(exc).__name__}: {' '.join(str(exc).split())}",
-                "wall_time_s": time.perf_counter() - t_model,
-            }
-            log(f"{name} failed: {exc}")
+        entries[name], fit, held_pred = _fit_model(name, train, test, exposure, sigma, log)
+        if fit is None:
             continue
-        residual = (fit.predicted - train.values)[usable]
-        rss = float(residual @ residual)
-        k = int(len(fit.physical))
-        chi2 = None if sigma is None else float(np.sum((residual / sigma[usable]) ** 2))
-        dof = n - k
-        criteria = information_criteria(rss, n, k, chi2)
-        entries[name] = {
-            "model": name,
-            "status": "ok",
-            "values": fit.values(),
-            "labels": list(fit.labels),
-            "k": k,
-            "n": n,
-            "dof": dof,
-            "rss": rss,
-            "relative_rms": _finite(relative_rms(fit.predicted, train.values, train.usable)),
-            "delta_e2000_mean": _finite(delta_e_mean(fit.predicted, train.values, train.usable)),
-            "chi2": _finite(chi2),
-            "chi2_per_dof": _finite(chi2 / dof) if chi2 is not None and dof > 0 else None,
-            "aic": criteria["aic"],
-            "bic": criteria["bic"],
-            "held_out": held_out,
-            "solver": {"steps": fit.steps, "status": fit.status},
-            "wall_time_s": time.perf_counter() - t_model,
-        }
         fitted[name] = fit.predicted
         full = np.zeros(samples.values.shape)
         full[train_idx] = fit.predicted
-        if test is not None:
-            full[held] = held_predictions[name]
+        if held_pred is not None:
+            held_predictions[name] = held_pred
+            full[held] = held_pred
         predictions[name] = full
 
-    ok = [name for name in names if entries[name]["status"] == "ok"]
-    if not ok:
-        raise CaptureError("every model failed: " + "; ".join(f"{name}: {entries[name]['error']}" for name in names))
-    best_aic = min(entries[m]["aic"] for m in ok)
-    best_bic = min(entries[m]["bic"] for m in ok)
-    for m in ok:
-        entries[m]["delta_aic"] = entries[m]["aic"] - best_aic
-        entries[m]["delta_bic"] = entries[m]["bic"] - best_bic
-
-    known_sigma = sigma is not None
+    ok = _rank_criteria(entries, names)
     result: dict[str, Any] = {
         "format": "strauss-fit model comparison",
         "models": entries,
@@ -254,16 +202,9 @@ def fit_models(
         "pixels": int(len(samples.rows)),
         "values_used": n,
         "exposure": exposure,
-        "noise": _noise_summary(sigma, usable),
-        "criteria": {
-            "likelihood": "gaussian, σ known" if known_sigma else "gaussian, σ profiled out",
-            "aic": "χ² + 2k" if known_sigma else "n ln(RSS/n) + 2k",
-            "bic": "χ² + k ln n" if known_sigma else "n ln(RSS/n) + k ln n",
-            "n": n,
-            "meaning": "n: usable values fitted (pixels × channels × images); k: fitted parameters; lower is "
-            "better; only differences between models mean anything",
-        },
-        "verdict": _verdict(entries, ok, train, test, fitted, held_predictions, known_sigma),
+        "noise": _noise_summary(sigma, np.asarray(train.usable)),
+        "criteria": _criteria_record(sigma is not None, n),
+        "verdict": _verdict(entries, ok, train, test, fitted, held_predictions, sigma is not None),
         "settings": {
             "models": names,
             "exposure": exposure,
@@ -272,6 +213,105 @@ def fit_models(
         "wall_time_s": time.perf_counter() - t0,
     }
     return ModelComparison(result, predictions)
+
+
+def _fit_model(
+    name: str,
+    train: CaptureSamples,
+    test: CaptureSamples | None,
+    exposure: str,
+    sigma: np.ndarray | None,
+    log: Callable[[str], Any],
+) -> tuple[dict[str, Any], CaptureFit | None, np.ndarray | None]:
+    """One model fitted to ``train`` and predicting ``test``: its entry of the comparison,
+    its fit and its prediction of ``test``; a model whose fit raises gives an entry with its
+    error, and no fit (the other models go on)."""
+    t_model = time.perf_counter()
+    try:
+        fit = fit_capture_samples(train, CaptureFitOptions(model=name, exposure=exposure))
+        held_pred, held_out = None, None
+        if test is not None:
+            held_pred, scales = predict(test, fit)
+            held_out = {
+                "relative_rms": _finite(relative_rms(held_pred, test.values, test.usable)),
+                "delta_e2000_mean": _finite(delta_e_mean(held_pred, test.values, test.usable)),
+                "exposure_scales": scales if "image_exposure" in {p.name for p in fit.params} else None,
+            }
+    except Exception as exc:  # one model failing does not stop the others
+        entry = {
+            "model": name,
+            "status": "failed",
+            "error": f"{type(exc).__name__}: {' '.join(str(exc).split())}",
+            "wall_time_s": time.perf_counter() - t_model,
+        }
+        log(f"{name} failed: {exc}")
+        return entry, None, None
+    return _model_entry(name, fit, train, sigma, held_out, t_model), fit, held_pred
+
+
+def _model_entry(
+    name: str,
+    fit: CaptureFit,
+    train: CaptureSamples,
+    sigma: np.ndarray | None,
+    held_out: dict[str, Any] | None,
+    t_model: float,
+) -> dict[str, Any]:
+    """The comparison's entry of a model that fitted: its values, residual, χ², AIC and BIC
+    (:func:`information_criteria`) and ``held_out`` prediction errors."""
+    usable = np.asarray(train.usable)
+    n = int(usable.sum())
+    residual = (fit.predicted - train.values)[usable]
+    rss = float(residual @ residual)
+    k = int(len(fit.physical))
+    chi2 = None if sigma is None else float(np.sum((residual / sigma[usable]) ** 2))
+    dof = n - k
+    criteria = information_criteria(rss, n, k, chi2)
+    return {
+        "model": name,
+        "status": "ok",
+        "values": fit.values(),
+        "labels": list(fit.labels),
+        "k": k,
+        "n": n,
+        "dof": dof,
+        "rss": rss,
+        "relative_rms": _finite(relative_rms(fit.predicted, train.values, train.usable)),
+        "delta_e2000_mean": _finite(delta_e_mean(fit.predicted, train.values, train.usable)),
+        "chi2": _finite(chi2),
+        "chi2_per_dof": _finite(chi2 / dof) if chi2 is not None and dof > 0 else None,
+        "aic": criteria["aic"],
+        "bic": criteria["bic"],
+        "held_out": held_out,
+        "solver": {"steps": fit.steps, "status": fit.status},
+        "wall_time_s": time.perf_counter() - t_model,
+    }
+
+
+def _rank_criteria(entries: dict[str, dict[str, Any]], names: list[str]) -> list[str]:
+    """The models that fitted (in ``names``' order), each entry given its ΔAIC and ΔBIC
+    from the best; a one-line error when every model failed."""
+    ok = [name for name in names if entries[name]["status"] == "ok"]
+    if not ok:
+        raise CaptureError("every model failed: " + "; ".join(f"{name}: {entries[name]['error']}" for name in names))
+    best_aic = min(entries[m]["aic"] for m in ok)
+    best_bic = min(entries[m]["bic"] for m in ok)
+    for m in ok:
+        entries[m]["delta_aic"] = entries[m]["aic"] - best_aic
+        entries[m]["delta_bic"] = entries[m]["bic"] - best_bic
+    return ok
+
+
+def _criteria_record(known_sigma: bool, n: int) -> dict[str, Any]:
+    """The comparison's ``criteria``: how AIC and BIC were computed (module docstring)."""
+    return {
+        "likelihood": "gaussian, σ known" if known_sigma else "gaussian, σ profiled out",
+        "aic": "χ² + 2k" if known_sigma else "n ln(RSS/n) + 2k",
+        "bic": "χ² + k ln n" if known_sigma else "n ln(RSS/n) + k ln n",
+        "n": n,
+        "meaning": "n: usable values fitted (pixels × channels × images); k: fitted parameters; lower is "
+        "better; only differences between models mean anything",
+    }
 
 
 def _noise_summary(sigma: np.ndarray | None, usable: np.ndarray) -> dict[str, Any]:
@@ -291,14 +331,11 @@ def _verdict(
     held_predictions: dict[str, np.ndarray],
     known_sigma: bool,
 ) -> dict[str, Any]:
+    """The comparison's ``verdict``: the best model, and whether Strauss's fit is
+    distinguishable from the best other's and whether the difference is visible (module
+    docstring)."""
     caveats = [CAVEAT] + ([] if known_sigma else [PROFILED_CAVEAT])
-    by_held_out = test is not None and all((entries[m]["held_out"] or {}).get("relative_rms") is not None for m in ok)
-    if by_held_out:
-        ranked = sorted(ok, key=lambda m: (entries[m]["held_out"]["relative_rms"], m != "strauss"))
-        best_by = "held-out relative RMS"
-    else:
-        ranked = sorted(ok, key=lambda m: (entries[m]["bic"], m != "strauss"))
-        best_by = "BIC"
+    ranked, best_by = _ranked(entries, ok, test)
     best = ranked[0]
     out: dict[str, Any] = {
         "best": best,
@@ -317,6 +354,62 @@ def _verdict(
     if len(ok) == 1:
         return out | {"outcome": "nothing-to-compare", "statement": "only Strauss fitted: nothing to compare with"}
     other = ranked[1] if best == "strauss" else best
+    gap = _gap(entries, other, train, test, fitted, held_predictions)
+    out |= {
+        "compared_with": other,
+        "delta_bic": gap.delta_bic,
+        "delta_aic": entries["strauss"]["aic"] - entries[other]["aic"],
+        "delta_held_out_relative_rms": gap.delta_held,
+        "prediction_delta_e2000_mean": gap.delta_e,
+        "held_out_prediction_delta_e2000_mean": gap.delta_e_held,
+        "visible": gap.visible,
+    }
+    if best == "strauss":
+        return out | _strauss_best(other, best_by, gap)
+    return out | _strauss_not_best(other, gap)
+
+
+def _ranked(entries: dict[str, dict[str, Any]], ok: list[str], test: CaptureSamples | None) -> tuple[list[str], str]:
+    """The models that fitted, best first, and by what: the held-out relative RMS when every
+    one has it, else BIC (Strauss first among equals)."""
+    by_held_out = test is not None and all((entries[m]["held_out"] or {}).get("relative_rms") is not None for m in ok)
+    if by_held_out:
+        return sorted(
+            ok, key=lambda m: (entries[m]["held_out"]["relative_rms"], m != "strauss")
+        ), "held-out relative RMS"
+    return sorted(ok, key=lambda m: (entries[m]["bic"], m != "strauss")), "BIC"
+
+
+@dataclass
+class _Gap:
+    """How Strauss's fit differs from another model's (``other``'s): in BIC, in held-out
+    error, and in how the two fits' predictions look."""
+
+    #: BIC(Strauss) − BIC(other)
+    delta_bic: float
+    #: the difference of their held-out relative RMS; None without a holdout
+    delta_held: float | None
+    #: mean CIEDE2000 between the two fits on the fitted images (None when it cannot be computed)
+    delta_e: float | None
+    #: the same on the held-out images; None without a holdout
+    delta_e_held: float | None
+    #: whether the difference shown (held-out if there are, else fitted) is at least one JND
+    visible: bool
+    #: the sentence on how the predictions compare
+    look: str
+    #: the held-out difference as a clause of a sentence ("" without a holdout)
+    held_text: str
+
+
+def _gap(
+    entries: dict[str, dict[str, Any]],
+    other: str,
+    train: CaptureSamples,
+    test: CaptureSamples | None,
+    fitted: dict[str, np.ndarray],
+    held_predictions: dict[str, np.ndarray],
+) -> _Gap:
+    """The :class:`_Gap` between Strauss's fit and ``other``'s."""
 
     def held_error(m: str) -> float | None:
         return (entries[m]["held_out"] or {}).get("relative_rms")
@@ -339,42 +432,48 @@ def _verdict(
         else "their predictions' CIEDE2000 could not be computed"
     )
     held_text = "" if delta_held is None else f", held-out relative RMS {100 * delta_held:+.3f} points"
-    out |= {
-        "compared_with": other,
-        "delta_bic": delta_bic,
-        "delta_aic": entries["strauss"]["aic"] - entries[other]["aic"],
-        "delta_held_out_relative_rms": delta_held,
-        "prediction_delta_e2000_mean": delta_e,
-        "held_out_prediction_delta_e2000_mean": delta_e_held,
-        "visible": visible,
+    return _Gap(delta_bic, delta_held, delta_e, delta_e_held, visible, look, held_text)
+
+
+def _strauss_best(other: str, best_by: str, gap: _Gap) -> dict[str, Any]:
+    """The verdict's outcome and statement when Strauss is the best model (``other`` the
+    runner-up)."""
+    behind = f"ΔBIC = {-gap.delta_bic:.1f}"
+    if gap.delta_held is not None:
+        behind += f" and {100 * -gap.delta_held:.3f} points of held-out relative RMS"
+    seen = "they look different" if gap.visible else "below 1 JND: they look the same"
+    return {
+        "outcome": "strauss-best",
+        "distinguishable": None,
+        "statement": f"Strauss is the best model (lowest {best_by}); the runner-up, {other}, is {behind} "
+        f"behind; {gap.look} ({seen})",
     }
-    if best == "strauss":
-        behind = f"ΔBIC = {-delta_bic:.1f}"
-        if delta_held is not None:
-            behind += f" and {100 * -delta_held:.3f} points of held-out relative RMS"
-        seen = "they look different" if visible else "below 1 JND: they look the same"
-        return out | {
-            "outcome": "strauss-best",
-            "distinguishable": None,
-            "statement": f"Strauss is the best model (lowest {best_by}); the runner-up, {other}, is {behind} "
-            f"behind; {look} ({seen})",
-        }
-    strong = delta_bic > DELTA_BIC_STRONG
-    distinguishable = strong and (delta_held is None or delta_held > 0)
-    out["distinguishable"] = distinguishable
-    out["outcome"] = "distinguishable" if distinguishable else "indistinguishable"
-    evidence = f"ΔBIC = {delta_bic:.1f} ({'>' if strong else '≤'} {DELTA_BIC_STRONG:g}"
-    evidence += f"; BIC prefers Strauss){held_text}" if delta_bic < 0 else f"){held_text}"
+
+
+def _strauss_not_best(other: str, gap: _Gap) -> dict[str, Any]:
+    """The verdict's outcome and statement when ``other`` is the best model: Strauss is
+    distinguishable from it when ΔBIC exceeds :data:`DELTA_BIC_STRONG` and, with a holdout,
+    its held-out error is higher too."""
+    strong = gap.delta_bic > DELTA_BIC_STRONG
+    distinguishable = strong and (gap.delta_held is None or gap.delta_held > 0)
+    out: dict[str, Any] = {
+        "distinguishable": distinguishable,
+        "outcome": "distinguishable" if distinguishable else "indistinguishable",
+    }
+    evidence = f"ΔBIC = {gap.delta_bic:.1f} ({'>' if strong else '≤'} {DELTA_BIC_STRONG:g}"
+    evidence += f"; BIC prefers Strauss){gap.held_text}" if gap.delta_bic < 0 else f"){gap.held_text}"
     if distinguishable:
         seen = (
             "and the two fits look different"
-            if visible
+            if gap.visible
             else "but the two fits look the same (below 1 JND): the difference is real, not visible"
         )
-        out["statement"] = f"Strauss is distinguishable from the best model, {other}: {evidence}; {look}, {seen}"
+        out["statement"] = f"Strauss is distinguishable from the best model, {other}: {evidence}; {gap.look}, {seen}"
     else:
-        seen = "they look different" if visible else "below 1 JND: they look the same"
-        out["statement"] = f"Strauss is not distinguishable from the best model, {other}: {evidence}; {look} ({seen})"
+        seen = "they look different" if gap.visible else "below 1 JND: they look the same"
+        out["statement"] = (
+            f"Strauss is not distinguishable from the best model, {other}: {evidence}; {gap.look} ({seen})"
+        )
     return out
 
 

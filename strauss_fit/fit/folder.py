@@ -521,97 +521,23 @@ def fit_to_folder(
     ``force`` (fit everything again), all before any work. ``model`` fits another
     reflectance model than Strauss (the jobs' own options are then unused)."""
     folder = Path(folder)
-    if resume and force:
-        raise StraussFitError("give --resume or --force, not both")
-    if model is not None and compare:
-        raise StraussFitError(f"the {model.model} model's fit draws no comparison image: fit without compare")
-    if model is not None and executor is not None:
-        raise StraussFitError(f"the {model.model} model's targets are fitted in this process: give no executor")
+    _check_request(folder, resume=resume, force=force, compare=compare, executor=executor, model=model)
     row_of = summary_row if model is None else model.row
-    if folder.exists() and not folder.is_dir():
-        raise StraussFitError(f"the output {folder} is a file; several targets need an output folder")
-    if not folder.exists():
-        if not folder.parent.is_dir():
-            raise StraussFitError(f"the output folder's parent does not exist: {folder.parent}")
-        if not os.access(folder.parent, os.W_OK):
-            raise StraussFitError(f"cannot create the output folder {folder}: {folder.parent} is not writable")
-    names = result_names([job.name for job in jobs])
-    paths = [folder / f"{name}.json" for name in names]
-    summary = folder / SUMMARY_NAME
-    outputs = [*paths, summary, *([folder / f"{name}.compare.png" for name in names] if compare else [])]
-    check_outputs_are_not_inputs(outputs, jobs, inputs)
-    for output in outputs:  # a folder or a device where a result must go: refused, whatever the flags
-        check_replaceable(output)
-    if not (resume or force):
-        # results are the targets' JSON files; summary.csv is not one, but would be replaced
-        existing = [p for p in paths if p.exists()]
-        if existing:
-            raise OutputExistsError(
-                f"{len(existing)} result(s) already in {folder} (e.g. {existing[0].name}); pass --resume to keep "
-                "them and fit the rest, or --force to fit everything again"
-            )
-        if summary.exists():
-            raise OutputExistsError(
-                f"{folder} already holds a {SUMMARY_NAME} from an earlier run; pass --resume to keep its results "
-                "and fit the rest, or --force to replace it"
-            )
+    layout = _FolderLayout(folder, result_names([job.name for job in jobs]), compare)
+    _check_outputs(layout, jobs, inputs, resume=resume, force=force)
     keys = [provenance(job, model) for job in jobs]
-    rows: list[dict[str, Any] | None] = [None] * len(jobs)
-    todo, incomplete, uncompared = [], 0, 0
-    for index, (job, path) in enumerate(zip(jobs, paths)):
-        done, refused = _kept(path, keys[index]) if resume and path.exists() else (None, None)
-        if refused is not None:
-            raise OutputExistsError(
-                f"{path} is not a result of this run: {refused}; resuming would mix two configurations: pass "
-                "--force to fit every target again with this one, or fit into another folder"
-            )
-        if done is not None and compare and not (folder / f"{names[index]}.compare.png").is_file():
-            done, uncompared = None, uncompared + 1  # its comparison image needs the fit's images: fit again
-        elif done is None:
-            incomplete += resume and path.exists()
-        if done is not None:
-            rows[index] = row_of(job.name, done, path=path.name)
-        else:
-            todo.append(index)
-    if log is not None and incomplete:
-        log(
-            f"{incomplete} incomplete result(s) in {folder} (missing {', '.join(CORE_KEYS)} or their figures): "
-            "fitted again"
-        )
-    if log is not None and uncompared:
-        log(f"{uncompared} kept result(s) have no comparison image for --compare: fitted again to draw it")
-    if resume and folder.is_dir():  # a killed run's half-written temporaries of these results
-        for name in names:
-            for stale in folder.glob(f".{name}.*.tmp*"):
-                stale.unlink(missing_ok=True)
+    rows, todo = _kept_results(layout, jobs, keys, row_of, resume=resume, log=log)
     counts = {"failed": 0}
 
     def arrived(position: int, result: FitResult | dict[str, Any] | FitFailure) -> None:
         index = todo[position]
-        job, path = jobs[index], paths[index]
+        job, path = jobs[index], layout.paths[index]
         if isinstance(result, FitFailure):
             rows[index] = row_of(job.name, None, error=result.message)
             counts["failed"] += 1
         else:
-            # another model's result is already its JSON (what ``fit --model`` writes)
-            payload = result if isinstance(result, dict) else result.to_json()
-            for key, value in (recorded(job) if recorded else {}).items():
-                if isinstance(value, dict) and isinstance(payload.get(key), dict):
-                    payload[key].update(value)  # e.g. settings: the quality preset's name
-                else:
-                    payload[key] = value
-            if keys[index] is not None:
-                payload["provenance"] = keys[index]
-            _create(folder)
-            with Outputs(force=True) as out:  # this target's files together
-                out.add_json(path, payload)
-                if compare and result.fitted_image is not None and result.target_image is not None:
-                    target = result.target_image
-                    image = comparison_image(
-                        target, result.fitted_image, result.mask, standardized_map(result, target.shape[:2])
-                    )
-                    add_image(out, folder / f"{names[index]}.compare.png", image)
-                out.commit()
+            payload = _payload(result, recorded(job) if recorded else {}, keys[index])
+            _write_result(layout, index, payload, result)
             rows[index] = row_of(job.name, payload, path=path.name)
         if on_result is not None:
             on_result(index, result)
@@ -630,8 +556,158 @@ def fit_to_folder(
         )
     final_rows = [row for row in rows if row is not None]
     _create(folder)
-    write_summary(summary, final_rows, SUMMARY_COLUMNS if model is None else model.columns)
-    return FolderRun(final_rows, len(todo) - counts["failed"], len(jobs) - len(todo), counts["failed"], summary)
+    write_summary(layout.summary, final_rows, SUMMARY_COLUMNS if model is None else model.columns)
+    return FolderRun(final_rows, len(todo) - counts["failed"], len(jobs) - len(todo), counts["failed"], layout.summary)
+
+
+@dataclass
+class _FolderLayout:
+    """Where a folder run writes: per target (input order) its result file and, with
+    ``compare``, its comparison image; and ``summary.csv``."""
+
+    folder: Path
+    #: every target's result file stem (:func:`result_names`)
+    names: list[str]
+    compare: bool
+    #: every target's result JSON
+    paths: list[Path] = dataclasses.field(init=False)
+    summary: Path = dataclasses.field(init=False)
+
+    def __post_init__(self) -> None:
+        self.paths = [self.folder / f"{name}.json" for name in self.names]
+        self.summary = self.folder / SUMMARY_NAME
+
+    def compare_image(self, index: int) -> Path:
+        """The comparison image of the target at ``index``."""
+        return self.folder / f"{self.names[index]}.compare.png"
+
+    def outputs(self) -> list[Path]:
+        """Every file the run may write."""
+        images = [self.compare_image(index) for index in range(len(self.names))] if self.compare else []
+        return [*self.paths, self.summary, *images]
+
+
+def _check_request(
+    folder: Path, *, resume: bool, force: bool, compare: bool, executor: Any, model: ModelFit | None
+) -> None:
+    """Refuse, before any work, flags that do not go together and an output folder that is
+    a file or cannot be created."""
+    if resume and force:
+        raise StraussFitError("give --resume or --force, not both")
+    if model is not None and compare:
+        raise StraussFitError(f"the {model.model} model's fit draws no comparison image: fit without compare")
+    if model is not None and executor is not None:
+        raise StraussFitError(f"the {model.model} model's targets are fitted in this process: give no executor")
+    if folder.exists() and not folder.is_dir():
+        raise StraussFitError(f"the output {folder} is a file; several targets need an output folder")
+    if not folder.exists():
+        if not folder.parent.is_dir():
+            raise StraussFitError(f"the output folder's parent does not exist: {folder.parent}")
+        if not os.access(folder.parent, os.W_OK):
+            raise StraussFitError(f"cannot create the output folder {folder}: {folder.parent} is not writable")
+
+
+def _check_outputs(
+    layout: _FolderLayout, jobs: Sequence[FitJob], inputs: Sequence[str | Path], *, resume: bool, force: bool
+) -> None:
+    """Refuse, before any work, an output that is an input or cannot be replaced, and,
+    unless ``resume`` or ``force``, results or a summary already there."""
+    outputs = layout.outputs()
+    check_outputs_are_not_inputs(outputs, jobs, inputs)
+    for output in outputs:  # a folder or a device where a result must go: refused, whatever the flags
+        check_replaceable(output)
+    if resume or force:
+        return
+    # results are the targets' JSON files; summary.csv is not one, but would be replaced
+    existing = [p for p in layout.paths if p.exists()]
+    if existing:
+        raise OutputExistsError(
+            f"{len(existing)} result(s) already in {layout.folder} (e.g. {existing[0].name}); pass --resume to keep "
+            "them and fit the rest, or --force to fit everything again"
+        )
+    if layout.summary.exists():
+        raise OutputExistsError(
+            f"{layout.folder} already holds a {SUMMARY_NAME} from an earlier run; pass --resume to keep its results "
+            "and fit the rest, or --force to replace it"
+        )
+
+
+def _kept_results(
+    layout: _FolderLayout,
+    jobs: Sequence[FitJob],
+    keys: Sequence[dict[str, Any] | None],
+    row_of: Callable[..., dict[str, Any]],
+    *,
+    resume: bool,
+    log: Callable[[str], None] | None,
+) -> tuple[list[dict[str, Any] | None], list[int]]:
+    """The summary rows of the results ``resume`` keeps (None for the others) and the
+    indices of the targets to fit; a result of another run refuses the run (:func:`_kept`).
+    A killed run's half-written temporaries of these results are removed."""
+    folder, paths = layout.folder, layout.paths
+    rows: list[dict[str, Any] | None] = [None] * len(jobs)
+    todo, incomplete, uncompared = [], 0, 0
+    for index, (job, path) in enumerate(zip(jobs, paths)):
+        done, refused = _kept(path, keys[index]) if resume and path.exists() else (None, None)
+        if refused is not None:
+            raise OutputExistsError(
+                f"{path} is not a result of this run: {refused}; resuming would mix two configurations: pass "
+                "--force to fit every target again with this one, or fit into another folder"
+            )
+        if done is not None and layout.compare and not layout.compare_image(index).is_file():
+            done, uncompared = None, uncompared + 1  # its comparison image needs the fit's images: fit again
+        elif done is None:
+            incomplete += resume and path.exists()
+        if done is not None:
+            rows[index] = row_of(job.name, done, path=path.name)
+        else:
+            todo.append(index)
+    if log is not None and incomplete:
+        log(
+            f"{incomplete} incomplete result(s) in {folder} (missing {', '.join(CORE_KEYS)} or their figures): "
+            "fitted again"
+        )
+    if log is not None and uncompared:
+        log(f"{uncompared} kept result(s) have no comparison image for --compare: fitted again to draw it")
+    if resume and folder.is_dir():  # a killed run's half-written temporaries of these results
+        for name in layout.names:
+            for stale in folder.glob(f".{name}.*.tmp*"):
+                stale.unlink(missing_ok=True)
+    return rows, todo
+
+
+def _payload(
+    result: FitResult | dict[str, Any], recorded: dict[str, Any], key: dict[str, Any] | None
+) -> dict[str, Any]:
+    """A target's result JSON as the folder keeps it: with the ``recorded`` keys (merged
+    into a part the result has, e.g. its settings) and its provenance ``key``."""
+    # another model's result is already its JSON (what ``fit --model`` writes)
+    payload = result if isinstance(result, dict) else result.to_json()
+    for name, value in recorded.items():
+        if isinstance(value, dict) and isinstance(payload.get(name), dict):
+            payload[name].update(value)  # e.g. settings: the quality preset's name
+        else:
+            payload[name] = value
+    if key is not None:
+        payload["provenance"] = key
+    return payload
+
+
+def _write_result(
+    layout: _FolderLayout, index: int, payload: dict[str, Any], result: FitResult | dict[str, Any]
+) -> None:
+    """The files of the target at ``index`` written together: its result JSON and, with
+    ``compare``, its comparison image (the folder created if this is the first)."""
+    _create(layout.folder)
+    with Outputs(force=True) as out:  # this target's files together
+        out.add_json(layout.paths[index], payload)
+        if layout.compare and result.fitted_image is not None and result.target_image is not None:
+            target = result.target_image
+            image = comparison_image(
+                target, result.fitted_image, result.mask, standardized_map(result, target.shape[:2])
+            )
+            add_image(out, layout.compare_image(index), image)
+        out.commit()
 
 
 def _create(folder: Path) -> None:
