@@ -57,7 +57,7 @@ import bench_common
 import numpy as np
 
 import strauss_fit as sf
-from strauss_fit.fit.batch import FitFailure, fit_many
+from strauss_fit.fitting.batch import FitFailure, fit_many
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "data_synth" / "scenes"
@@ -253,7 +253,7 @@ def main() -> None:
                 row = timed_batch(targets[:count], scene, options, cache)
                 add({"size": size, "kind": kind, "mode": "in-process", "compile_s": compile_s, **row})
             if args.workers and kind == "consistent":
-                from strauss_fit.fit.executors import DaskExecutor
+                from strauss_fit.fitting.executors import DaskExecutor
 
                 dask_targets = make_targets(render_scene, args.dask_count, next(seeds))
                 row = timed_batch(dask_targets, scene, options, cache, DaskExecutor(workers=args.workers))

@@ -37,7 +37,7 @@ COLD = """
 import sys, time, resource
 t = time.perf_counter()
 from strauss_fit.capture._manifest import read_capture
-from strauss_fit.fit.capture_result import fit_capture
+from strauss_fit.fitting.capture_result import fit_capture
 fit_capture(read_capture(sys.argv[1]))
 print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 """
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     cold_s, cold_rss_kb = (float(v) for v in cold.stdout.split())
 
     from strauss_fit.capture._manifest import read_capture
-    from strauss_fit.fit.capture_result import fit_capture
+    from strauss_fit.fitting.capture_result import fit_capture
 
     capture = read_capture(args.capture)
     fit_capture(capture)  # compiles
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     holdout_s = time.perf_counter() - t
 
     from strauss_fit.capture import load_samples
-    from strauss_fit.fit.capture import MODELS, CaptureFitOptions, fit_capture_samples, relative_rms
+    from strauss_fit.fitting.capture import MODELS, CaptureFitOptions, fit_capture_samples, relative_rms
 
     samples = load_samples(capture)
     per_model = {}

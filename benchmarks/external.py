@@ -3,13 +3,13 @@
 For every physically based target in ``data_synth/bundled_mitsuba/`` (Lambertian, smooth
 and rough plastics, rough gold and copper, a silver mirror in a studio, Disney principled
 materials, glass before a checkerboard; see docs/datasets.md) and every loss of
-``strauss_fit.fit.problem.LOSSES`` plus ``auto`` (the default), it fits the scene's Strauss
+``strauss_fit.fitting.problem.LOSSES`` plus ``auto`` (the default), it fits the scene's Strauss
 material with the ``balanced`` preset and measures what a person sees:
 
 - ``dE``: mean and 95th percentile CIEDE2000 between the fitted image and the target over
   the pixels used;
 - ``body``: the mean CIEDE2000 over the *body* (away from the highlights and the rim,
-  :func:`strauss_fit.fit.diagnosis.pixel_regions`), and the body colour's error — the
+  :func:`strauss_fit.fitting.diagnosis.pixel_regions`), and the body colour's error — the
   fitted diffuse albedo (1 − m·s)(1 − s³)(1 − t)·C against the body's albedo as Mitsuba
   renders it (the sidecar's ``reference.diffuse_albedo``, for the Lambertian, plastic and
   principled dielectric targets) as the largest relative error over the channels;
@@ -36,8 +36,8 @@ import numpy as np
 
 import strauss_fit as sf
 from strauss_fit.color import delta_e_2000
-from strauss_fit.fit.diagnosis import pixel_regions
-from strauss_fit.fit.problem import LOSSES
+from strauss_fit.fitting.diagnosis import pixel_regions
+from strauss_fit.fitting.problem import LOSSES
 
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED = ROOT / "data_synth" / "bundled_mitsuba"
@@ -84,7 +84,7 @@ def measure(sidecar_path: Path, loss: str) -> dict:
     index = result.used_index
     model = result.fitted_image.reshape(-1, 3)[index]
     observed = target.pixels.reshape(-1, 3)[index]
-    # the problem's pixel set may be padded (strauss_fit.fit.problem.pixel_bucket): its real rows
+    # the problem's pixel set may be padded (strauss_fit.fitting.problem.pixel_bucket): its real rows
     regions = {name: result.problem.real(mask) for name, mask in pixel_regions(result.problem.prepared).items()}
     body = regions["body"]
     row = {

@@ -6,7 +6,7 @@ Both fit the same 256×256 HDR target (an opaque sphere under one directional li
 ambient light, 1 % Gaussian noise) for colour, smoothness and metalness from the same
 starting point:
 
-- **strauss-fit**: :func:`strauss_fit.fit.api.fit` with ``free=(color, smoothness, metalness)``
+- **strauss-fit**: :func:`strauss_fit.fitting.api.fit` with ``free=(color, smoothness, metalness)``
   and the tolerances of ``bench_common.LEGACY_FIT`` — the whole call (geometry precomputed
   once, Levenberg–Marquardt from 1 start and from 4, bound polish, Laplace errors, CIEDE2000,
   the full fitted image) and the

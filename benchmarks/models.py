@@ -10,13 +10,13 @@ lights and an ambient light, orthographic, ``size`` × ``size`` pixels):
 1. **Render.** A warm whole call per model: Strauss's own renderer
    (:func:`strauss_fit.render`, the exact evaluator in float64, its plan reducing the
    opaque scene to the local model) and every model through
-   :func:`strauss_fit.render.reflectance.render_model` (``strauss`` among them, the same
+   :func:`strauss_fit.rendering.reflectance.render_model` (``strauss`` among them, the same
    local reflection through the registry), ``block_until_ready`` included.
 2. **Fit of one target.** One Strauss-rendered plastic target (C = (0.7, 0.35, 0.2),
    s = 0.6, m = 0.1, Gaussian noise of 0.005), fitted as ``strauss-fit fit TARGET
    --scene S --model NAME`` fits it: the scene's pixels
-   (:func:`strauss_fit.fit.scene_samples.samples_from_scene`) and the capture fitter
-   (:func:`strauss_fit.fit.capture.fit_capture_samples`), exposure fixed. Every model,
+   (:func:`strauss_fit.fitting.scene_samples.samples_from_scene`) and the capture fitter
+   (:func:`strauss_fit.fitting.capture.fit_capture_samples`), exposure fixed. Every model,
    Strauss included, so the ratios compare like with like; the Strauss engine's own fit
    (:func:`strauss_fit.fit`, ``balanced`` preset) is given beside it for reference.
 
@@ -84,11 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     from strauss_fit.io.images import write_image
     from strauss_fit.io.targets import load_target
     from strauss_fit.models.reflectance import REFLECTANCE_MODELS
-    from strauss_fit.render.reflectance import render_model
+    from strauss_fit.rendering.reflectance import render_model
 
     info = machine()
-    capture = importlib.import_module("strauss_fit.fit.capture")
-    scene_samples = importlib.import_module("strauss_fit.fit.scene_samples")
+    capture = importlib.import_module("strauss_fit.fitting.capture")
+    scene_samples = importlib.import_module("strauss_fit.fitting.scene_samples")
 
     truth = {"color": [0.7, 0.35, 0.2], "smoothness": 0.6, "metalness": 0.1}
     scene = key_and_fill_scene(args.size, material={**truth, "transparency": 0.0, "ior": 1.5})

@@ -3,7 +3,7 @@
 This is the honest baseline the benchmarks compare strauss-fit against: the formulas of
 docs/model.md (and of :mod:`strauss_fit.models.strauss`) written as ordinary,
 vectorised-over-pixels NumPy code, with no JIT and no tricks. It renders the canonical
-orthographic view of the unit sphere exactly as :func:`strauss_fit.render.strauss.render` does for
+orthographic view of the unit sphere exactly as :func:`strauss_fit.rendering.strauss.render` does for
 a scene whose background is black (a constant colour is also accepted; see below):
 
 - pixel (row i, column k) is at x = (k + 0.5)/width·2 − 1, y = 1 − (i + 0.5)/height·2 and

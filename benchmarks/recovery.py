@@ -47,7 +47,7 @@ import strauss_fit as sf  # noqa: E402
 from data_synth.sensor import Sensor, encode_ldr  # noqa: E402
 from strauss_fit import fit, parse_scene  # noqa: E402
 from strauss_fit.color import srgb_decode  # noqa: E402
-from strauss_fit.fit.identifiability import MIRROR_SMOOTHNESS  # noqa: E402
+from strauss_fit.fitting.identifiability import MIRROR_SMOOTHNESS  # noqa: E402
 from strauss_fit.io.targets import Target  # noqa: E402
 
 TOLERANCE = {0.0: 0.005, 0.01: 0.02}

@@ -3,9 +3,9 @@
     .venv/bin/python benchmarks/search.py [--quick] [--quality balanced] [--draws 1] [--json PATH]
 
 Every target is fitted with ``FitOptions.search="starts"`` (the closed-form guess and the
-fixed points of ``strauss_fit.fit.starts.START_GRID``) and ``search="grid"`` (the global
+fixed points of ``strauss_fit.fitting.starts.START_GRID``) and ``search="grid"`` (the global
 search over smoothness and metalness with the colour in closed form,
-:mod:`strauss_fit.fit.search`, where it applies; the multi-start elsewhere), otherwise
+:mod:`strauss_fit.fitting.search`, where it applies; the multi-start elsewhere), otherwise
 with the preset's settings, on three sets:
 
 - ``recovery``: the cases of ``benchmarks/recovery.py`` (``materials()``, ``make_target()``:
@@ -27,10 +27,10 @@ grid was used. Prints a table per set and writes JSON with the date and the load
 
 ``--capture PATH`` (e.g. the DiLiGenT ``ballPNG`` folder; real data is read where it is,
 never copied) checks instead what a global search would change for a capture
-(:mod:`strauss_fit.fit.capture`, which already solves the colour and the exposure in closed
+(:mod:`strauss_fit.fitting.capture`, which already solves the colour and the exposure in closed
 form over its own grid of (s, m), ``start_grid()``, 7 × 5 points, and polishes its 3 best):
 the capture is fitted as it is, then with that grid replaced by the single-target fit's
-(:data:`~strauss_fit.fit.search.GRID_SMOOTHNESS` × :data:`~strauss_fit.fit.search.GRID_METALNESS`)
+(:data:`~strauss_fit.fitting.search.GRID_SMOOTHNESS` × :data:`~strauss_fit.fitting.search.GRID_METALNESS`)
 and its best distinct basins, up to ``--capture-starts``, as the starts. Both on the same
 subsample; the cost each start reaches there, the final relative RMS and the values.
 """
@@ -55,7 +55,7 @@ from bench_common import describe, machine, write_json  # noqa: E402
 from recovery import GLASS, OPAQUE, TOLERANCE, make_target, materials  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
-from strauss_fit.fit.options import FitOptions  # noqa: E402
+from strauss_fit.fitting.options import FitOptions  # noqa: E402
 
 MITSUBA = ROOT / "data_synth" / "bundled_mitsuba"
 METHODS = ("starts", "grid")
@@ -117,8 +117,8 @@ def capture_check(path: str, keep: int) -> dict:
 
     from strauss_fit.capture import load_samples
     from strauss_fit.capture._manifest import read_capture
-    from strauss_fit.fit import capture as capture_fit
-    from strauss_fit.fit.search import GRID_METALNESS, GRID_SMOOTHNESS, basin_minima
+    from strauss_fit.fitting import capture as capture_fit
+    from strauss_fit.fitting.search import GRID_METALNESS, GRID_SMOOTHNESS, basin_minima
 
     samples = load_samples(read_capture(path))
     own_starts = capture_fit._model_starts

@@ -6,7 +6,7 @@ anti-aliased image) records along the silhouette a mix of sphere and background;
 strauss-fit's model samples each pixel at its centre. This fits, with each rule
 (``include``: every pixel whose centre shows the sphere; ``exclude``: only pixels whose
 whole footprint does; ``auto``, the default: include them when the target's silhouette is
-point-sampled, see :func:`strauss_fit.render.coverage.silhouette_blend`), targets of known
+point-sampled, see :func:`strauss_fit.rendering.coverage.silhouette_blend`), targets of known
 material:
 
 - *anti-aliased*: the bundled Mitsuba Lambertian spheres, and Strauss renders

@@ -16,7 +16,7 @@ Knobs measured (all in one process, on this machine):
 2. **Image resolution** (fits): fits of ground truth - known materials rendered with
    Gaussian noise of 1 % of the image's 98th percentile, several materials including the
    extremes s, m in {0, 1} - at each resolution. Cost: warm wall time of
-   ``strauss_fit.fit.api.fit`` (the first call, which compiles, is reported apart) and memory.
+   ``strauss_fit.fitting.api.fit`` (the first call, which compiles, is reported apart) and memory.
    Accuracy: the largest error over the parameters the image constrains (below).
 3. **Solver tolerance** (rtol, atol) and **number of starts**, at one resolution: fit time
    against parameter error and the fraction of fits landing within 0.02 of the truth.
@@ -80,10 +80,10 @@ from numpy_reference import arrays_from_scene, render_numpy  # noqa: E402
 
 import strauss_fit as sf  # noqa: E402
 from strauss_fit import Target, fit, parse_scene, plan_render  # noqa: E402
-from strauss_fit.fit.identifiability import DEFAULT_THRESHOLD, MIRROR_SMOOTHNESS  # noqa: E402
-from strauss_fit.fit.solvers import solve_starts  # noqa: E402
+from strauss_fit.fitting.identifiability import DEFAULT_THRESHOLD, MIRROR_SMOOTHNESS  # noqa: E402
+from strauss_fit.fitting.solvers import solve_starts  # noqa: E402
 from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE  # noqa: E402
-from strauss_fit.render.strauss import render_jit  # noqa: E402
+from strauss_fit.rendering.strauss import render_jit  # noqa: E402
 from strauss_fit.stats.laplace import information as laplace_information  # noqa: E402
 from strauss_fit.stats.laplace import jacobian as laplace_jacobian  # noqa: E402
 

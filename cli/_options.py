@@ -3,8 +3,8 @@ option means, accepts and defaults to the same in every command that has it.
 
 The names an option accepts come from the library's registries (plain data, imported
 without NumPy or JAX, so that ``strauss-fit --help`` stays fast): the losses
-(:data:`strauss_fit.fit.losses.LOSS_REGISTRY`), the starts' searches and edge-pixel rules
-(:mod:`strauss_fit.fit.options`), the solvers, the image encodings and the evaluators. A
+(:data:`strauss_fit.fitting.losses.LOSS_REGISTRY`), the starts' searches and edge-pixel rules
+(:mod:`strauss_fit.fitting.options`), the solvers, the image encodings and the evaluators. A
 function takes the help texts that differ between commands (what ``-o`` writes, what
 ``--quiet`` leaves out) as arguments; the rest is written once, here.
 """
@@ -14,8 +14,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from strauss_fit.fit.losses import AUTO, LEAST_SQUARES, LOSS_CHOICES, LOSS_REGISTRY
-from strauss_fit.fit.options import DEFAULT_QUALITY, EDGE_PIXELS, MISMATCH_LOSS, QUALITY_PRESETS, SEARCHES, SOLVERS
+from strauss_fit.fitting.losses import AUTO, LEAST_SQUARES, LOSS_CHOICES, LOSS_REGISTRY
+from strauss_fit.fitting.options import DEFAULT_QUALITY, EDGE_PIXELS, MISMATCH_LOSS, QUALITY_PRESETS, SEARCHES, SOLVERS
 from strauss_fit.io.table_formats import IMAGE_ENCODINGS
 from strauss_fit.models.modes import DEFAULT_TABLE_SIZE, MODES
 
@@ -162,7 +162,7 @@ def add_fitting_options(parser: Container, *, as_for_fit: bool = False) -> None:
 
 
 def loss_help() -> str:
-    """``--loss``'s help: every loss of :data:`strauss_fit.fit.losses.LOSS_REGISTRY` with its
+    """``--loss``'s help: every loss of :data:`strauss_fit.fitting.losses.LOSS_REGISTRY` with its
     description, then ``auto``, the default."""
     losses = "; ".join(f"{name}, {loss.description}" for name, loss in LOSS_REGISTRY.items())
     return (
@@ -238,7 +238,7 @@ def add_evaluator_options(
 
 
 def add_quality_option(parser: Container) -> None:
-    """``--quality``: a preset of :data:`~strauss_fit.fit.options.QUALITY_PRESETS`."""
+    """``--quality``: a preset of :data:`~strauss_fit.fitting.options.QUALITY_PRESETS`."""
     parser.add_argument(
         "--quality",
         choices=tuple(QUALITY_PRESETS),

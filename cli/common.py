@@ -1,7 +1,7 @@
 """Helpers shared by several subcommands: argparse types, checks, escaping what input files
 bring to the terminal, progress lines. The option groups themselves are added by
 :mod:`strauss_fit_cli._options`; the quality presets live in the library
-(:data:`strauss_fit.fit.options.QUALITY_PRESETS`)."""
+(:data:`strauss_fit.fitting.options.QUALITY_PRESETS`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import re
 import sys
 
 from strauss_fit.errors import StraussFitError
-from strauss_fit.fit.options import QUALITY_PRESETS
+from strauss_fit.fitting.options import QUALITY_PRESETS
 
 
 def check_evaluator_options(args: argparse.Namespace) -> None:
@@ -124,6 +124,6 @@ def progress_printer(quiet: bool, prefix: str = "", stream=None):
 
 def by_quality(setting: str) -> str:
     """``fast 2, balanced 2, accurate 4``: a setting of every quality preset, read from
-    :data:`~strauss_fit.fit.options.QUALITY_PRESETS` (for help texts, which so always say
+    :data:`~strauss_fit.fitting.options.QUALITY_PRESETS` (for help texts, which so always say
     what the presets use)."""
     return ", ".join(f"{name} {values[setting]:g}" for name, values in QUALITY_PRESETS.items())

@@ -1,7 +1,7 @@
 """``strauss-fit compare``: several reflectance models fitted to the same target or capture,
 and whether Strauss is distinguishable from the best (see docs/commands/compare.md).
 
-A thin shell over :func:`strauss_fit.fit.compare.fit_models` and
+A thin shell over :func:`strauss_fit.fitting.compare.fit_models` and
 :func:`strauss_fit.reporting.compare_figure.comparison_figure`.
 """
 
@@ -109,7 +109,7 @@ def _target_noise(args: argparse.Namespace, samples, target):
 
 def run(args: argparse.Namespace) -> int:
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.compare import check_models, fit_models, format_comparison_table
+    from strauss_fit.fitting.compare import check_models, fit_models, format_comparison_table
     from strauss_fit.io.files import Outputs
 
     models = check_models(args.models)
@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     result["inputs"] = inputs
     result["figure"] = {"file": png.name, "image": args.image}
 
-    from strauss_fit.fit.capture_result import holdout_indices
+    from strauss_fit.fitting.capture_result import holdout_indices
     from strauss_fit.reporting.compare_figure import comparison_figure
 
     held = holdout_indices(args.holdout, samples.count) if args.holdout is not None else []
@@ -190,8 +190,8 @@ def _capture_samples(args: argparse.Namespace, png: Path, log):
 
 
 def _target_samples(args: argparse.Namespace, png: Path):
-    from strauss_fit.fit.folder import sidecar_of
-    from strauss_fit.fit.scene_samples import samples_from_scene
+    from strauss_fit.fitting.folder import sidecar_of
+    from strauss_fit.fitting.scene_samples import samples_from_scene
     from strauss_fit.io.targets import load_target
     from strauss_fit.scene.loading import load_scene
 

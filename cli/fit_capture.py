@@ -1,6 +1,6 @@
 """``strauss-fit fit --capture``: one material from a capture (many photographs of one sphere).
 
-A thin shell over :func:`strauss_fit.fit.capture_result.fit_capture`; the options are added
+A thin shell over :func:`strauss_fit.fitting.capture_result.fit_capture`; the options are added
 to ``fit`` by :func:`add_capture_options` (see docs/captures.md).
 """
 
@@ -43,7 +43,7 @@ def refuse_ignored(args: argparse.Namespace, how: str, *, scene: bool = True) ->
     (its own parameters absorb an exposure; a capture's per-image exposures are relative and
     do apply). ``how`` ends the message."""
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.options import DEFAULT_QUALITY
+    from strauss_fit.fitting.options import DEFAULT_QUALITY
     from strauss_fit.models.modes import DEFAULT_TABLE_SIZE
     from strauss_fit.models.reflectance import reflectance_model
 
@@ -115,9 +115,9 @@ def description_files(capture) -> dict[str, Path]:
 def run_capture(args: argparse.Namespace) -> int:
     from strauss_fit.capture import capture_inputs, open_capture
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.capture import CaptureFitOptions
-    from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
-    from strauss_fit.fit.capture_result import format_capture_table, holdout_indices
+    from strauss_fit.fitting.capture import CaptureFitOptions
+    from strauss_fit.fitting.capture_result import fit_capture as fit_capture_api
+    from strauss_fit.fitting.capture_result import format_capture_table, holdout_indices
     from strauss_fit.io.files import Outputs, check_distinct, check_writable
 
     from .fit_cmd import equivalence_asked
@@ -175,7 +175,7 @@ def run_capture(args: argparse.Namespace) -> int:
 def scene_model_options(args: argparse.Namespace):
     """The capture fitter's options of ``fit … --scene SCENE --model NAME``: the scene states
     the light intensities, so no exposure is fitted unless ``--fit-exposure``."""
-    from strauss_fit.fit.capture import CaptureFitOptions
+    from strauss_fit.fitting.capture import CaptureFitOptions
 
     return CaptureFitOptions(
         model=args.model, exposure="global" if args.fit_exposure else "fixed", ambient=args.ambient
@@ -184,11 +184,11 @@ def scene_model_options(args: argparse.Namespace):
 
 def model_batch(args: argparse.Namespace):
     """How ``fit T1 T2 … --scene SCENE --model NAME -o OUTDIR/`` fits each target: as
-    :func:`run_scene_model` fits one (a :class:`strauss_fit.fit.folder.ModelFit`). An option
+    :func:`run_scene_model` fits one (a :class:`strauss_fit.fitting.folder.ModelFit`). An option
     the capture fitter does not take is refused, naming it."""
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.batch import DEFAULT_CHUNK
-    from strauss_fit.fit.folder import ModelFit
+    from strauss_fit.fitting.batch import DEFAULT_CHUNK
+    from strauss_fit.fitting.folder import ModelFit
 
     from .fit_cmd import equivalence_asked
 
@@ -209,14 +209,14 @@ def model_batch(args: argparse.Namespace):
 
 def run_scene_model(args: argparse.Namespace) -> int:
     """``fit TARGET --scene SCENE --model NAME``: another reflectance model than Strauss on one
-    target (:func:`strauss_fit.fit.scene_samples.samples_from_scene`, then the capture
+    target (:func:`strauss_fit.fitting.scene_samples.samples_from_scene`, then the capture
     fitter, which fits every model). Several targets go to a folder
     (:func:`strauss_fit_cli.fit_cmd.run_batch`)."""
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.capture_result import fit_capture as fit_capture_api
-    from strauss_fit.fit.capture_result import format_capture_table
-    from strauss_fit.fit.folder import sidecar_of
-    from strauss_fit.fit.scene_samples import samples_from_scene
+    from strauss_fit.fitting.capture_result import fit_capture as fit_capture_api
+    from strauss_fit.fitting.capture_result import format_capture_table
+    from strauss_fit.fitting.folder import sidecar_of
+    from strauss_fit.fitting.scene_samples import samples_from_scene
     from strauss_fit.io.files import Outputs, check_distinct, check_writable
     from strauss_fit.io.targets import load_target
     from strauss_fit.scene.loading import load_scene

@@ -141,7 +141,7 @@ def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]]
 
 
 def fit_options(args: argparse.Namespace, fixed, **more):
-    """The :class:`~strauss_fit.fit.options.FitOptions` of ``--quality`` with the options
+    """The :class:`~strauss_fit.fitting.options.FitOptions` of ``--quality`` with the options
     given explicitly (also used by ``sample`` when it fits first)."""
     from strauss_fit import FitOptions
 
@@ -235,7 +235,7 @@ def check_outputs(args: argparse.Namespace) -> Path | None:
             raise StraussFitError(f"--{option} is for several targets fitted into a folder (-o OUTDIR)")
     if args.scene is None:
         raise StraussFitError("give --scene (the scene the target was taken in)")
-    from strauss_fit.fit.folder import sidecar_of
+    from strauss_fit.fitting.folder import sidecar_of
 
     compare_path = Path(args.render_fit).with_suffix(".compare.png") if args.render_fit else None
     check_distinct(
@@ -281,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     options = fit_options(args, fixed, max_steps=args.max_steps, reference_noise=args.reference_noise)
 
     from strauss_fit import fit, load_scene, load_target, match_scene
-    from strauss_fit.fit.summary import comparison_image, format_fit_table, standardized_map
+    from strauss_fit.fitting.summary import comparison_image, format_fit_table, standardized_map
     from strauss_fit.io.files import Outputs
     from strauss_fit.io.images import add_image
 
@@ -331,7 +331,7 @@ def recorded(args: argparse.Namespace, target, scene, mask, encoding) -> dict:
 
 
 def run_batch(args: argparse.Namespace) -> int:
-    """Several targets into the folder ``-o`` (:func:`strauss_fit.fit.folder.fit_to_folder`),
+    """Several targets into the folder ``-o`` (:func:`strauss_fit.fitting.folder.fit_to_folder`),
     with the Strauss fit or, with ``--model NAME``, another reflectance model (each target as
     :func:`strauss_fit_cli.fit_capture.run_scene_model` fits one)."""
     import sys
@@ -339,7 +339,7 @@ def run_batch(args: argparse.Namespace) -> int:
 
     from strauss_fit import FitOptions
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.folder import fit_to_folder, jobs_from_arguments
+    from strauss_fit.fitting.folder import fit_to_folder, jobs_from_arguments
 
     model = None
     if args.model != "strauss":
@@ -361,7 +361,7 @@ def run_batch(args: argparse.Namespace) -> int:
     jobs = jobs_from_arguments(args.target, args.scene, args.manifest, options, mask=args.mask, encoding=args.encoding)
     executor = None
     if args.workers is not None or args.scheduler is not None:
-        from strauss_fit.fit.executors import DaskExecutor
+        from strauss_fit.fitting.executors import DaskExecutor
 
         executor = DaskExecutor(args.workers, scheduler=args.scheduler)
     log = progress_printer(args.quiet, "")
@@ -372,7 +372,7 @@ def run_batch(args: argparse.Namespace) -> int:
         return recorded(args, job.target, job.scene, job.mask, job.encoding)
 
     def announce(index, result):
-        from strauss_fit.fit.batch import FitFailure
+        from strauss_fit.fitting.batch import FitFailure
 
         if isinstance(result, FitFailure):
             bar.clear()

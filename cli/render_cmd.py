@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     import jax.numpy as jnp
 
     from strauss_fit import load_scene, render
-    from strauss_fit.render.strauss import OUTPUT_TOLERANCE, depth_messages
+    from strauss_fit.rendering.strauss import OUTPUT_TOLERANCE, depth_messages
 
     scene = load_scene(args.scene)
     if args.width or args.height:
@@ -93,12 +93,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_model(args: argparse.Namespace, scene) -> int:
-    """``render --model NAME``: :func:`strauss_fit.render.reflectance.render_model`."""
+    """``render --model NAME``: :func:`strauss_fit.rendering.reflectance.render_model`."""
 
     from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import read_json
     from strauss_fit.models.reflectance import reflectance_model
-    from strauss_fit.render.reflectance import render_model
+    from strauss_fit.rendering.reflectance import render_model
 
     reflectance_model(args.model)  # an unknown name before the values are read
     values = {}

@@ -107,7 +107,7 @@ def _print_report(report, written) -> int:
 
 
 def _is_capture_result(fit: str | None) -> bool:
-    from strauss_fit.fit.capture_result import is_capture_result
+    from strauss_fit.fitting.capture_result import is_capture_result
     from strauss_fit.io.files import read_json
 
     return bool(fit) and is_capture_result(read_json(fit, "fit result"))

@@ -12,7 +12,7 @@ import sys
 import time
 from typing import Any
 
-from strauss_fit.fit.options import QUALITY_PRESETS
+from strauss_fit.fitting.options import QUALITY_PRESETS
 from strauss_fit.models.modes import DEFAULT_TABLE_SIZE
 
 from ._options import (
@@ -343,7 +343,7 @@ def _is_capture(args: argparse.Namespace) -> bool:
 
     try:
         if args.fit and not args.resume:
-            from strauss_fit.fit.capture_result import is_capture_result
+            from strauss_fit.fitting.capture_result import is_capture_result
             from strauss_fit.io.files import read_json
 
             return is_capture_result(read_json(args.fit, "fit result"))

@@ -6,10 +6,10 @@ scene → geometry → shading → image → fit → uncertainty → report
 
 - :mod:`strauss_fit.models`: the Strauss and Phong shading models and materials;
 - :mod:`strauss_fit.scene`: camera, lights, background, the scene file;
-- :mod:`strauss_fit.render`: rendering the sphere (Strauss with its global model, Phong);
+- :mod:`strauss_fit.rendering`: rendering the sphere (Strauss with its global model, Phong);
 - :mod:`strauss_fit.io`: images, fit targets, material tables, safe writes;
 - :mod:`strauss_fit.stats`: Laplace and sandwich covariances, the target's noise;
-- :mod:`strauss_fit.fit`: least-squares recovery of the material;
+- :mod:`strauss_fit.fitting`: least-squares recovery of the material;
 - :mod:`strauss_fit.inference`: the posterior, emcee sampling;
 - :mod:`strauss_fit.reporting`: the uncertainty report and the study's report;
 - :mod:`strauss_fit.convert`: Phong ↔ Strauss conversion; :mod:`strauss_fit.study`: the
@@ -27,165 +27,132 @@ The whole workflow is importable from here::
 
 Precision: importing the package does not touch ``jax_enable_x64``; the library runs its
 own computations in float64 inside a scope (:mod:`strauss_fit.precision`, and
-:func:`float64` for your code).
+:func:`float64` for your code). Nor does it touch JAX's CPU device count:
+:func:`use_cpu_cores` asks for one device per core (the command line and the first batch
+call it; see :mod:`strauss_fit.runtime`).
 
-``strauss_fit.fit`` and ``strauss_fit.render`` are the functions; their subpackages are
-imported as ``from strauss_fit.fit import options`` (or ``from strauss_fit.fit.options
-import FitOptions``). Every public name is imported on first use, so that
-``import strauss_fit`` stays light (no JAX until something needs it).
+Every public name is listed once, in :data:`_PUBLIC` (name → module), and imported on first
+use, so that ``import strauss_fit`` stays light: no JAX until something needs it (the
+command line's ``--help`` and its errors load none). The block under ``TYPE_CHECKING``
+states the same re-exports for type checkers and editors (``X as X``, the optimistix
+convention); a test keeps the two equal.
 """
 
 from __future__ import annotations
 
 import importlib
-import sys
-import types
 from typing import TYPE_CHECKING, Any
 
 from ._version import __version__ as __version__
-from .errors import ImageError, MaterialError, OutputExistsError, SceneError, StraussFitError
+from .errors import ImageError as ImageError
+from .errors import MaterialError as MaterialError
+from .errors import OutputExistsError as OutputExistsError
+from .errors import SceneError as SceneError
+from .errors import StraussFitError as StraussFitError
 from .runtime import use_cpu_cores as use_cpu_cores
 
 if TYPE_CHECKING:
-    from .convert.converter import phong_to_strauss, strauss_to_phong
-    from .fit.api import fit
-    from .fit.batch import BatchProgress, FitFailure, FitJob, fit_many
-    from .fit.executors import DaskExecutor, InProcessExecutor
-    from .fit.options import QUALITY_PRESETS, FitOptions
-    from .fit.result import FitResult
-    from .inference.sampler import Chain, SampleResult, SampleSettings, load_chain, sample
-    from .io.images import read_image, write_image
-    from .io.targets import Target, load_target, match_scene
-    from .models.material import Material
-    from .models.phong import PhongMaterial, phong_shade
-    from .models.strauss import K_F, K_G, K_J, MODES, fresnel, shade, shadow
-    from .precision import float64, uses_float64
-    from .render.phong import render_phong
-    from .render.strauss import RenderPlan, plan_render, render
-    from .reporting.fit_report import Report, build_report, report_from_files, write_report
-    from .scene.background import Background
-    from .scene.camera import Camera
-    from .scene.lights import DirectionalLights, Lights, PointLights
-    from .scene.loading import Scene, load_scene, parse_scene
-    from .study.study import run_study, study_config
+    from .convert.converter import phong_to_strauss as phong_to_strauss
+    from .convert.converter import strauss_to_phong as strauss_to_phong
+    from .fitting.api import fit as fit
+    from .fitting.batch import BatchProgress as BatchProgress
+    from .fitting.batch import FitFailure as FitFailure
+    from .fitting.batch import FitJob as FitJob
+    from .fitting.batch import fit_many as fit_many
+    from .fitting.executors import DaskExecutor as DaskExecutor
+    from .fitting.executors import InProcessExecutor as InProcessExecutor
+    from .fitting.options import QUALITY_PRESETS as QUALITY_PRESETS
+    from .fitting.options import FitOptions as FitOptions
+    from .fitting.result import FitResult as FitResult
+    from .inference.sampler import Chain as Chain
+    from .inference.sampler import SampleResult as SampleResult
+    from .inference.sampler import SampleSettings as SampleSettings
+    from .inference.sampler import load_chain as load_chain
+    from .inference.sampler import sample as sample
+    from .io.images import read_image as read_image
+    from .io.images import write_image as write_image
+    from .io.targets import Target as Target
+    from .io.targets import load_target as load_target
+    from .io.targets import match_scene as match_scene
+    from .models.material import Material as Material
+    from .models.phong import PhongMaterial as PhongMaterial
+    from .models.phong import phong_shade as phong_shade
+    from .models.strauss import K_F as K_F
+    from .models.strauss import K_G as K_G
+    from .models.strauss import K_J as K_J
+    from .models.strauss import MODES as MODES
+    from .models.strauss import fresnel as fresnel
+    from .models.strauss import shade as shade
+    from .models.strauss import shadow as shadow
+    from .precision import float64 as float64
+    from .precision import uses_float64 as uses_float64
+    from .rendering.phong import render_phong as render_phong
+    from .rendering.strauss import RenderPlan as RenderPlan
+    from .rendering.strauss import plan_render as plan_render
+    from .rendering.strauss import render as render
+    from .reporting.fit_report import Report as Report
+    from .reporting.fit_report import build_report as build_report
+    from .reporting.fit_report import report_from_files as report_from_files
+    from .reporting.fit_report import write_report as write_report
+    from .scene.background import Background as Background
+    from .scene.camera import Camera as Camera
+    from .scene.lights import DirectionalLights as DirectionalLights
+    from .scene.lights import Lights as Lights
+    from .scene.lights import PointLights as PointLights
+    from .scene.loading import Scene as Scene
+    from .scene.loading import load_scene as load_scene
+    from .scene.loading import parse_scene as parse_scene
+    from .study.study import run_study as run_study
+    from .study.study import study_config as study_config
 
-#: Every public name and the module it comes from (relative to this package), imported on
-#: first use: ``import strauss_fit`` (and ``strauss-fit --help``) loads no JAX.
-_LAZY = {
-    **dict.fromkeys(("float64", "uses_float64"), ".precision"),
-    **dict.fromkeys(("K_F", "K_G", "K_J", "MODES", "fresnel", "shade", "shadow"), ".models.strauss"),
-    "Material": ".models.material",
-    **dict.fromkeys(("PhongMaterial", "phong_shade"), ".models.phong"),
-    "Background": ".scene.background",
-    "Camera": ".scene.camera",
-    **dict.fromkeys(("DirectionalLights", "Lights", "PointLights"), ".scene.lights"),
-    **dict.fromkeys(("Scene", "load_scene", "parse_scene"), ".scene.loading"),
-    **dict.fromkeys(("RenderPlan", "plan_render", "render"), ".render.strauss"),
-    "render_phong": ".render.phong",
-    **dict.fromkeys(("Target", "load_target", "match_scene"), ".io.targets"),
-    **dict.fromkeys(("read_image", "write_image"), ".io.images"),
-    **dict.fromkeys(("QUALITY_PRESETS", "FitOptions"), ".fit.options"),
-    "FitResult": ".fit.result",
-    "fit": ".fit.api",
-    **dict.fromkeys(("fit_many", "FitJob", "FitFailure", "BatchProgress"), ".fit.batch"),
-    **dict.fromkeys(("DaskExecutor", "InProcessExecutor"), ".fit.executors"),
-    **dict.fromkeys(("sample", "SampleSettings", "SampleResult", "Chain", "load_chain"), ".inference.sampler"),
-    **dict.fromkeys(("Report", "build_report", "write_report", "report_from_files"), ".reporting.fit_report"),
-    **dict.fromkeys(("phong_to_strauss", "strauss_to_phong"), ".convert.converter"),
-    **dict.fromkeys(("run_study", "study_config"), ".study.study"),
+#: The public names imported on first use, by module (relative to this package), in the
+#: order of the flow: precision, models, scenes, rendering, images and targets, fitting,
+#: uncertainty, reports, conversion and study.
+_PUBLIC: dict[str, tuple[str, ...]] = {
+    ".precision": ("float64", "uses_float64"),
+    ".models.strauss": ("K_F", "K_G", "K_J", "MODES", "fresnel", "shade", "shadow"),
+    ".models.material": ("Material",),
+    ".models.phong": ("PhongMaterial", "phong_shade"),
+    ".scene.background": ("Background",),
+    ".scene.camera": ("Camera",),
+    ".scene.lights": ("DirectionalLights", "Lights", "PointLights"),
+    ".scene.loading": ("Scene", "load_scene", "parse_scene"),
+    ".rendering.strauss": ("RenderPlan", "plan_render", "render"),
+    ".rendering.phong": ("render_phong",),
+    ".io.targets": ("Target", "load_target", "match_scene"),
+    ".io.images": ("read_image", "write_image"),
+    ".fitting.options": ("QUALITY_PRESETS", "FitOptions"),
+    ".fitting.result": ("FitResult",),
+    ".fitting.api": ("fit",),
+    ".fitting.batch": ("fit_many", "FitJob", "FitFailure", "BatchProgress"),
+    ".fitting.executors": ("DaskExecutor", "InProcessExecutor"),
+    ".inference.sampler": ("sample", "SampleSettings", "SampleResult", "Chain", "load_chain"),
+    ".reporting.fit_report": ("Report", "build_report", "write_report", "report_from_files"),
+    ".convert.converter": ("phong_to_strauss", "strauss_to_phong"),
+    ".study.study": ("run_study", "study_config"),
 }
-#: Public names that are also subpackages: the attribute stays the function.
-_FUNCTIONS_NAMED_LIKE_SUBPACKAGES = ("fit", "render")
+_LAZY = {name: module for module, names in _PUBLIC.items() for name in names}
 
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        object.__setattr__(sys.modules[__name__], name, value)
+        globals()[name] = value  # later lookups skip this function
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-class _Package(types.ModuleType):
-    """The package's module type: importing the subpackage ``strauss_fit.fit`` (or
-    ``.render``) must not replace the function ``strauss_fit.fit`` (``render``) of the same
-    name, which Python's import system would otherwise do when it binds a loaded
-    subpackage to its parent."""
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in _FUNCTIONS_NAMED_LIKE_SUBPACKAGES and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
 
 __all__ = [
-    # errors and precision
+    "__version__",
     "ImageError",
     "MaterialError",
     "OutputExistsError",
     "SceneError",
     "StraussFitError",
-    "float64",
-    "uses_float64",
-    "__version__",
-    # models
-    "K_F",
-    "K_G",
-    "K_J",
-    "MODES",
-    "Material",
-    "PhongMaterial",
-    "fresnel",
-    "phong_shade",
-    "shade",
-    "shadow",
-    # scenes
-    "Background",
-    "Camera",
-    "DirectionalLights",
-    "Lights",
-    "PointLights",
-    "Scene",
-    "load_scene",
-    "parse_scene",
-    # rendering
-    "RenderPlan",
-    "plan_render",
-    "render",
-    "render_phong",
-    # images and targets
-    "Target",
-    "load_target",
-    "match_scene",
-    "read_image",
-    "write_image",
-    # fitting
-    "QUALITY_PRESETS",
-    "FitOptions",
-    "FitResult",
-    "fit_many",
-    "FitJob",
-    "FitFailure",
-    "BatchProgress",
-    "DaskExecutor",
-    "InProcessExecutor",
-    "fit",
-    # uncertainty
-    "Chain",
-    "SampleResult",
-    "SampleSettings",
-    "load_chain",
-    "sample",
-    # reports
-    "Report",
-    "build_report",
-    "report_from_files",
-    "write_report",
-    # conversion and study
-    "phong_to_strauss",
-    "strauss_to_phong",
-    "run_study",
-    "study_config",
+    "use_cpu_cores",
+    *_LAZY,
 ]

@@ -3,7 +3,7 @@ r"""Running a fit's numeric work for one target, or batched across many.
 A fit is mostly Python decisions (which parameters to free, which bounds to pin, whether
 to refit) around a handful of compiled numeric *kernels* (a solve from some starts, a
 Jacobian, a render). The fit is written once, as a generator of *steps*
-(:func:`strauss_fit.fit.api.fit_steps`): wherever it needs numeric work it yields a
+(:func:`strauss_fit.fitting.api.fit_steps`): wherever it needs numeric work it yields a
 :class:`Call` — a :class:`Kernel` and its arguments — and receives the result.
 
 - :func:`run` drives one such generator, calling each kernel directly: that is
@@ -398,7 +398,7 @@ def split_arguments(args: tuple) -> tuple[list, StaticPart | None]:
     leaf cannot be hashed), each argument with a ``kernel_form()`` method replaced by what
     it returns: the form a compiled program takes it in, which may hold as data what the
     object holds as structure, so that its variants share one program (a fit's problem
-    and its loss: :meth:`strauss_fit.fit.problem.Problem.kernel_form`)."""
+    and its loss: :meth:`strauss_fit.fitting.problem.Problem.kernel_form`)."""
     args = tuple(_kernel_form(argument) for argument in args)
     leaves, treedef = jax.tree.flatten(args)
     arrays = [x for x in leaves if isinstance(x, _ARRAY_TYPES)]

@@ -9,8 +9,8 @@ switches float64 on only *inside* its own calls:
 - every public entry point that creates or computes arrays (scene loading and
   :func:`~strauss_fit.scene.loading.parse_scene`, constructing a
   :class:`~strauss_fit.models.material.Material` or
-  :class:`~strauss_fit.models.phong.PhongMaterial`, :func:`~strauss_fit.render.strauss.render`,
-  :func:`~strauss_fit.render.phong.render_phong`, :func:`~strauss_fit.fit.api.fit`, the
+  :class:`~strauss_fit.models.phong.PhongMaterial`, :func:`~strauss_fit.rendering.strauss.render`,
+  :func:`~strauss_fit.rendering.phong.render_phong`, :func:`~strauss_fit.fitting.api.fit`, the
   posterior and the sampler, the conversions, the study, the reports) is decorated with
   :func:`uses_float64`, which runs it inside :func:`float64`;
 - :func:`float64` is a context manager (``jax.enable_x64(True)``) for your own code.

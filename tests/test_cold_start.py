@@ -11,7 +11,7 @@ import sys
 def test_the_fit_command_imports_no_scipy_before_it_needs_it():
     code = (
         "import sys\n"
-        "import strauss_fit, strauss_fit_cli.main, strauss_fit_cli.fit_cmd, strauss_fit.fit.folder\n"
+        "import strauss_fit, strauss_fit_cli.main, strauss_fit_cli.fit_cmd, strauss_fit.fitting.folder\n"
         "from strauss_fit.stats import noise\n"
         "print(sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.')))\n"
     )

@@ -67,9 +67,9 @@ def _never_export(monkeypatch):
 
 
 def test_only_module_level_library_functions_are_kept():
-    from strauss_fit.fit.solvers import _solve_starts
+    from strauss_fit.fitting.solvers import _solve_starts
 
-    assert export_cache.kernel_identity(_solve_starts) == "strauss_fit.fit.solvers._solve_starts"
+    assert export_cache.kernel_identity(_solve_starts) == "strauss_fit.fitting.solvers._solve_starts"
     assert export_cache.kernel_identity(lambda a: a) is None
     assert export_cache.kernel_identity(np.sin) is None
 

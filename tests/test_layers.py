@@ -36,9 +36,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ),
     ("models", ("models",)),
     ("scene", ("scene", "capture", "io")),
-    ("render", ("render",)),
+    ("render", ("rendering",)),
     ("stats", ("stats",)),
-    ("fit", ("fit",)),
+    ("fit", ("fitting",)),
     ("inference", ("inference",)),
     ("top", ("study", "reporting", "convert")),
     ("face", ("",)),
@@ -151,15 +151,15 @@ def _cycles(graph: dict[str, set[str]]) -> set[tuple[str, ...]]:
 def test_the_import_graph_is_read_correctly():
     """The reader finds imports of every form: relative, absolute, lazy, aliased."""
     graph = _graph()
-    assert "fit.problem" in graph["fit.solvers"]  # from .problem import ...
-    assert "engine" in graph["fit.solvers"]  # from ..engine import ...
+    assert "fitting.problem" in graph["fitting.solvers"]  # from .problem import ...
+    assert "engine" in graph["fitting.solvers"]  # from ..engine import ...
     assert "io.table_formats" in graph["io.material_tables"]
-    assert "fit.batch" in graph["fit.executors"]
+    assert "fitting.batch" in graph["fitting.executors"]
     assert (
         layer_of("inference.sampler")
-        > layer_of("fit.api")
+        > layer_of("fitting.api")
         > layer_of("stats.laplace")
-        > layer_of("render.strauss")
+        > layer_of("rendering.strauss")
         > layer_of("errors")
     )
 

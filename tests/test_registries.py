@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from strauss_fit.errors import StraussFitError
-from strauss_fit.fit import losses
-from strauss_fit.fit.options import MISMATCH_LOSS, FitOptions
+from strauss_fit.fitting import losses
+from strauss_fit.fitting.options import MISMATCH_LOSS, FitOptions
 from strauss_fit.io import table_formats
 from strauss_fit_cli.main import build_parser
 
@@ -96,7 +96,7 @@ def test_the_derived_loss_lists_are_the_registrys():
 def test_the_loss_names_are_plain_data_the_command_line_reads_without_numpy_or_jax():
     code = (
         "import sys\n"
-        "import strauss_fit.fit.losses\n"
+        "import strauss_fit.fitting.losses\n"
         "from strauss_fit_cli.main import build_parser\n"
         "build_parser()\n"
         "print(sorted(m for m in ('numpy', 'jax', 'scipy') if m in sys.modules))\n"
@@ -106,7 +106,7 @@ def test_the_loss_names_are_plain_data_the_command_line_reads_without_numpy_or_j
 
 
 def test_the_numerical_losses_are_keyed_by_the_registrys_names():
-    from strauss_fit.fit import problem
+    from strauss_fit.fitting import problem
 
     assert set(problem.LOSS_RESIDUALS) == set(losses.LOSS_REGISTRY)
     assert set(problem.ROBUST_PSI) == set(losses.ROBUST_LOSSES)
@@ -124,7 +124,7 @@ def test_the_numerical_losses_are_keyed_by_the_registrys_names():
 
 
 def _residual_problem(loss: str, rng: np.random.Generator, **fields) -> types.SimpleNamespace:
-    """What :func:`strauss_fit.fit.problem.loss_residual` reads of a problem."""
+    """What :func:`strauss_fit.fitting.problem.loss_residual` reads of a problem."""
     shape = (40, 3)
     values = dict(
         loss=loss,
@@ -143,7 +143,7 @@ def _residual_problem(loss: str, rng: np.random.Generator, **fields) -> types.Si
 @pytest.mark.parametrize("name", losses.FOLDED_LOSSES)
 def test_a_kernel_forms_residual_is_each_folded_losss_own(name, x64):
     """The loss held as data (its code) gives the values its own residual function gives."""
-    from strauss_fit.fit.problem import LOSS_BY_CODE, LOSS_RESIDUALS, loss_residual
+    from strauss_fit.fitting.problem import LOSS_BY_CODE, LOSS_RESIDUALS, loss_residual
 
     rng = np.random.default_rng(7)
     own = _residual_problem(name, rng)
@@ -160,7 +160,7 @@ def test_a_kernel_forms_residual_is_each_folded_losss_own(name, x64):
 
 def test_the_losses_values_are_the_documented_ones(x64):
     """Each loss's residual, computed from its definition (docs/mismatch.md#the-loss)."""
-    from strauss_fit.fit.problem import CAUCHY_C, HUBER_K, LOSS_RESIDUALS
+    from strauss_fit.fitting.problem import CAUCHY_C, HUBER_K, LOSS_RESIDUALS
 
     rng = np.random.default_rng(3)
     problem = _residual_problem("huber", rng, loss_offset=np.asarray(1e-3), loss_norm=np.asarray(0.7))
@@ -270,7 +270,7 @@ FITTING_COMMANDS = ("fit", "sample")
 
 
 def test_the_search_options_choices_are_the_fit_options(x64):
-    from strauss_fit.fit import options, solvers
+    from strauss_fit.fitting import options, solvers
 
     parser = _subcommand("fit")
     for flag, names in (

@@ -2,7 +2,7 @@
 
 The flow: a capture is described (:func:`read_capture`: a manifest, a DiLiGenT folder, or
 image files with a lights file), its sphere found in the frame and its pixels read
-(:func:`load_samples`), and then fitted (:func:`strauss_fit.fit.capture_result.fit_capture`).
+(:func:`load_samples`), and then fitted (:func:`strauss_fit.fitting.capture_result.fit_capture`).
 Lights can be estimated from photographs of a mirror ball (:func:`estimate_lights`).
 See docs/captures.md.
 """

@@ -83,7 +83,7 @@ class CaptureSamples:
     #: (L, P, 3): the five-point Laplacian 4 I(p) − Σ I(neighbours) of each image at each
     #: pixel whose four neighbours are sphere pixels and usable; NaN elsewhere. Noise of
     #: level σ gives it a spread of √20 σ; the image's own curvature only adds to it, so it
-    #: bounds the noise from above (:func:`strauss_fit.fit.capture_result.noise_bound`).
+    #: bounds the noise from above (:func:`strauss_fit.fitting.capture_result.noise_bound`).
     laplacian: np.ndarray
     circle: Circle
     camera: Camera
@@ -91,7 +91,7 @@ class CaptureSamples:
     #: How each image's lights were given (per image, the CaptureImage).
     images: tuple[CaptureImage, ...]
     #: Per image and channel, a known ambient light reaching every point (a scene's ambient
-    #: light, :mod:`strauss_fit.fit.scene_samples`); None when the images state none.
+    #: light, :mod:`strauss_fit.fitting.scene_samples`); None when the images state none.
     ambient_light: np.ndarray | None = None
 
     @property

@@ -17,11 +17,11 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ..fit.options import FitOptions
-from ..fit.problem import build_problem, take_pixels_jit
+from ..fitting.options import FitOptions
+from ..fitting.problem import build_problem, take_pixels_jit
 from ..io.targets import Target
 from ..models.material import OPAQUE_NAMES, Material
-from ..render.strauss import plan_render
+from ..rendering.strauss import plan_render
 from ..scene.loading import Scene
 
 #: Strauss parameters the conversion fits (t and n are carried over, see

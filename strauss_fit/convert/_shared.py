@@ -16,10 +16,10 @@ import numpy as np
 from ..color import delta_e_2000
 from ..engine import Kernel
 from ..errors import StraussFitError
-from ..fit.identifiability import reference_noise_level
+from ..fitting.identifiability import reference_noise_level
 from ..io.material_tables import Entry
 from ..models.phong import PhongMaterial
-from ..render.phong import render_phong
+from ..rendering.phong import render_phong
 from ..scene.loading import Scene
 
 
@@ -47,7 +47,7 @@ def residual_stats(model: np.ndarray, target: np.ndarray) -> dict[str, float]:
 
 
 def scale_of(pixels: np.ndarray) -> float:
-    """Residual scale as in a fit (:mod:`strauss_fit.fit.problem`): reference noise × √(values)."""
+    """Residual scale as in a fit (:mod:`strauss_fit.fitting.problem`): reference noise × √(values)."""
     return reference_noise_level(pixels) * math.sqrt(pixels.size)
 
 

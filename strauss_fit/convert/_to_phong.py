@@ -28,9 +28,9 @@ import numpy as np
 
 from ..engine import Steps
 from ..errors import StraussFitError
-from ..fit.identifiability import numerical_decision, reference_noise_level
-from ..fit.problem import render_at
-from ..fit.starts import START_MARGIN
+from ..fitting.identifiability import numerical_decision, reference_noise_level
+from ..fitting.problem import render_at
+from ..fitting.starts import START_MARGIN
 from ..io.material_tables import Entry
 from ..models.material import Material
 from ..models.phong import MAX_EXPONENT
@@ -189,7 +189,7 @@ def _fit(conv: Converter, template: Any, item: Item, target: np.ndarray) -> Step
 
 def _decide(conv: Converter, fit: _Fit, target: np.ndarray) -> tuple[dict[str, Any], Any, Any, list[str]]:
     """What the image constrains at the optimum
-    (:func:`strauss_fit.fit.identifiability.numerical_decision` at the target's reference
+    (:func:`strauss_fit.fitting.identifiability.numerical_decision` at the target's reference
     noise, entries at a bound protected), the others held at the value the fit reached.
     Returns the held parameters (value and reason), the Laplace deviations and
     correlations of the free ones, and the labels of the entries at a bound."""

@@ -30,19 +30,19 @@ import numpy as np
 from ..color import delta_e_2000
 from ..engine import Steps
 from ..errors import StraussFitError
-from ..fit.diagnosis import WEAK_FRACTION
-from ..fit.identifiability import (
+from ..fitting.diagnosis import WEAK_FRACTION
+from ..fitting.identifiability import (
     Decision,
     deviation_scale,
     held_at_optimum,
     numerical_decision,
     reference_noise_level,
 )
-from ..fit.options import VISIBLE_DELTA_E
-from ..fit.parameters import jsonable, material_with
-from ..fit.problem import physical_values, render_at
-from ..fit.solvers import STRICT_REJECT_RATIO, polish_steps, solve_starts
-from ..fit.starts import START_MARGIN, starts
+from ..fitting.options import VISIBLE_DELTA_E
+from ..fitting.parameters import jsonable, material_with
+from ..fitting.problem import physical_values, render_at
+from ..fitting.solvers import STRICT_REJECT_RATIO, polish_steps, solve_starts
+from ..fitting.starts import START_MARGIN, starts
 from ..io.material_tables import Entry
 from ..models.material import Material
 from ..models.phong import PhongMaterial
@@ -143,7 +143,7 @@ def solve(
     conv: Converter, problem: Any, thetas: np.ndarray, target: np.ndarray, scale: float, ends: tuple | None = None
 ) -> Steps:
     """Every start on the coarse pixels (:attr:`Settings.start_steps` steps), then the
-    best one polished on every pixel (:func:`strauss_fit.fit.solvers.polish_steps`:
+    best one polished on every pixel (:func:`strauss_fit.fitting.solvers.polish_steps`:
     entries at a bound pinned there), and the model rendered there. ``ends``: the
     starts' ends (θ, costs, steps), when they were solved before. Returns the
     :class:`_Solution`, the best start and the starts' ends."""
@@ -364,7 +364,7 @@ def _held_values(
     decision: Decision, before: Decision, fitted: dict[str, Any], tinted: bool, canonical: float
 ) -> tuple[dict[str, Any], dict[str, str], bool]:
     """Values and reasons for the parameters ``decision`` holds at the optimum and
-    ``before`` freed (:func:`strauss_fit.fit.identifiability.held_at_optimum`, else the
+    ``before`` freed (:func:`strauss_fit.fitting.identifiability.held_at_optimum`, else the
     fitted value), with
     a metalness the image does not determine held at the ``canonical`` value (the guess's
     for a ``tinted`` highlight, else 0) — unless it is a mirror's, held at 1. Returns the
@@ -399,7 +399,7 @@ def _refit_held(
     """The refit of the parameters ``decision`` frees with the held ones at ``values``
     (:func:`_refit`). A metalness held at the ``canonical`` value (None: not held there)
     that would change what the image shows (mean CIEDE2000 above
-    :data:`strauss_fit.fit.options.VISIBLE_DELTA_E` from ``current``'s model) is held at
+    :data:`strauss_fit.fitting.options.VISIBLE_DELTA_E` from ``current``'s model) is held at
     the fitted value instead (``values`` and ``reasons`` are updated), and the fit redone
     if anything is still held elsewhere than fitted. Returns the refit, or None when the
     fitted values stand."""
@@ -421,11 +421,11 @@ def _refit_held(
 
 def _decide(conv: Converter, current: _Solution, sigma: float) -> Steps:
     """Which parameters the conversion image constrains at the solution ``current``:
-    :func:`strauss_fit.fit.identifiability.numerical_decision` at the reference noise
+    :func:`strauss_fit.fitting.identifiability.numerical_decision` at the reference noise
     ``sigma`` with the Jacobian there, as a fit decides at its optimum. An entry pinned
     at a bound is protected from being held, as in a fit, where the data push against
     it — not where the cost is nearly flat there (the fit's ``flat-at-bound`` warning:
-    free, its deviation would exceed :data:`strauss_fit.fit.diagnosis.WEAK_FRACTION` of
+    free, its deviation would exceed :data:`strauss_fit.fitting.diagnosis.WEAK_FRACTION` of
     its scale): then the bound, not the image, sets it. Returns the decision and the
     Jacobian."""
     layout = current.problem.layout

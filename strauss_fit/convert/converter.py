@@ -4,10 +4,10 @@ Both directions render the source material on the *conversion scene* and fit the
 model to that image by least squares, starting from a closed-form guess:
 
 - **Phong → Strauss** (:meth:`Converter.phong_to_strauss`): the target is the Phong
-  rendering (:func:`strauss_fit.render.phong.render_phong`); C, s and m are fitted with the
-  Strauss fit's machinery (:func:`strauss_fit.fit.problem.build_problem`, its start grid
-  (:func:`strauss_fit.fit.starts.starts`), its bound-aware polish
-  (:func:`strauss_fit.fit.solvers.polish`) and its Laplace uncertainty
+  rendering (:func:`strauss_fit.rendering.phong.render_phong`); C, s and m are fitted with the
+  Strauss fit's machinery (:func:`strauss_fit.fitting.problem.build_problem`, its start grid
+  (:func:`strauss_fit.fitting.starts.starts`), its bound-aware polish
+  (:func:`strauss_fit.fitting.solvers.polish`) and its Laplace uncertainty
   (:func:`strauss_fit.stats.laplace.problem_laplace`)). Transparency and index of refraction
   are not visible in a local rendering over black: the fit matches the *opaque* appearance
   (t = 0), and t = 1 − opacity (``d`` of a ``.mtl``) and n (``Ni``) are carried over as
@@ -65,8 +65,8 @@ import jax
 import numpy as np
 
 from ..errors import StraussFitError
-from ..fit.options import DEFAULT_QUALITY, FitOptions, quality_preset
-from ..fit.problem import render_at
+from ..fitting.options import DEFAULT_QUALITY, FitOptions, quality_preset
+from ..fitting.problem import render_at
 from ..io.files import check_distinct, check_writable
 from ..io.journal import Journal, run_key
 from ..io.material_tables import Entry as Entry
@@ -159,7 +159,7 @@ _BALANCED = quality_preset(DEFAULT_QUALITY)
 class Settings:
     """Solver settings of a conversion (recorded in the output). The defaults of
     ``starts``, ``max_steps``, ``rtol`` and ``atol`` are the ``balanced`` quality preset
-    (:data:`strauss_fit.fit.options.QUALITY_PRESETS`), the command line's default, so that
+    (:data:`strauss_fit.fitting.options.QUALITY_PRESETS`), the command line's default, so that
     ``Settings()`` and ``strauss-fit phong2strauss`` agree; :meth:`preset` gives the others."""
 
     starts: int = int(_BALANCED["starts"])
@@ -172,7 +172,7 @@ class Settings:
     @classmethod
     def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> Settings:
         """The solver settings of quality preset ``name``
-        (:data:`strauss_fit.fit.options.QUALITY_PRESETS`: ``starts``, ``max_steps``,
+        (:data:`strauss_fit.fitting.options.QUALITY_PRESETS`: ``starts``, ``max_steps``,
         ``rtol``, ``atol``), with ``overrides`` (a value of None keeps the preset's)."""
         values = quality_preset(name)
         settings = {key: values[key] for key in ("starts", "max_steps", "rtol", "atol")}

@@ -11,7 +11,7 @@ identifiable set
   on a log scale (a step in u changes the highlight's width by the same factor anywhere),
 
 each through the same smooth sine transform as the Strauss fit
-(:class:`strauss_fit.fit.parameters.Layout`, :math:`x = (1 + \sin\theta)/2`), and reports
+(:class:`strauss_fit.fitting.parameters.Layout`, :math:`x = (1 + \sin\theta)/2`), and reports
 :math:`k_d = \max_c D_c`, :math:`C_d = D / k_d` (white when D = 0), likewise for
 :math:`k_s`, :math:`C_{sp}`. The ambient coefficient is not fitted: it is given
 (``ambient_ka``, a scalar), and the ambient term is :math:`k_a I_a C_d`.
@@ -34,8 +34,8 @@ import optimistix as optx
 from jax import Array
 
 from ..engine import Kernel
-from ..fit.parameters import Layout
-from ..fit.solvers import STRICT_REJECT_RATIO, levenberg_marquardt
+from ..fitting.parameters import Layout
+from ..fitting.solvers import STRICT_REJECT_RATIO, levenberg_marquardt
 from ..models.phong import MAX_EXPONENT, PhongMaterial, coefficient, highlight_power, phong_angles
 from ..scene.camera import intersect_unit_sphere, primary_rays
 from ..scene.lights import sample_lights
@@ -111,7 +111,7 @@ def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
 
 def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
     r"""Phong radiance (N, 3) at the pixels of ``geometry``, as
-    :func:`strauss_fit.render.phong.render_phong` renders it:
+    :func:`strauss_fit.rendering.phong.render_phong` renders it:
     :math:`\sum_k E_k C_{L,k} (k_d C_d \cos\alpha_k + k_s C_{sp} \cos^n\beta_k)` plus the
     ambient term (summed in another order: equal to rounding)."""
     radiance = jnp.zeros(geometry.normal.shape, dtype=geometry.normal.dtype)
@@ -164,7 +164,7 @@ def vector_from_material(material: PhongMaterial) -> np.ndarray:
 
 class PhongProblem(eqx.Module):
     """A Phong fit: geometry and target at the used pixels, the ambient coefficient, and
-    the scale residuals are divided by (reference noise × √N, as in :mod:`strauss_fit.fit.problem`)."""
+    the scale residuals are divided by (reference noise × √N, as in :mod:`strauss_fit.fitting.problem`)."""
 
     geometry: PhongGeometry
     target: Array
@@ -200,7 +200,7 @@ def phong_problem(scene: Scene, index: np.ndarray, *, blinn: bool = False) -> Ph
 
 
 def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, max_steps: int, batched: bool):
-    """Levenberg–Marquardt (:func:`strauss_fit.fit.solvers.levenberg_marquardt`, the fits'
+    """Levenberg–Marquardt (:func:`strauss_fit.fitting.solvers.levenberg_marquardt`, the fits'
     own) from every row of ``thetas`` of one problem, each
     start to its own convergence: one after the other (``lax.map``) on a CPU, vectorised
     (``vmap``) when ``batched``. Returns θ (S, P), the normalised cost Σr² (S,), the step

@@ -1,7 +1,7 @@
 r"""The posterior of a capture's material, and sampling it with emcee (``strauss-fit sample
 --fit CAPTURE_RESULT.json``).
 
-A capture's fit (:func:`strauss_fit.fit.capture_result.fit_capture`) minimises
+A capture's fit (:func:`strauss_fit.fitting.capture_result.fit_capture`) minimises
 :math:`\mathrm{RSS}(\theta) = \sum_i r_i(\theta)^2` over the N usable values i (image ×
 sphere pixel × channel; saturated and under-exposed ones left out), θ the physical values
 of its parameters in the order of the result's labels (``color_r``, …, ``smoothness``,
@@ -99,9 +99,9 @@ import numpy as np
 from ..capture._manifest import Capture
 from ..capture._samples import CaptureSamples
 from ..errors import CaptureError, StraussFitError
-from ..fit.capture import POSITIVE, UNIT, _compiled, _Param, _terms, _weighted_residual
-from ..fit.capture_result import is_capture_result, reload_capture_fit
-from ..fit.options import DEFAULT_QUALITY
+from ..fitting.capture import POSITIVE, UNIT, _compiled, _Param, _terms, _weighted_residual
+from ..fitting.capture_result import is_capture_result, reload_capture_fit
+from ..fitting.options import DEFAULT_QUALITY
 from ..io.files import check_writable, read_json
 from ..precision import uses_float64
 from ..stats import laplace as _laplace
@@ -482,7 +482,7 @@ def check_capture_chain(meta: dict[str, Any], path: str | Path) -> dict[str, Any
 
 
 def reload_chain_capture(meta: dict[str, Any], capture: Capture | None = None) -> tuple[CaptureSamples, Any]:
-    """The capture's samples and fit (:func:`strauss_fit.fit.capture_result.reload_capture_fit`)
+    """The capture's samples and fit (:func:`strauss_fit.fitting.capture_result.reload_capture_fit`)
     that a capture's chain was sampled from, from its metadata (the fit result it holds, the
     capture paths relative to ``fit_base``), unless ``capture`` is given."""
     if not is_capture_chain(meta):

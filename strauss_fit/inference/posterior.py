@@ -1,7 +1,7 @@
 r"""The posterior of a fit: likelihood, priors and noise level, shared by the sampler
 (:mod:`strauss_fit.inference.sampler`) and the report.
 
-Model. The target's usable pixels (the same pixels as :func:`strauss_fit.fit.api.fit`: on
+Model. The target's usable pixels (the same pixels as :func:`strauss_fit.fitting.api.fit`: on
 the sphere, finite, not clipped, inside the mask) are the rendered image plus independent
 Gaussian noise of one standard deviation σ on every RGB value:
 
@@ -44,13 +44,13 @@ import numpy as np
 from jax import Array
 
 from ..errors import StraussFitError
-from ..fit.options import FitOptions
-from ..fit.parameters import Layout, lights_with
-from ..fit.problem import Problem, build_problem
-from ..fit.result import FitResult
+from ..fitting.options import FitOptions
+from ..fitting.parameters import Layout, lights_with
+from ..fitting.problem import Problem, build_problem
+from ..fitting.result import FitResult
 from ..io.targets import Target
 from ..precision import uses_float64
-from ..render.strauss import plan_render
+from ..rendering.strauss import plan_render
 from ..scene.loading import Scene
 
 #: Upper end of the prior on the index of refraction (unless the fit lies beyond 2/3 of it).
@@ -258,9 +258,9 @@ def target_digest(problem: Problem) -> str:
 
 @uses_float64
 def problem_from_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) -> tuple[Problem, np.ndarray]:
-    """The fit's :class:`~strauss_fit.fit.problem.Problem` and optimum θ̂, rebuilt from a
-    fit result (a :class:`~strauss_fit.fit.result.FitResult`, or ``strauss-fit fit``'s JSON,
-    read with :meth:`~strauss_fit.fit.result.FitResult.from_json`) for ``scene`` (already
+    """The fit's :class:`~strauss_fit.fitting.problem.Problem` and optimum θ̂, rebuilt from a
+    fit result (a :class:`~strauss_fit.fitting.result.FitResult`, or ``strauss-fit fit``'s JSON,
+    read with :meth:`~strauss_fit.fitting.result.FitResult.from_json`) for ``scene`` (already
     matched to ``target``'s size).
 
     Held parameters take the result's values; free ones are the layout. The pixels used

@@ -38,8 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..fit.identifiability import deviation_scale
-from ..fit.result import FitResult
+from ..fitting.identifiability import deviation_scale
+from ..fitting.result import FitResult
 from ..stats import laplace as _laplace
 from .adjustment import loss_of
 
@@ -131,7 +131,7 @@ class Laplace:
     @classmethod
     def from_fit(cls, fit: FitResult | dict[str, Any]) -> Laplace:
         """From a fit result's ``free``, values, ``uncertainty`` and ``correlation`` (a
-        :class:`~strauss_fit.fit.result.FitResult` or its JSON)."""
+        :class:`~strauss_fit.fitting.result.FitResult` or its JSON)."""
         fit = FitResult.from_json(fit)
         labels, values, sds = [], [], []
         for name in fit.free:

@@ -44,7 +44,7 @@ A light contributes nothing where :math:`N\cdot L \le 0` or :math:`N\cdot V \le 
 :math:`\cos\beta > 0`). The power is evaluated as :math:`\exp(n \log\cos\beta)` behind a
 double ``where``, so value and gradient are finite everywhere, in n as well.
 
-Rendering a scene with a Phong material is :func:`strauss_fit.render.phong.render_phong`.
+Rendering a scene with a Phong material is :func:`strauss_fit.rendering.phong.render_phong`.
 """
 
 from __future__ import annotations
@@ -294,7 +294,7 @@ def phong_shade(
     ``normal``, ``to_light`` and ``to_eye`` are unit vectors of shape ``(..., 3)`` that
     broadcast against each other; the result is 0 where N·L ≤ 0 or N·V ≤ 0. cos β is R·V
     (Phong) or N·H (Blinn–Phong, ``material.blinn``), clamped at 0 before the power.
-    The ambient term is not included (see :func:`strauss_fit.render.phong.render_phong`).
+    The ambient term is not included (see :func:`strauss_fit.rendering.phong.render_phong`).
     """
     lit, cos_alpha, cos_beta = phong_angles(normal, to_light, to_eye, material.blinn)
     zero = jnp.zeros((), dtype=cos_beta.dtype)

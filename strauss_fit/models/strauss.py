@@ -309,7 +309,7 @@ def weight_slopes(s: Array, m: Array, t: Array, terms: AngularTerms) -> tuple[Sh
     of :func:`highlight_falloff`: no slope where cos β ≤ 0 or s = 1 (the delta lobe).
     Why: a fit's Jacobian built from these costs about two renders, where forward-mode
     differentiation of the render costs about one per parameter (see
-    :func:`strauss_fit.render.strauss.direct_radiance`)."""
+    :func:`strauss_fit.rendering.strauss.direct_radiance`)."""
     return _weights(s, m, t, terms, slopes=True)
 
 

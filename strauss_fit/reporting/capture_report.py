@@ -15,8 +15,8 @@ comparison with other models; the correlation matrix; with a chain of ``strauss-
 fit, the corner plot and the sampler's diagnostics (an untrustworthy chain is the first warning).
 
 :func:`capture_report_from_files` is the whole workflow: it reads the capture the result
-records again (:func:`strauss_fit.fit.capture_result.reload_capture_fit` and
-:func:`strauss_fit.fit.capture_result.reload_held_out`; a chain's from the fit its metadata
+records again (:func:`strauss_fit.fitting.capture_result.reload_capture_fit` and
+:func:`strauss_fit.fitting.capture_result.reload_held_out`; a chain's from the fit its metadata
 holds, :func:`strauss_fit.inference.capture_posterior.reload_chain_capture`), builds the
 report and writes it.
 """
@@ -34,8 +34,8 @@ import numpy as np
 
 from ..capture import Capture, CaptureSamples, Circle, open_capture
 from ..errors import StraussFitError
-from ..fit.capture import BOUND_FACTOR, CaptureFit, delta_e_mean, relative_rms
-from ..fit.capture_result import (
+from ..fitting.capture import BOUND_FACTOR, CaptureFit, delta_e_mean, relative_rms
+from ..fitting.capture_result import (
     check_capture_result,
     holdout_indices,
     is_capture_result,
@@ -378,8 +378,8 @@ def build_capture_report(
 ) -> Report:
     """Assemble the report of a capture's fit from its result (the JSON of ``fit
     --capture``), the images it was fitted to and the fit read back
-    (:func:`strauss_fit.fit.capture_result.reload_capture_fit`), and optionally the held-out
-    images with the fit's prediction of them (:func:`strauss_fit.fit.capture_result.reload_held_out`).
+    (:func:`strauss_fit.fitting.capture_result.reload_capture_fit`), and optionally the held-out
+    images with the fit's prediction of them (:func:`strauss_fit.fitting.capture_result.reload_held_out`).
     ``equivalence`` replaces the result's equivalence ranges. ``chain``: a capture's chain
     sampled from this fit (:func:`check_chain_fit`), whose posterior gets a section of its own
     (:func:`_posterior_section`)."""
@@ -1154,7 +1154,7 @@ def open_recorded_capture(
     """The capture a capture's result records (its paths as written, else relative to the
     folder of ``fit_path``, the result's JSON), each of ``capture`` (paths), ``lights`` and
     ``mask`` replacing the recorded one when given; the result's recorded encoding, if any,
-    replaces the capture's (as :func:`strauss_fit.fit.capture_result.reload_capture_fit`
+    replaces the capture's (as :func:`strauss_fit.fitting.capture_result.reload_capture_fit`
     reads it). With ``chain`` (the path of a capture's chain, whose metadata holds
     ``result``), ``fit_path`` is the folder the recorded paths are relative to (the chain's
     ``fit_base``), then the chain's own folder. A recorded path found nowhere is a one-line

@@ -30,8 +30,8 @@ import numpy as np
 
 from ..color import srgb_encode
 from ..errors import StraussFitError
-from ..fit.losses import ROBUST_LOSSES
-from ..fit.result import FitResult
+from ..fitting.losses import ROBUST_LOSSES
+from ..fitting.result import FitResult
 from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..inference.summaries import ChainPosterior, Laplace, chain_posterior, degeneracy_warnings, loss_warning
 from ..io.files import Outputs, check_writable, read_json
@@ -242,7 +242,7 @@ def build_report(
     assets: str = "report_files",
     sources: dict[str, str] | None = None,
 ) -> Report:
-    """Assemble the report from a fit result (a :class:`~strauss_fit.fit.result.FitResult`
+    """Assemble the report from a fit result (a :class:`~strauss_fit.fitting.result.FitResult`
     or its JSON), the target and fitted images (H, W, 3), the mask of pixels the fit used
     (H, W), and optionally a chain."""
     fit = FitResult.from_json(fit)
@@ -747,13 +747,13 @@ def write_report(report: Report, html_path: str | Path, *, force: bool = False) 
 def render_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """The fitted image (H, W, 3) of a fit result — the scene rendered with the result's
     material, light intensities and exposure — and the mask of the pixels the fit used
-    (:func:`strauss_fit.fit.problem.used_pixels`). ``scene`` must match the target's size."""
+    (:func:`strauss_fit.fitting.problem.used_pixels`). ``scene`` must match the target's size."""
     import equinox as eqx
     import jax.numpy as jnp
 
-    from ..fit.parameters import lights_with
-    from ..fit.problem import used_pixels
-    from ..render.strauss import render
+    from ..fitting.parameters import lights_with
+    from ..fitting.problem import used_pixels
+    from ..rendering.strauss import render
 
     fit = FitResult.from_json(fit)
     lights = {k: jnp.asarray(float(v)) for k, v in fit.lights.items()}

@@ -6,5 +6,5 @@
 - :mod:`~strauss_fit.scene.loading`: :class:`~strauss_fit.scene.loading.Scene` and the
   strict scene-file reader.
 
-Next in the flow: :mod:`strauss_fit.render` (shading the sphere into an image).
+Next in the flow: :mod:`strauss_fit.rendering` (shading the sphere into an image).
 """

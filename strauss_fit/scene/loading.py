@@ -7,7 +7,7 @@ an environment image holding NaN or infinite values are reported as one-line
 problem — before any work is done.
 
 The renderer's range (:func:`check_radiance_range`, also run by
-:func:`strauss_fit.render.strauss.render` on scenes built in code): every light intensity,
+:func:`strauss_fit.rendering.strauss.render` on scenes built in code): every light intensity,
 light colour component and background radiance is at most :data:`MAX_RADIANCE` (10^30), and
 so is the scene's *radiance scale*, the sum of every light's peak irradiance at the sphere
 (:func:`light_peaks`), the ambient intensity and the brightest background radiance. Each
@@ -38,7 +38,7 @@ from .background import BACKGROUND_KINDS, Background
 from .camera import Camera
 from .lights import DirectionalLights, Lights, PointLights
 
-#: Default recursion depth of the global model (see :func:`strauss_fit.render.strauss.render`).
+#: Default recursion depth of the global model (see :func:`strauss_fit.rendering.strauss.render`).
 DEFAULT_DEPTH = 4
 MAX_IMAGE_SIDE = 8192
 #: The largest radiance scale the renderer guarantees finite images for (module docstring).

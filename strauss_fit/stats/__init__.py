@@ -5,10 +5,10 @@
 - :mod:`~strauss_fit.stats.noise`: the target's noise, estimated from the image or read
   from its sidecar, and the noise model at a radiance.
 
-They take arrays and problems, never fits: :mod:`strauss_fit.fit` uses them, and
+They take arrays and problems, never fits: :mod:`strauss_fit.fitting` uses them, and
 :mod:`strauss_fit.inference` (the posterior and sampling) sits above both. The perceptual
 equivalence ranges refit with a parameter held, so they live in the fit
-(:mod:`strauss_fit.fit.equivalence`).
+(:mod:`strauss_fit.fitting.equivalence`).
 
-Next in the flow: :mod:`strauss_fit.render` is below; :mod:`strauss_fit.fit` above.
+Next in the flow: :mod:`strauss_fit.rendering` is below; :mod:`strauss_fit.fitting` above.
 """

@@ -19,7 +19,7 @@ as an enormous deviation instead of dropping it. Deviations are
 :math:`\Sigma_{ij}/(s_i s_j)` (:func:`deviations`, :func:`correlation`).
 
 Problems are duck-typed: anything with ``residual_physical(x)`` (a Strauss
-:class:`strauss_fit.fit.problem.Problem`, a Phong
+:class:`strauss_fit.fitting.problem.Problem`, a Phong
 :class:`strauss_fit.convert.phong_fit.PhongProblem`).
 """
 
@@ -168,7 +168,7 @@ def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
     ``problem.render_physical``: each of the P(P + 1)/2 second derivatives
     :math:`\partial^2 m/\partial x_a \partial x_b` as a forward-over-forward directional
     derivative, one pair after the other (``lax.map``). Why not ``jax.hessian``: the model's
-    derivatives are a closed-form ``custom_jvp`` (:func:`strauss_fit.render.strauss.direct_radiance`),
+    derivatives are a closed-form ``custom_jvp`` (:func:`strauss_fit.rendering.strauss.direct_radiance`),
     and batching its second derivatives over the P × P pairs (``vmap``) cost 6-10 times the
     pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5)."""
     size = x.shape[0]
@@ -230,7 +230,7 @@ def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
     :math:`C_i = \partial(g_i \nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`:
     how the value yᵢ's noise moves the optimum (:func:`problem_sandwich_steps`).
 
-    ``problem``: a fit problem (:class:`strauss_fit.fit.problem.Problem`) whose residuals
+    ``problem``: a fit problem (:class:`strauss_fit.fitting.problem.Problem`) whose residuals
     are value by value functions of its model (``render_physical``) and target
     (``objective_of_model``)."""
     j, h, slope, values, jacobian_slope = (
@@ -353,7 +353,7 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
 def padded_noise(problem: Any, noise_sd: np.ndarray) -> np.ndarray:
     """``noise_sd`` (one per real residual value) as :func:`_sandwich_parts` takes it: one
     per value of ``problem.target``, 0 on a padded pixel set's padding
-    (:func:`strauss_fit.fit.problem.pixel_bucket`), whose slope is 0 too."""
+    (:func:`strauss_fit.fitting.problem.pixel_bucket`), whose slope is 0 too."""
     noise_sd = np.asarray(noise_sd, dtype=np.float64).ravel()
     return np.concatenate([noise_sd, np.zeros(int(np.asarray(problem.target).size) - noise_sd.size)])
 

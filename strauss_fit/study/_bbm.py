@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..precision import float64
-from ..render.coverage import fully_covered
+from ..rendering.coverage import fully_covered
 from ..scene.camera import intersect_unit_sphere, rays_through
 from ..scene.lights import sample_lights
 from ..scene.loading import Scene
@@ -142,7 +142,7 @@ def render_material(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The image (H, W, 3) of ``material`` on the unit sphere of ``scene`` and the pixels it
     holds (H, W): those whose whole footprint shows the sphere
-    (:func:`~strauss_fit.render.coverage.fully_covered`), each the mean radiance over
+    (:func:`~strauss_fit.rendering.coverage.fully_covered`), each the mean radiance over
     ``supersample`` × ``supersample`` points of its footprint; 0 elsewhere. Radiance per
     light π f_r cos θ_i I·colour, plus the ambient light times kd (module docstring)."""
     camera = scene.camera

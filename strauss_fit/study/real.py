@@ -13,8 +13,8 @@ data, each read from a path the user gives (the data stay where they are):
    both models are fitted to each image with the same objective, least squares on linear
    radiance over the same pixels: Strauss by the single-target fit
    (:func:`strauss_fit.fit_many`, the loss held ``"linear"``), Phong by the capture fitter
-   (:func:`strauss_fit.fit.capture.fit_capture_samples` on
-   :func:`strauss_fit.fit.scene_samples.samples_from_scene`, the scene's lights known).
+   (:func:`strauss_fit.fitting.capture.fit_capture_samples` on
+   :func:`strauss_fit.fitting.scene_samples.samples_from_scene`, the scene's lights known).
    Strauss is fitted a second time with its default loss (``"auto"``: refitted with the
    Huber loss when the least-squares fit visibly misses), which keeps a highlight it
    cannot reach from pulling the rest of the sphere (``strauss_default``; Phong has no such
@@ -29,9 +29,9 @@ data, each read from a path the user gives (the data stay where they are):
    Materials are classed by name (:func:`material_class`).
 6. **Real photographs** (:func:`capture_models`): a capture the capture fitter reads
    (e.g. DiLiGenT's ``ballPNG``) fitted by every model of
-   :data:`strauss_fit.fit.capture.MODELS` on half of its images, the other half predicted
+   :data:`strauss_fit.fitting.capture.MODELS` on half of its images, the other half predicted
    (held-out error), and each model's lobe parameters fitted on two disjoint halves of
-   the fitted images (:func:`strauss_fit.fit.capture_stability.halves`: stable when each
+   the fitted images (:func:`strauss_fit.fitting.capture_stability.halves`: stable when each
    half's value lies within the other's perceptual equivalence range).
 
 One material or model that fails is recorded with its error and the others go on.
@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import StraussFitError
-from ..fit.options import FitOptions
+from ..fitting.options import FitOptions
 from ..io.targets import Target
 from ..scene.loading import Scene, load_scene
 from ._bbm import BBM_COMMIT, SUPERSAMPLE, NganMaterial, render_material
@@ -75,7 +75,7 @@ FITTED = ("strauss", "phong", "strauss_default", "strauss_clipped", "phong_clipp
 REACH = ("strauss", "strauss_default")
 #: One just-noticeable difference: a material is matched when its mean CIEDE2000 is at most this.
 JND = 1.0
-#: The highlight (core and wings, :mod:`strauss_fit.fit.diagnosis`) holds the residual when
+#: The highlight (core and wings, :mod:`strauss_fit.fitting.diagnosis`) holds the residual when
 #: its share of χ² exceeds this multiple of its share of the pixels (the diagnosis's own rule).
 CONCENTRATION = 1.5
 #: Material classes, by name keyword; the first class with a keyword in the name wins,
@@ -216,7 +216,7 @@ def _highlight_share(regions: dict[str, Any]) -> float | None:
 
 
 def out_of_reach(result: Any) -> tuple[bool, str | None]:
-    """Whether a Strauss :class:`~strauss_fit.fit.result.FitResult` shows the target out of
+    """Whether a Strauss :class:`~strauss_fit.fitting.result.FitResult` shows the target out of
     Strauss's reach, and why (module docstring): the ``highlight-out-of-reach`` warning, or
     the colour pinned at 1 or the smoothness at a bound with the residual concentrated in
     the highlight."""
@@ -260,8 +260,8 @@ def _strauss_record(result: Any) -> dict[str, Any]:
 def _phong_record(scene: Scene, target: Target, clip: float | None = None) -> dict[str, Any]:
     """Phong fitted by the capture fitter; with ``clip``, to the values at most ``clip``
     (pixels with a brighter channel left out, as saturated), its ΔE taken over every pixel."""
-    from ..fit.capture import CaptureFitOptions, delta_e_mean, fit_capture_samples, relative_rms
-    from ..fit.scene_samples import samples_from_scene
+    from ..fitting.capture import CaptureFitOptions, delta_e_mean, fit_capture_samples, relative_rms
+    from ..fitting.scene_samples import samples_from_scene
 
     try:
         samples = samples_from_scene(scene, target)
@@ -459,7 +459,7 @@ def _fit_strauss(
     """Strauss's three fits of the rendered materials, in batches: by least squares, with
     its default loss, and by least squares to the targets clipped at white; each by
     material index (those without a target left out)."""
-    from ..fit.batch import fit_many
+    from ..fitting.batch import fit_many
 
     least_squares = FitOptions(noise=MERL_NOISE, edge_pixels="exclude", loss="linear")
     jobs = {
@@ -512,15 +512,15 @@ def capture_models(
     models: Sequence[str] | None = None,
     say: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Part 6 (module docstring): every model of :data:`strauss_fit.fit.capture.MODELS`
+    """Part 6 (module docstring): every model of :data:`strauss_fit.fitting.capture.MODELS`
     fitted to the capture at ``path`` without the images ``holdout`` names (every second
     by default), its error on those, and its lobe parameters on two disjoint halves of the
     fitted images."""
     from ..capture._manifest import open_capture
     from ..capture._samples import load_samples
-    from ..fit.capture import MODELS, CaptureFitOptions
-    from ..fit.capture_result import fit_capture, holdout_indices
-    from ..fit.capture_stability import compared, halves
+    from ..fitting.capture import MODELS, CaptureFitOptions
+    from ..fitting.capture_result import fit_capture, holdout_indices
+    from ..fitting.capture_stability import compared, halves
 
     say = say or (lambda message: None)
     started = time.perf_counter()

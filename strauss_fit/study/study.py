@@ -63,15 +63,15 @@ from ..color import delta_e_2000
 from ..convert.converter import Converter, Entry, Settings, conversion_scene
 from ..convert.phong_fit import LOG_MAX_EXPONENT, vector_from_material
 from ..errors import StraussFitError
-from ..fit.identifiability import reference_noise_level
-from ..fit.options import FitOptions
-from ..fit.problem import Problem, build_problem
+from ..fitting.identifiability import reference_noise_level
+from ..fitting.options import FitOptions
+from ..fitting.problem import Problem, build_problem
 from ..io.targets import Target
 from ..models.albedo import DEFAULT_NODES, phong_reflectance, quadrature_error, strauss_reflectance
 from ..models.material import FRACTION_NAMES, REFLECTION_NAMES, Material
 from ..models.phong import PhongMaterial
 from ..precision import uses_float64
-from ..render.strauss import plan_render
+from ..rendering.strauss import plan_render
 from ..stats import laplace
 
 #: Novice ranges of the draws.

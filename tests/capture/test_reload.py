@@ -10,8 +10,8 @@ import pytest
 from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit.capture import capture_inputs, open_capture
 from strauss_fit.errors import CaptureError
-from strauss_fit.fit.capture import CaptureFitOptions, relative_rms
-from strauss_fit.fit.capture_result import fit_capture, is_capture_result, reload_capture_fit
+from strauss_fit.fitting.capture import CaptureFitOptions, relative_rms
+from strauss_fit.fitting.capture_result import fit_capture, is_capture_result, reload_capture_fit
 
 SMALL = dict(frame=(120, 96), center_px=(60.3, 47.8), radius_px=30.0)
 

@@ -17,9 +17,9 @@ import pytest
 
 import strauss_fit as sf
 import support
-from strauss_fit.fit.batch import FitJob
-from strauss_fit.fit.folder import provenance
-from strauss_fit.fit.options import FitOptions
+from strauss_fit.fitting.batch import FitJob
+from strauss_fit.fitting.folder import provenance
+from strauss_fit.fitting.options import FitOptions
 from strauss_fit_cli.main import main
 
 SIZE = 24
@@ -323,7 +323,7 @@ def test_a_peer_that_is_not_a_dask_scheduler_is_one_line(tmp_path):
     import time
 
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.fit.executors import connect
+    from strauss_fit.fitting.executors import connect
 
     def server(reply: bytes) -> tuple[socket.socket, int]:
         listener = socket.socket()

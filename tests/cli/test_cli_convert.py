@@ -109,7 +109,7 @@ FAST = ["--size", SIZE]
 
 def test_library_default_settings_are_the_command_lines_default(tmp_path, capsys):
     from strauss_fit.convert.converter import Settings
-    from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS
+    from strauss_fit.fitting.options import DEFAULT_QUALITY, QUALITY_PRESETS
 
     assert Settings() == Settings.preset() == Settings.preset(DEFAULT_QUALITY)
     assert Settings().starts == QUALITY_PRESETS[DEFAULT_QUALITY]["starts"]

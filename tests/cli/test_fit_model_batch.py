@@ -19,7 +19,7 @@ import pytest
 
 import strauss_fit as sf
 import support
-from strauss_fit.render.reflectance import render_model
+from strauss_fit.rendering.reflectance import render_model
 from strauss_fit_cli.main import main
 
 SIZE = 24

@@ -508,7 +508,7 @@ def test_study_refuses_to_overwrite_before_running(tmp_path, capsys):
 
 
 def test_every_help_says_what_the_quality_presets_use(capsys):
-    from strauss_fit.fit.options import QUALITY_PRESETS
+    from strauss_fit.fitting.options import QUALITY_PRESETS
 
     for command, setting in (
         ("fit", "starts"),

@@ -175,8 +175,8 @@ def test_every_model_has_a_label_per_value_and_equivalence_ranges():
     and Cook–Torrance's kd and f0 one label each for three values (the correlation warning
     named the wrong pairs, the report dropped the correlations). Checked on the tables
     themselves: the command takes seconds of compiling, more than this module can spend."""
-    from strauss_fit.fit.capture import MODELS, CaptureFitOptions, _labels, _offsets, _parameters
-    from strauss_fit.fit.capture_equivalence import MATERIAL
+    from strauss_fit.fitting.capture import MODELS, CaptureFitOptions, _labels, _offsets, _parameters
+    from strauss_fit.fitting.capture_equivalence import MATERIAL
 
     for model in MODELS:
         params = _parameters(CaptureFitOptions(model=model, white_balance=True, ambient=True), images=4)

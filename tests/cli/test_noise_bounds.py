@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 import strauss_fit as sf
-from strauss_fit.fit.problem import build_problem
-from strauss_fit.fit.result import FitResult, FitResultError, finite_or_none, nonfinite_entry
+from strauss_fit.fitting.problem import build_problem
+from strauss_fit.fitting.result import FitResult, FitResultError, finite_or_none, nonfinite_entry
 from strauss_fit.io.images import write_image
-from strauss_fit.render.strauss import plan_render
+from strauss_fit.rendering.strauss import plan_render
 from strauss_fit.stats.laplace import problem_sandwich
 from strauss_fit.stats.noise import NOISE_RANGE, check_noise_level, describe_noise
 from strauss_fit_cli.main import main

@@ -11,11 +11,11 @@ import pytest
 from strauss_fit.color import delta_e_2000
 from strauss_fit.convert.converter import Converter, Entry, Settings, conversion_scene, phong_guess, strauss_guess
 from strauss_fit.convert.phong_fit import LOG_MAX_EXPONENT, phong_problem, vector_from_material
-from strauss_fit.fit.problem import render_at
+from strauss_fit.fitting.problem import render_at
 from strauss_fit.models.material import Material
 from strauss_fit.models.phong import PhongMaterial, highlight_power
 from strauss_fit.models.strauss import highlight_falloff
-from strauss_fit.render.phong import render_phong
+from strauss_fit.rendering.phong import render_phong
 from strauss_fit.scene.loading import parse_scene
 
 pytestmark = pytest.mark.usefixtures("x64")

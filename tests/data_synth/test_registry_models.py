@@ -1,6 +1,6 @@
 """data_synth and the registry of reflectance models: every registry model but Phong is a
 synth model, with the registry's parameters and ranges, rendered by
-:func:`strauss_fit.render.reflectance.render_model`; ``"strauss"`` and ``"phong"`` produce
+:func:`strauss_fit.rendering.reflectance.render_model`; ``"strauss"`` and ``"phong"`` produce
 exactly the files they did before the table was built from the registry."""
 
 import hashlib
@@ -17,7 +17,7 @@ from data_synth.plan import plan_digest
 from strauss_fit.errors import StraussFitError
 from strauss_fit.io.images import read_image
 from strauss_fit.models.reflectance import REFLECTANCE_MODELS
-from strauss_fit.render.reflectance import render_model as render_reflectance
+from strauss_fit.rendering.reflectance import render_model as render_reflectance
 
 INTENSITY = 1.5
 AMBIENT = 0.1

@@ -8,7 +8,7 @@ import pytest
 import strauss_fit as sf
 import support
 from strauss_fit.engine import Kernel, run, run_batched
-from strauss_fit.fit.batch import FitFailure, FitJob, fit_many
+from strauss_fit.fitting.batch import FitFailure, FitJob, fit_many
 
 FREE = ("color", "smoothness", "metalness")
 
@@ -343,7 +343,7 @@ def test_fit_many_takes_per_target_scenes_and_options_and_reports_progress():
 
 def test_fit_many_on_a_two_worker_dask_cluster_equals_the_in_process_results():
     pytest.importorskip("dask.distributed")
-    from strauss_fit.fit.executors import DaskExecutor
+    from strauss_fit.fitting.executors import DaskExecutor
 
     scene = support.key_and_fill_scene(24, source="dask")
     targets = _targets(scene, 4, seed=2)

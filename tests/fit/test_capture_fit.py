@@ -15,8 +15,8 @@ from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit.capture._manifest import read_capture
 from strauss_fit.capture._samples import load_samples
 from strauss_fit.errors import CaptureError
-from strauss_fit.fit.capture import CaptureFitOptions, fit_capture_samples
-from strauss_fit.fit.capture_result import fit_capture, holdout_indices
+from strauss_fit.fitting.capture import CaptureFitOptions, fit_capture_samples
+from strauss_fit.fitting.capture_result import fit_capture, holdout_indices
 
 SMALL = dict(frame=(160, 120), center_px=(83.4, 61.7), radius_px=40.0)
 

@@ -12,9 +12,9 @@ import pytest
 
 from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit.capture import load_samples, open_capture
-from strauss_fit.fit.capture import CaptureFitOptions, fit_capture_samples
-from strauss_fit.fit.capture_equivalence import capture_equivalence
-from strauss_fit.fit.capture_stability import _degenerate, halves
+from strauss_fit.fitting.capture import CaptureFitOptions, fit_capture_samples
+from strauss_fit.fitting.capture_equivalence import capture_equivalence
+from strauss_fit.fitting.capture_stability import _degenerate, halves
 
 SMALL = dict(frame=(120, 96), center_px=(60.3, 47.8), radius_px=30.0, supersample=1, seed=5)
 

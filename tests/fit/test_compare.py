@@ -12,14 +12,14 @@ import pytest
 
 from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit import Material
-from strauss_fit.fit import compare as compare_module
-from strauss_fit.fit.capture import MODELS
-from strauss_fit.fit.compare import compare_models, format_comparison_table, information_criteria
-from strauss_fit.fit.scene_samples import samples_from_scene
+from strauss_fit.fitting import compare as compare_module
+from strauss_fit.fitting.capture import MODELS
+from strauss_fit.fitting.compare import compare_models, format_comparison_table, information_criteria
+from strauss_fit.fitting.scene_samples import samples_from_scene
 from strauss_fit.io.targets import Target
 from strauss_fit.models.phong import PhongMaterial
-from strauss_fit.render.phong import render_phong
-from strauss_fit.render.strauss import render
+from strauss_fit.rendering.phong import render_phong
+from strauss_fit.rendering.strauss import render
 from strauss_fit.scene.loading import load_scene
 from strauss_fit_cli.main import main
 

@@ -218,9 +218,9 @@ def test_plastic_mirror_from_an_8_bit_image_keeps_the_first_fits_cost_and_holds_
     assert 0.999 < smoothness < 1.0 and float(result.material.metalness) < 0.005
 
     # the two mechanisms directly: a refit's first start is the optimum itself ...
-    from strauss_fit.fit.problem import build_problem, costs
-    from strauss_fit.fit.solvers import polish
-    from strauss_fit.fit.starts import START_MARGIN, starts
+    from strauss_fit.fitting.problem import build_problem, costs
+    from strauss_fit.fitting.solvers import polish
+    from strauss_fit.fitting.starts import START_MARGIN, starts
 
     material = sf.Material(color=(1.0, 1.0, 1.0), smoothness=smoothness, metalness=0.0)
     problem, _, _ = build_problem(
@@ -241,7 +241,7 @@ def test_plastic_mirror_from_an_8_bit_image_keeps_the_first_fits_cost_and_holds_
 def test_release_gain_lets_a_correlated_partner_follow(x64):
     # H over (colour, metalness), metalness pinned: with correlation rho the Newton gain of
     # releasing it is N g^2 / (H_mm (1 - rho^2)), not N g^2 / H_mm
-    from strauss_fit.fit.solvers import release_gain
+    from strauss_fit.fitting.solvers import release_gain
 
     rho, g, count = 0.995, -0.01, 1000
     information = np.array([[4.0, rho * 2.0 * 3.0], [rho * 2.0 * 3.0, 9.0]])
@@ -264,9 +264,9 @@ def test_parameters_invisible_only_jointly_are_held_at_the_fit_not_the_scene(
     # the scene's C = 0.5 with the scene's m = 0.5 they would tint the mirror: they must be
     # held where the fit put them. With the scene's m = 0 the tint stays 0 and the scene's
     # values stand.
-    from strauss_fit.fit.identifiability import Decision, hold_jointly_dead_at_fit
-    from strauss_fit.fit.problem import build_problem
-    from strauss_fit.fit.solvers import Solved
+    from strauss_fit.fitting.identifiability import Decision, hold_jointly_dead_at_fit
+    from strauss_fit.fitting.problem import build_problem
+    from strauss_fit.fitting.solvers import Solved
 
     scene = mirror_room
     target = make_target(scene, sf.Material(color=(1.0, 1.0, 1.0), smoothness=1.0, metalness=0.0))
@@ -302,9 +302,9 @@ def test_parameters_invisible_only_jointly_are_held_at_the_fit_not_the_scene(
 def test_index_of_refraction_needs_a_transparency_distinguishable_from_zero(transparency, held, x64):
     # at t = 0.001 (noise-level light through the sphere) the image's dependence on n is
     # real but rests on a t the data cannot tell from 0: n must be held; at t = 0.5 it stays
-    from strauss_fit.fit.identifiability import Decision, hold_ior_without_significant_transparency
-    from strauss_fit.fit.problem import build_problem
-    from strauss_fit.fit.solvers import Solved
+    from strauss_fit.fitting.identifiability import Decision, hold_ior_without_significant_transparency
+    from strauss_fit.fitting.problem import build_problem
+    from strauss_fit.fitting.solvers import Solved
 
     scene = parse_scene(tomllib.loads(GLASS), source="glass")
     truth = dict(color=(0.9, 0.85, 0.7), smoothness=0.6, metalness=0.0, transparency=transparency, ior=1.5)
@@ -348,7 +348,7 @@ def test_large_targets_start_on_a_subsample_and_end_at_the_full_image_optimum(mo
     # 224² has ~39 000 sphere pixels: the starts run on every second one, then the polish
     # finishes on all of them; the answer must be the one of a fit on all pixels throughout,
     # also for plastic (m = 0), where the polish pins metalness at its bound
-    from strauss_fit.fit import problem as fit_problem
+    from strauss_fit.fitting import problem as fit_problem
 
     scene = key_and_fill_scene(224, source="big")
     truth = sf.Material(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=metalness)

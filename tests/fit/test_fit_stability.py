@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import strauss_fit as sf
-from strauss_fit.fit.api import fit
-from strauss_fit.fit.problem import to_physical
-from strauss_fit.fit.solvers import solve_starts
-from strauss_fit.fit.starts import START_MARGIN
+from strauss_fit.fitting.api import fit
+from strauss_fit.fitting.problem import to_physical
+from strauss_fit.fitting.solvers import solve_starts
+from strauss_fit.fitting.starts import START_MARGIN
 from support import assert_all_finite, key_and_fill_scene, legacy_options, noisy_target
 
 # --- 4. fits started at the extremes ---------------------------------------------------

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from strauss_fit.fit.identifiability import numerical_decision
-from strauss_fit.fit.parameters import Layout
+from strauss_fit.fitting.identifiability import numerical_decision
+from strauss_fit.fitting.parameters import Layout
 
 
 def test_an_exact_degeneracy_is_unconstrained_not_pinned():

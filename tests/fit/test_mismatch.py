@@ -18,8 +18,8 @@ import pytest
 
 import strauss_fit as sf
 import support
-from strauss_fit.fit.problem import CAUCHY_C, HUBER_K, build_problem, loss_residual
-from strauss_fit.render.coverage import fully_covered, pixel_coverage
+from strauss_fit.fitting.problem import CAUCHY_C, HUBER_K, build_problem, loss_residual
+from strauss_fit.rendering.coverage import fully_covered, pixel_coverage
 from strauss_fit.stats.laplace import problem_sandwich
 from strauss_fit.stats.noise import describe_noise
 
@@ -92,9 +92,9 @@ def test_edge_pixels_of_an_antialiased_lambertian_dominate_its_misfit_and_are_le
 
 def _edge_choice(scene: sf.Scene, pixels: np.ndarray, usable: np.ndarray | None = None) -> tuple[str, str]:
     from strauss_fit.engine import run
-    from strauss_fit.fit.problem import resolve_edge_pixels_steps
+    from strauss_fit.fitting.problem import resolve_edge_pixels_steps
     from strauss_fit.precision import float64
-    from strauss_fit.render.strauss import plan_render
+    from strauss_fit.rendering.strauss import plan_render
 
     usable = np.ones(pixels.shape[:2], dtype=bool) if usable is None else usable
     target = sf.Target(pixels, usable, "t.exr", "linear", 0, 0)
@@ -270,7 +270,7 @@ def test_auto_switches_to_the_mismatch_loss_only_for_visible_mismatches():
     scene, target, _ = mitsuba_case("mitsuba-diffuse-0000")  # a mismatch nobody can see (dE ~0.03)
     assert sf.fit(scene, target).solver["loss"] == "linear"
     scene, target, _ = mitsuba_case("mitsuba-roughconductor-0000")  # dE ~10
-    from strauss_fit.fit.options import MISMATCH_LOSS
+    from strauss_fit.fitting.options import MISMATCH_LOSS
 
     assert sf.fit(scene, target).solver["loss"] == MISMATCH_LOSS
 
@@ -305,7 +305,7 @@ def _noisy(scene, material, sigma=0.005, seed=0):
 
 
 def test_equivalence_ranges_hold_the_fit_widen_with_the_threshold_and_see_what_the_eye_sees():
-    from strauss_fit.fit.equivalence import equivalence_ranges
+    from strauss_fit.fitting.equivalence import equivalence_ranges
 
     material = dict(color=(0.6, 0.4, 0.3), smoothness=0.0, metalness=0.0)
     scene = support.key_and_fill_scene(40, material=material, source="matte")
@@ -387,7 +387,7 @@ def test_the_reachable_maximum_is_rendered_only_where_a_pixel_may_be_out_of_reac
     # cannot be out of reach, and its verdict is the same without it
     import importlib
 
-    api = importlib.import_module("strauss_fit.fit.api")
+    api = importlib.import_module("strauss_fit.fitting.api")
     envelopes = []
     real = api.reachable_maximum_steps
 

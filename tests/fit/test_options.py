@@ -5,7 +5,7 @@ import pytest
 
 import strauss_fit as sf
 from strauss_fit.convert.converter import Settings
-from strauss_fit.fit.options import DEFAULT_QUALITY, QUALITY_PRESETS, FitOptions
+from strauss_fit.fitting.options import DEFAULT_QUALITY, QUALITY_PRESETS, FitOptions
 
 
 def test_default_options_are_the_balanced_preset():

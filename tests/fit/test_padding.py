@@ -12,14 +12,13 @@ import pytest
 
 import strauss_fit as sf
 import support
-from strauss_fit.fit.problem import build_problem, pixel_bucket
-from strauss_fit.render.strauss import plan_render
+from strauss_fit.fitting.problem import build_problem, pixel_bucket
+from strauss_fit.rendering.strauss import plan_render
 from strauss_fit.stats.laplace import problem_laplace, problem_sandwich
 
 pytestmark = pytest.mark.usefixtures("x64")
 
-# (``strauss_fit.fit`` is also the function: import the module by name)
-problem_module = importlib.import_module("strauss_fit.fit.problem")
+problem_module = importlib.import_module("strauss_fit.fitting.problem")
 
 FREE = ["color", "smoothness", "metalness"]
 TRUTH = dict(color=(0.6, 0.4, 0.3), smoothness=0.6, metalness=0.3)
@@ -121,7 +120,7 @@ def test_least_squares_huber_and_cauchy_share_one_program_with_each_losss_own_va
     whose residuals, costs, Jacobians and Hessians are each loss's own (the loss as
     structure, compiled on its own, to 1e-12)."""
     from strauss_fit.engine import batch_key
-    from strauss_fit.fit.problem import LOSS_BY_CODE, costs
+    from strauss_fit.fitting.problem import LOSS_BY_CODE, costs
     from strauss_fit.stats.laplace import _objective_terms, objective_terms_kernel
 
     scene, image = scene_and_image

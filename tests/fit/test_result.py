@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import strauss_fit as sf
-from strauss_fit.fit.result import FitResult, FitResultError
+from strauss_fit.fitting.result import FitResult, FitResultError
 from support import key_and_fill_scene, legacy_options, noisy_target
 
 

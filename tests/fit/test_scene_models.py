@@ -1,5 +1,5 @@
 """Any reflectance model on one target and its scene (``fit TARGET --scene S --model NAME``):
-the scene's pixels as a capture of one image (:mod:`strauss_fit.fit.scene_samples`)."""
+the scene's pixels as a capture of one image (:mod:`strauss_fit.fitting.scene_samples`)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strauss_fit.fit.capture import CaptureFitOptions
-from strauss_fit.fit.capture_result import fit_capture, reload_capture_fit
-from strauss_fit.fit.scene_samples import samples_from_scene
+from strauss_fit.fitting.capture import CaptureFitOptions
+from strauss_fit.fitting.capture_result import fit_capture, reload_capture_fit
+from strauss_fit.fitting.scene_samples import samples_from_scene
 from strauss_fit.io.targets import Target
 from strauss_fit.models.phong import PhongMaterial
-from strauss_fit.render.phong import render_phong
-from strauss_fit.render.strauss import render
+from strauss_fit.rendering.phong import render_phong
+from strauss_fit.rendering.strauss import render
 from strauss_fit.scene.loading import load_scene
 
 SCENES = Path(__file__).resolve().parents[2] / "data_synth" / "scenes"

@@ -9,9 +9,9 @@ import strauss_fit as sf
 from strauss_fit import FitOptions, parse_scene
 from strauss_fit.engine import run
 from strauss_fit.errors import StraussFitError
-from strauss_fit.fit.api import reference_noise
-from strauss_fit.fit.problem import build_problem, costs, render_at
-from strauss_fit.fit.search import (
+from strauss_fit.fitting.api import reference_noise
+from strauss_fit.fitting.problem import build_problem, costs, render_at
+from strauss_fit.fitting.search import (
     GRID_CHUNK,
     GRID_METALNESS,
     GRID_SMOOTHNESS,
@@ -21,9 +21,9 @@ from strauss_fit.fit.search import (
     grid_search,
     projected_costs,
 )
-from strauss_fit.fit.solvers import solve
-from strauss_fit.fit.starts import start_points_steps, starts, uses_grid
-from strauss_fit.render.strauss import plan_render
+from strauss_fit.fitting.solvers import solve
+from strauss_fit.fitting.starts import start_points_steps, starts, uses_grid
+from strauss_fit.rendering.strauss import plan_render
 from support import SCENES, noisy_target
 
 pytestmark = pytest.mark.usefixtures("x64")

@@ -26,8 +26,8 @@ from scipy import ndimage
 
 import strauss_fit as sf
 import support
-from strauss_fit.fit.diagnosis import Diagnosis
-from strauss_fit.fit.summary import verdict_lines
+from strauss_fit.fitting.diagnosis import Diagnosis
+from strauss_fit.fitting.summary import verdict_lines
 from strauss_fit.stats.noise import (
     BOUND_CHI2,
     STRUCTURE_POWER,

@@ -13,8 +13,8 @@ import pytest
 
 import strauss_fit as sf
 import support
-from strauss_fit.fit.problem import build_problem
-from strauss_fit.render.strauss import plan_render
+from strauss_fit.fitting.problem import build_problem
+from strauss_fit.rendering.strauss import plan_render
 from strauss_fit.stats import laplace
 
 pytestmark = pytest.mark.usefixtures("x64")

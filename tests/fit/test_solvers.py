@@ -1,4 +1,4 @@
-"""The solvers of :mod:`strauss_fit.fit.solvers`: the Levenberg–Marquardt variant reaches the
+"""The solvers of :mod:`strauss_fit.fitting.solvers`: the Levenberg–Marquardt variant reaches the
 same optimum as optimistix's stock one, in fewer steps on this model."""
 
 import jax.numpy as jnp
@@ -8,8 +8,8 @@ import pytest
 
 import strauss_fit as sf
 from strauss_fit import FitOptions, plan_render
-from strauss_fit.fit.problem import build_problem
-from strauss_fit.fit.solvers import (
+from strauss_fit.fitting.problem import build_problem
+from strauss_fit.fitting.solvers import (
     GROW_RATIO,
     REJECT_RATIO,
     SOLVERS,

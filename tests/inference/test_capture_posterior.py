@@ -12,8 +12,8 @@ import pytest
 
 from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit.capture import capture_inputs, open_capture
-from strauss_fit.fit.capture import CaptureFitOptions
-from strauss_fit.fit.capture_result import fit_capture, predict, reload_capture_fit
+from strauss_fit.fitting.capture import CaptureFitOptions
+from strauss_fit.fitting.capture_result import fit_capture, predict, reload_capture_fit
 from strauss_fit.inference.capture_posterior import (
     DEFAULT_VALUES,
     CapturePosterior,

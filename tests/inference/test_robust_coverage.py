@@ -46,8 +46,8 @@ from jax.scipy.stats import norm
 
 import strauss_fit as sf
 import support
-from strauss_fit.fit.problem import HUBER_K, build_problem
-from strauss_fit.render.strauss import plan_render
+from strauss_fit.fitting.problem import HUBER_K, build_problem
+from strauss_fit.rendering.strauss import plan_render
 from strauss_fit.stats.laplace import objective_terms
 
 FREE = ("color", "smoothness", "metalness")

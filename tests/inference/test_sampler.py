@@ -11,8 +11,8 @@ import pytest
 
 import strauss_fit as sf
 from strauss_fit.errors import StraussFitError
-from strauss_fit.fit.api import fit
-from strauss_fit.fit.parameters import Layout
+from strauss_fit.fitting.api import fit
+from strauss_fit.fitting.parameters import Layout
 from strauss_fit.inference.posterior import LogPosterior, PosteriorError, check_sigma, default_prior, estimate_sigma
 from strauss_fit.inference.sampler import ChainError, SampleSettings, diagnose, initial_walkers, load_chain, run_sampler
 from strauss_fit.stats.laplace import laplace_covariance

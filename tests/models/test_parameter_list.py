@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 
 import strauss_fit
-from strauss_fit.fit.capture import HELD
-from strauss_fit.fit.capture_equivalence import MATERIAL
-from strauss_fit.fit.parameters import MATERIAL_SIZES, Layout
-from strauss_fit.fit.summary import SUMMARY_COLUMNS
+from strauss_fit.fitting.capture import HELD
+from strauss_fit.fitting.capture_equivalence import MATERIAL
+from strauss_fit.fitting.parameters import MATERIAL_SIZES, Layout
+from strauss_fit.fitting.summary import SUMMARY_COLUMNS
 from strauss_fit.models import material
 from strauss_fit.models.material import (
     COLOR_RANGE,
@@ -42,7 +42,7 @@ HOME = Path(material.__file__)
 ALLOWED = collections.Counter(
     {
         # a priority (which parameter a degenerate fit holds first), not the parameter list
-        ("strauss_fit/fit/identifiability.py", ("ior", "transparency", "metalness", "smoothness", "color")): 1,
+        ("strauss_fit/fitting/identifiability.py", ("ior", "transparency", "metalness", "smoothness", "color")): 1,
     }
 )
 

@@ -55,7 +55,7 @@ from hypothesis import strategies as st
 
 import strauss_fit as sf
 from strauss_fit.models.strauss import K_J, diffuse_reflectivity, shade, specular_base, specular_peak
-from strauss_fit.render.strauss import transmission_weight
+from strauss_fit.rendering.strauss import transmission_weight
 from support import (
     DTYPES,
     GRAZING,

@@ -1,6 +1,6 @@
 """The closed-form derivatives of the lights' part of the local model
-(:func:`strauss_fit.render.strauss.direct_radiance`, a ``jax.custom_jvp``) against JAX's own
-differentiation of the same function (:func:`strauss_fit.render.strauss._direct_radiance`,
+(:func:`strauss_fit.rendering.strauss.direct_radiance`, a ``jax.custom_jvp``) against JAX's own
+differentiation of the same function (:func:`strauss_fit.rendering.strauss._direct_radiance`,
 the plain code): first derivatives in every input a fit moves (C, s, m, t, the
 irradiance), second derivatives (the Laplace curvature uses ``jax.hessian``), reverse mode,
 finiteness at the extremes of the stability grid, the fallback for tangents of the
@@ -21,7 +21,7 @@ from support import GRAZING, GRID, assert_all_finite, direction_at, key_and_fill
 
 pytestmark = pytest.mark.usefixtures("x64")
 
-render_module = importlib.import_module("strauss_fit.render.strauss")
+render_module = importlib.import_module("strauss_fit.rendering.strauss")
 direct_radiance = render_module.direct_radiance
 plain_direct_radiance = render_module._direct_radiance
 
@@ -147,8 +147,8 @@ def test_geometry_tangents_fall_back_to_forward_mode():
 def test_fit_jacobian_matches_finite_differences():
     """A whole fit's residual Jacobian (colour, s, m, t and the key light's intensity free),
     built through the closed form, against central differences of the residual."""
-    from strauss_fit.fit.options import FitOptions
-    from strauss_fit.fit.problem import build_problem
+    from strauss_fit.fitting.options import FitOptions
+    from strauss_fit.fitting.problem import build_problem
 
     scene = key_and_fill_scene(24)
     truth = sf.Material(color=(0.7, 0.3, 0.2), smoothness=0.6, metalness=0.4, transparency=0.2)

@@ -20,7 +20,7 @@ import pytest
 
 import strauss_fit as sf
 from strauss_fit.models.strauss import specular_color, specular_peak
-from strauss_fit.render.strauss import (
+from strauss_fit.rendering.strauss import (
     DEPTH_STEPS,
     OUTPUT_TOLERANCE,
     _mirror_terms,
@@ -30,12 +30,12 @@ from strauss_fit.render.strauss import (
     transmission_weight,
     unit_roundoff,
 )
-from strauss_fit.render.strauss import render as render_function
+from strauss_fit.rendering.strauss import render as render_function
 from strauss_fit.scene.background import Background
 from strauss_fit.scene.loading import background_peak
 from support import SCENES
 
-strauss = sys.modules[render_function.__module__]  # (``strauss_fit.render`` is the function)
+strauss = sys.modules[render_function.__module__]
 F32, F64 = unit_roundoff(jnp.float32), unit_roundoff(jnp.float64)
 
 

@@ -10,7 +10,7 @@ import pytest
 
 import strauss_fit as sf
 from strauss_fit.models.strauss import K_F, K_G, K_J
-from strauss_fit.render.strauss import RenderPlan, refract, render
+from strauss_fit.rendering.strauss import RenderPlan, refract, render
 from strauss_fit.scene.background import background_radiance
 from strauss_fit.scene.camera import Rays, intersect_unit_sphere
 from strauss_fit.scene.loading import parse_scene

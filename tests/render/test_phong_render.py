@@ -11,7 +11,7 @@ import pytest
 import strauss_fit as sf
 from strauss_fit.errors import MaterialError
 from strauss_fit.models.phong import PhongMaterial, phong_shade
-from strauss_fit.render.phong import render_phong
+from strauss_fit.rendering.phong import render_phong
 from strauss_fit.scene.loading import parse_scene
 
 pytestmark = pytest.mark.usefixtures("x64")

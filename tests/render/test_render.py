@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import strauss_fit as sf
-from strauss_fit.render.strauss import RenderPlan, plan_render, prepare
+from strauss_fit.rendering.strauss import RenderPlan, plan_render, prepare
 from strauss_fit.scene.loading import parse_scene
 
 pytestmark = pytest.mark.usefixtures("x64")
@@ -176,7 +176,7 @@ def test_light_intensities_are_differentiable_through_render():
 def test_a_plan_made_without_the_material_does_not_trace_transmission_of_an_opaque_one(monkeypatch):
     # plan_render(scene) plans transmission in case the material is transparent; rendering an
     # opaque one with that plan traced the global model for nothing (twice the time)
-    from strauss_fit.render import strauss
+    from strauss_fit.rendering import strauss
 
     scene = scene_from(DIRECTIONAL, background='[background]\nkind = "checkerboard"', extra="[render]\ndepth = 4")
     plan = plan_render(scene)

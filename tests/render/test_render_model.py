@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from strauss_fit.fit.capture import CaptureFitOptions, fit_capture_samples
-from strauss_fit.fit.scene_samples import samples_from_scene
+from strauss_fit.fitting.capture import CaptureFitOptions, fit_capture_samples
+from strauss_fit.fitting.scene_samples import samples_from_scene
 from strauss_fit.io.targets import Target
 from strauss_fit.models.phong import PhongMaterial
-from strauss_fit.render.coverage import fully_covered
-from strauss_fit.render.phong import render_phong
-from strauss_fit.render.reflectance import render_model
-from strauss_fit.render.strauss import render
+from strauss_fit.rendering.coverage import fully_covered
+from strauss_fit.rendering.phong import render_phong
+from strauss_fit.rendering.reflectance import render_model
+from strauss_fit.rendering.strauss import render
 from strauss_fit.scene.loading import load_scene
 
 SCENES = Path(__file__).resolve().parents[2] / "data_synth" / "scenes"

@@ -19,7 +19,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import strauss_fit as sf
-from strauss_fit.render.strauss import RenderPlan, interior_radiance, refract, render
+from strauss_fit.rendering.strauss import RenderPlan, interior_radiance, refract, render
 from strauss_fit.scene.loading import parse_scene
 from support import DTYPES, GRAZING, GRID, PROPERTY, UP, assert_all_finite, materials
 

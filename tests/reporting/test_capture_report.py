@@ -16,8 +16,8 @@ import pytest
 
 from data_synth.capture import example_capture_spec, write_capture
 from strauss_fit.capture import capture_inputs, open_capture
-from strauss_fit.fit.capture import CaptureFitOptions
-from strauss_fit.fit.capture_result import fit_capture, predict, reload_capture_fit, reload_held_out
+from strauss_fit.fitting.capture import CaptureFitOptions
+from strauss_fit.fitting.capture_result import fit_capture, predict, reload_capture_fit, reload_held_out
 from strauss_fit.inference.capture_posterior import capture_chain_summary, sample_capture
 from strauss_fit.inference.sampler import SampleSettings, load_chain, write_metadata
 from strauss_fit.reporting.capture_report import build_capture_report, open_recorded_capture

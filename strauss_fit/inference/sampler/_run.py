@@ -19,7 +19,7 @@ from typing import Any
 import emcee
 import numpy as np
 
-from ...fit.options import DEFAULT_QUALITY, quality_preset
+from ...fitting.options import DEFAULT_QUALITY, quality_preset
 from ...precision import uses_float64
 from ..posterior import LogPosterior
 from ._backends import BufferedHDFBackend
@@ -48,7 +48,7 @@ class SampleSettings:
     @classmethod
     def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> SampleSettings:
         """The sampling settings of quality preset ``name``
-        (:data:`strauss_fit.fit.options.QUALITY_PRESETS`: ``walkers``,
+        (:data:`strauss_fit.fitting.options.QUALITY_PRESETS`: ``walkers``,
         ``min_tau_multiple``, ``sample_max_steps``), with ``overrides`` (a value of None
         keeps the preset's or the default)."""
         values = quality_preset(name)

@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...errors import StraussFitError
-from ...fit.api import fit as run_fit
-from ...fit.options import DEFAULT_QUALITY, FitOptions
-from ...fit.result import FitResult
+from ...fitting.api import fit as run_fit
+from ...fitting.options import DEFAULT_QUALITY, FitOptions
+from ...fitting.result import FitResult
 from ...io.files import Outputs, check_writable, read_json
 from ...io.targets import load_target, match_scene
 from ...precision import uses_float64
@@ -44,7 +44,7 @@ from ._run import Progress, SampleRun, SampleSettings, run_sampler
 from ._walkers import default_walkers, initial_walkers
 
 if TYPE_CHECKING:
-    from ...fit.problem import Problem
+    from ...fitting.problem import Problem
     from ...io.targets import Target
     from ...scene.loading import Scene
 

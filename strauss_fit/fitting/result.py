@@ -121,14 +121,14 @@ class FitResult:
     #: The solved problem (entries pinned at bounds included) and the optimum ``x``
     #: (physical values in ``problem.layout`` order), for sampling and reports. None for a
     #: result read back with :meth:`from_json`. Its pixel set is padded (see
-    #: :func:`strauss_fit.fit.problem.pixel_bucket`): ``problem.real(array)`` drops the
+    #: :func:`strauss_fit.fitting.problem.pixel_bucket`): ``problem.real(array)`` drops the
     #: padding from a per-pixel array, ``problem.unpadded()`` gives the problem without it.
     problem: Problem | None = None
     x: np.ndarray | None = None
     #: Other top-level keys of the JSON (``target``, ``scene``, ``mask``, ``encoding``
     #: recorded by the command line), written back by :meth:`to_json` after the rest.
     extra: dict[str, Any] = field(default_factory=dict)
-    #: What the verdict found (``{"code", "message"}``, see :mod:`strauss_fit.fit.diagnosis`).
+    #: What the verdict found (``{"code", "message"}``, see :mod:`strauss_fit.fitting.diagnosis`).
     warnings: list[dict[str, str]] = field(default_factory=list)
     #: The global exposure: fitted with ``fit_exposure``, else the held value (1 unless fixed).
     exposure: float | None = None
@@ -163,7 +163,7 @@ class FitResult:
 
     @property
     def verdict(self) -> str | None:
-        """``"consistent"``, ``"mismatch"`` or ``"undetermined"`` (see :mod:`strauss_fit.fit.diagnosis`)."""
+        """``"consistent"``, ``"mismatch"`` or ``"undetermined"`` (see :mod:`strauss_fit.fitting.diagnosis`)."""
         return self.residual.get("verdict")
 
     def to_json(self) -> dict[str, Any]:

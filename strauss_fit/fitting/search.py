@@ -21,10 +21,10 @@ the highlight narrows) costs a few hundred renders of the coarse subsample in on
 compiled call — the global search the issue asks for (the linear part convex, as in Yu,
 Seo & Lee's branch-and-bound estimation of BRDFs). The best distinct local minima of the
 grid become the starts of the usual Levenberg–Marquardt solves
-(:mod:`strauss_fit.fit.solvers`), which polish all parameters together.
+(:mod:`strauss_fit.fitting.solvers`), which polish all parameters together.
 
 Where the projection does not hold the grid is not used and the fit keeps its multi-start
-(:mod:`strauss_fit.fit.starts`): transmission traced (t free or held above 0, and then n
+(:mod:`strauss_fit.fitting.starts`): transmission traced (t free or held above 0, and then n
 too: the transmitted light is tinted by C once per passage and the inner reflections by
 :math:`C_s`, a polynomial in C), a light intensity or the exposure free (the image is then
 *bilinear* in them and C, not jointly linear), the colour held, or a loss other than plain
@@ -32,7 +32,7 @@ least squares (the robust losses reweight residuals nonlinearly). :func:`grid_ap
 says which.
 
 ``FitOptions.search = "auto"`` (the default) uses the grid wherever it applies, as
-measured against the multi-start: see :data:`~strauss_fit.fit.options.SEARCHES`.
+measured against the multi-start: see :data:`~strauss_fit.fitting.options.SEARCHES`.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from jax import Array
 from ..engine import Kernel, Steps, run
 from ..models.material import OPAQUE_NAMES
 from ..precision import uses_float64
-from ..render.strauss import shade_prepared
+from ..rendering.strauss import shade_prepared
 from .parameters import Layout, material_with
 from .problem import Problem, scaled
 
@@ -67,7 +67,7 @@ GRID_METALNESS = np.linspace(0.0, 1.0, 51)
 GRID_CHUNK = 8
 #: A start from the grid is kept this far inside the bounds of s near 1 (the grid resolves
 #: 1 − s down to 1e-5, and the usual margin of 0.02 would erase that), and
-#: :data:`~strauss_fit.fit.starts.START_MARGIN` elsewhere.
+#: :data:`~strauss_fit.fitting.starts.START_MARGIN` elsewhere.
 SMOOTH_EDGE = 1e-7
 
 

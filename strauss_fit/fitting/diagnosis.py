@@ -494,12 +494,12 @@ def uncertainty_warnings(
     - ``strong-correlation``: two free entries correlate beyond :data:`STRONG_CORRELATION`
       (the image pins their combination, not each);
     - ``weakly-constrained``: a free entry's deviation exceeds :data:`WEAK_FRACTION` of its
-      scale (:func:`~strauss_fit.fit.identifiability.deviation_scale`);
+      scale (:func:`~strauss_fit.fitting.identifiability.deviation_scale`);
     - ``flat-at-bound``: an entry pinned at a bound (deviation 0 there) whose deviation,
       were it free (``free_covariance``: the same covariance with nothing pinned), would
       exceed that fraction: the cost is nearly flat, and the bound, not the image, sets it.
 
-    ``equivalence`` (:func:`strauss_fit.fit.equivalence.equivalence_ranges`), when
+    ``equivalence`` (:func:`strauss_fit.fitting.equivalence.equivalence_ranges`), when
     computed, is quoted."""
     from .identifiability import deviation_scale
 

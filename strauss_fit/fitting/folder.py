@@ -3,7 +3,7 @@ r"""Many targets into one folder of results: what ``strauss-fit fit T1 T2 … -o
 For each target, ``OUTDIR/<target's file stem>.json`` (the fit result, as the single fit
 writes it) and, on request, ``OUTDIR/<stem>.compare.png`` are written together as soon as
 the target is fitted; at the end ``OUTDIR/summary.csv`` (one row per target, in input
-order, :data:`~strauss_fit.fit.summary.SUMMARY_COLUMNS`) is rewritten. So a run that is
+order, :data:`~strauss_fit.fitting.summary.SUMMARY_COLUMNS`) is rewritten. So a run that is
 killed loses only the targets in flight, and ``resume`` skips every target whose result is
 already there (a complete JSON result of the same target) and fits the rest, the failed
 ones included. A target that fails is a row with ``status`` "failed" and its one-line
@@ -214,8 +214,8 @@ def sidecar_of(target: str | Path) -> Path | None:
 
 def is_result(data: Any) -> bool:
     """Whether ``data`` (a parsed JSON file) is a fit result: a Strauss fit's
-    (:class:`~strauss_fit.fit.result.FitResult`) or another model's (a capture's result,
-    :func:`~strauss_fit.fit.capture_result.is_capture_result`, as ``fit --model`` writes it)."""
+    (:class:`~strauss_fit.fitting.result.FitResult`) or another model's (a capture's result,
+    :func:`~strauss_fit.fitting.capture_result.is_capture_result`, as ``fit --model`` writes it)."""
     if is_capture_result(data):
         try:
             check_capture_result(data)
@@ -328,8 +328,8 @@ MODEL_SUMMARY_TAIL = ("free", "rms", "relative_rms", "delta_e2000_mean", "solver
 class ModelFit:
     """Another reflectance model than Strauss fitted to every target of a folder, each as
     ``fit TARGET --scene S --model NAME`` fits one: the target and its scene as a capture of
-    one image (:func:`~strauss_fit.fit.scene_samples.samples_from_scene`), then
-    :func:`~strauss_fit.fit.capture_result.fit_capture` with ``options`` and the equivalence
+    one image (:func:`~strauss_fit.fitting.scene_samples.samples_from_scene`), then
+    :func:`~strauss_fit.fitting.capture_result.fit_capture` with ``options`` and the equivalence
     ranges asked for."""
 
     options: CaptureFitOptions
@@ -426,8 +426,8 @@ class ModelFit:
         on_result: Callable[[int, dict[str, Any] | FitFailure], None] | None = None,
     ) -> None:
         """Fit ``jobs`` one after the other in this process; ``on_result(index, result)``
-        with each result (a result JSON, or a :class:`~strauss_fit.fit.batch.FitFailure`),
-        then ``progress``, as :func:`~strauss_fit.fit.batch.fit_many` calls them. The
+        with each result (a result JSON, or a :class:`~strauss_fit.fitting.batch.FitFailure`),
+        then ``progress``, as :func:`~strauss_fit.fitting.batch.fit_many` calls them. The
         capture fitter compiles its program once per data shape: the targets of one scene,
         size and mask reuse it."""
         scenes: dict[str, Scene] = {}

@@ -20,7 +20,7 @@ from ..models.modes import DEFAULT_TABLE_SIZE
 from .losses import LOSS_CHOICES, LOSSES
 
 #: A parameter is fitted when its predicted standard deviation at the reference noise is
-#: at most this fraction of its scale (:mod:`strauss_fit.fit.identifiability`).
+#: at most this fraction of its scale (:mod:`strauss_fit.fitting.identifiability`).
 DEFAULT_THRESHOLD = 0.05
 
 #: Settings of each ``--quality`` preset: for fits (``starts``, ``max_steps``, ``rtol``,
@@ -70,11 +70,11 @@ MISMATCH_LOSS = "huber"
 VISIBLE_DELTA_E = 1.0
 #: What ``FitOptions.edge_pixels`` accepts.
 EDGE_PIXELS = ("auto", "exclude", "include")
-#: What ``FitOptions.solver`` accepts (:func:`strauss_fit.fit.solvers.solver`): plain names
+#: What ``FitOptions.solver`` accepts (:func:`strauss_fit.fitting.solvers.solver`): plain names
 #: here, so that the command line lists them without importing JAX.
 SOLVERS = ("lm", "gauss-newton", "bfgs")
 #: What ``FitOptions.search`` accepts: ``"grid"`` (the global search of
-#: :mod:`strauss_fit.fit.search` where :func:`~strauss_fit.fit.search.grid_applies`, the
+#: :mod:`strauss_fit.fitting.search` where :func:`~strauss_fit.fitting.search.grid_applies`, the
 #: multi-start elsewhere), ``"starts"`` (the multi-start always) and ``"auto"``, which is
 #: ``"grid"``: the grid wherever it applies, as measured by ``benchmarks/search.py``
 #: (2026-12-03, preset balanced, both fits of every target interleaved in one process,
@@ -96,7 +96,7 @@ SOLVERS = ("lm", "gauss-newton", "bfgs")
 #:
 #: So the grid wins on the optimum reached and the steps everywhere it applies and costs
 #: time only on short fits; it is the default for its robustness (no start in a basin the
-#: fixed points miss). Captures keep their own projected grid (:mod:`strauss_fit.fit.capture`).
+#: fixed points miss). Captures keep their own projected grid (:mod:`strauss_fit.fitting.capture`).
 SEARCHES = ("auto", "grid", "starts")
 #: The preset settings that are fit settings (the others are sampling settings).
 FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol", "equivalence")
@@ -141,7 +141,7 @@ class FitOptions:
     #: target's sidecar, else estimated from the image
     #: (:func:`strauss_fit.stats.noise.describe_noise`).
     noise: float | tuple[float, float, float] | None = None
-    #: What the solver minimises (:data:`~strauss_fit.fit.losses.LOSS_REGISTRY`): ``"linear"``
+    #: What the solver minimises (:data:`~strauss_fit.fitting.losses.LOSS_REGISTRY`): ``"linear"``
     #: least squares, ``"perceptual"`` (cube-root), ``"huber"``, ``"cauchy"``; ``"auto"``:
     #: linear, then, if the model cannot reproduce the target visibly, refitted with
     #: :data:`MISMATCH_LOSS` (chosen by ``benchmarks/external.py``, see docs/fitting.md).
@@ -150,12 +150,12 @@ class FitOptions:
     #: covered silhouette pixel of an anti-aliased image or a photograph mixes in the
     #: background); ``"include"``: every pixel whose centre shows it; ``"auto"``: include
     #: them when the target's silhouette shows it is point-sampled, else exclude
-    #: (:func:`strauss_fit.render.coverage.silhouette_blend`; measured by
+    #: (:func:`strauss_fit.rendering.coverage.silhouette_blend`; measured by
     #: ``benchmarks/silhouette.py`` and ``benchmarks/recovery.py``, see docs/fitting.md).
     #: A result records what was used.
     edge_pixels: str = "auto"
     #: Also compute each free parameter's perceptual equivalence range
-    #: (:func:`strauss_fit.fit.equivalence.equivalence_ranges`): on in the
+    #: (:func:`strauss_fit.fitting.equivalence.equivalence_ranges`): on in the
     #: ``accurate`` preset.
     equivalence: bool = bool(_BALANCED["equivalence"])
     #: Its threshold, a mean CIEDE2000 (1: one just-noticeable difference).

@@ -4,14 +4,14 @@ in each.
 
 A :class:`Loss` holds what the code branches on: whether the loss is robust (it scales
 each residual by its value's own noise), whether it folds into the compiled kernel (and
-its code there, see :meth:`strauss_fit.fit.problem.Problem.kernel_form`), and a one-line
+its code there, see :meth:`strauss_fit.fitting.problem.Problem.kernel_form`), and a one-line
 description for help texts. The numerical side — how each loss transforms the residuals —
-is :data:`strauss_fit.fit.problem.LOSS_RESIDUALS`, keyed by the same names (a test checks
+is :data:`strauss_fit.fitting.problem.LOSS_RESIDUALS`, keyed by the same names (a test checks
 that the two agree).
 
 Why two modules: this one imports the standard library only, so that the command line
 builds its ``--loss`` choices and help without importing NumPy or JAX (``strauss-fit
---help`` stays fast); :mod:`strauss_fit.fit.problem` needs JAX for the residuals.
+--help`` stays fast); :mod:`strauss_fit.fitting.problem` needs JAX for the residuals.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ class Loss:
     @property
     def folded(self) -> bool:
         """Whether problems of this loss share their compiled programs
-        (:meth:`strauss_fit.fit.problem.Problem.kernel_form`)."""
+        (:meth:`strauss_fit.fitting.problem.Problem.kernel_form`)."""
         return self.code is not None
 
 
@@ -47,7 +47,7 @@ class Loss:
 #: fit assumes (the Laplace covariance, the sampler's likelihood).
 LEAST_SQUARES = "linear"
 #: ``FitOptions.loss``'s automatic choice: :data:`LEAST_SQUARES`, then
-#: :data:`strauss_fit.fit.options.MISMATCH_LOSS` when the model visibly cannot reproduce the target.
+#: :data:`strauss_fit.fitting.options.MISMATCH_LOSS` when the model visibly cannot reproduce the target.
 AUTO = "auto"
 
 #: Every loss a fit can minimise, by name, in the order help texts list them. The codes of
@@ -81,7 +81,7 @@ LOSSES: tuple[str, ...] = tuple(LOSS_REGISTRY)
 #: The losses that scale each residual by its value's own noise (``weights``).
 ROBUST_LOSSES: tuple[str, ...] = tuple(name for name, loss in LOSS_REGISTRY.items() if loss.robust)
 #: The losses whose problems share their compiled programs
-#: (:meth:`strauss_fit.fit.problem.Problem.kernel_form`), in the order of their codes.
+#: (:meth:`strauss_fit.fitting.problem.Problem.kernel_form`), in the order of their codes.
 FOLDED_LOSSES: tuple[str, ...] = tuple(
     sorted((name for name, loss in LOSS_REGISTRY.items() if loss.folded), key=lambda name: LOSS_REGISTRY[name].code)
 )

@@ -1,13 +1,13 @@
 r"""Several reflectance models fitted to the same data, and whether Strauss is distinguishable
 from the best of them (``strauss-fit compare``, docs/commands/compare.md).
 
-Every model of :data:`strauss_fit.fit.capture.MODELS` (read when called: the registry may
-grow) is fitted by the one capture fitter, :func:`strauss_fit.fit.capture.fit_capture_samples`,
+Every model of :data:`strauss_fit.fitting.capture.MODELS` (read when called: the registry may
+grow) is fitted by the one capture fitter, :func:`strauss_fit.fitting.capture.fit_capture_samples`,
 to the same usable values — one target and its scene
-(:func:`strauss_fit.fit.scene_samples.samples_from_scene`) or a capture — and compared by:
+(:func:`strauss_fit.fitting.scene_samples.samples_from_scene`) or a capture — and compared by:
 
 - the residual: its sum of squares (RSS), relative RMS and mean CIEDE2000
-  (:func:`~strauss_fit.fit.capture.relative_rms`, :func:`~strauss_fit.fit.capture.delta_e_mean`);
+  (:func:`~strauss_fit.fitting.capture.relative_rms`, :func:`~strauss_fit.fitting.capture.delta_e_mean`);
 - :math:`\chi^2/\mathrm{dof}` with :math:`\chi^2 = \sum (r/\sigma)^2` and dof = n − k, when
   the noise σ is known (one value, one per channel, or one per value);
 - AIC and BIC from the Gaussian likelihood: with σ known, :math:`-2\ln L = \chi^2` (+ a
@@ -17,7 +17,7 @@ to the same usable values — one target and its scene
   number of usable values (pixels × channels × images fitted), k the number of fitted
   parameters (a value that ended on its bound still counts);
 - with a ``holdout``, each model fitted to the other images predicts the held-out ones
-  (:func:`strauss_fit.fit.capture_result.predict`): their relative RMS and mean CIEDE2000.
+  (:func:`strauss_fit.fitting.capture_result.predict`): their relative RMS and mean CIEDE2000.
 
 The best model has the lowest BIC, or with a holdout the lowest held-out relative RMS. The
 verdict says whether Strauss's fit is distinguishable from the best's: ΔBIC = BIC(Strauss) −
@@ -62,7 +62,7 @@ PROFILED_CAVEAT = (
 
 
 def known_models() -> tuple[str, ...]:
-    """The reflectance models the capture fitter knows now (:data:`strauss_fit.fit.capture.MODELS`)."""
+    """The reflectance models the capture fitter knows now (:data:`strauss_fit.fitting.capture.MODELS`)."""
     return tuple(_capture.MODELS)
 
 
@@ -144,7 +144,7 @@ def compare_models(
     """Fit each of ``models`` (default: every known one) to ``samples`` and compare them
     (module docstring); a JSON-able result. ``noise``: the noise σ when known (one value,
     R, G, B, or one per value); ``holdout``: images held out and predicted (as
-    :func:`strauss_fit.fit.capture_result.holdout_indices` reads it). A model whose fit
+    :func:`strauss_fit.fitting.capture_result.holdout_indices` reads it). A model whose fit
     raises is recorded with its error; the others go on."""
     return fit_models(samples, models, exposure=exposure, holdout=holdout, noise=noise, progress=progress).result
 

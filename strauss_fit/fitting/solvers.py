@@ -27,10 +27,10 @@ cost to the reduction the linearisation predicted:
   387) and 0.01 once reached a 58 % lower cost; over the bundled Mitsuba renders 0.01 took
   501 steps against 569, and the README's example 17 against 41 (2026-12-02).
 
-Solving (:func:`solve`). Every start runs :attr:`~strauss_fit.fit.options.FitOptions.start_steps`
+Solving (:func:`solve`). Every start runs :attr:`~strauss_fit.fitting.options.FitOptions.start_steps`
 steps (:func:`solve_starts`: one after another with ``lax.map`` on a CPU, vectorised with
 ``vmap`` elsewhere), on a pixel subsample of a large image
-(:func:`strauss_fit.fit.problem.coarse_problem`); the best one is then finished on every
+(:func:`strauss_fit.fitting.problem.coarse_problem`); the best one is then finished on every
 pixel by the bound-aware polish (:func:`polish`) unless it already converged away from the
 bounds on every pixel.
 
@@ -389,7 +389,7 @@ def solve_steps(
     polished (:func:`polish`) on every pixel, unless it converged away from the bounds
     on every pixel already.
 
-    With ``coarse`` (:func:`strauss_fit.fit.problem.coarse_problem`), the index scan and
+    With ``coarse`` (:func:`strauss_fit.fitting.problem.coarse_problem`), the index scan and
     the starts run on that subsample: a 256² sphere has 51 000 pixels where every sixth
     (8 500) tells the starts apart as well, and each step there costs a sixth; the polish
     then finishes on the full image in a few steps, so the answer is the full image's

@@ -2,25 +2,25 @@ r"""Least-squares recovery of the Strauss parameters from a reference image: :fu
 
 The fit minimises :math:`\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
 over the usable sphere pixels p (linear RGB), in float64, with θ the unconstrained
-parameters of :mod:`strauss_fit.fit.parameters`. Solvers: Levenberg–Marquardt (default),
+parameters of :mod:`strauss_fit.fitting.parameters`. Solvers: Levenberg–Marquardt (default),
 Gauss–Newton, or the quasi-Newton minimiser BFGS, all from optimistix
-(:mod:`strauss_fit.fit.solvers`).
+(:mod:`strauss_fit.fitting.solvers`).
 
-The pieces, in the order a fit uses them: the problem (:mod:`strauss_fit.fit.problem`:
+The pieces, in the order a fit uses them: the problem (:mod:`strauss_fit.fitting.problem`:
 the material-independent part of the rendering is prepared once), the closed-form guess
-(:mod:`strauss_fit.fit.guess`), which parameters the image constrains
-(:mod:`strauss_fit.fit.identifiability`), the starts and the scan over n
-(:mod:`strauss_fit.fit.starts`), the solves and the bound-aware polish
-(:mod:`strauss_fit.fit.solvers`), the verdict on whether the model reproduces the target
-(:mod:`strauss_fit.fit.diagnosis`, against the target's noise from
+(:mod:`strauss_fit.fitting.guess`), which parameters the image constrains
+(:mod:`strauss_fit.fitting.identifiability`), the starts and the scan over n
+(:mod:`strauss_fit.fitting.starts`), the solves and the bound-aware polish
+(:mod:`strauss_fit.fitting.solvers`), the verdict on whether the model reproduces the target
+(:mod:`strauss_fit.fitting.diagnosis`, against the target's noise from
 :mod:`strauss_fit.stats.noise`), the uncertainties (:mod:`strauss_fit.stats.laplace`:
 the noise sandwich when the noise is known, else the Laplace approximation) and the result
-(:mod:`strauss_fit.fit.result`).
+(:mod:`strauss_fit.fitting.result`).
 
 Only what the scene constrains is fitted; held parameters keep the scene file's
 ``[material]`` values and the result says why. The decision is taken at the first guess
 and again at each optimum, and the fit repeated while the answer is new (at most
-:data:`~strauss_fit.fit.identifiability.MAX_DECISIONS` times).
+:data:`~strauss_fit.fitting.identifiability.MAX_DECISIONS` times).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from ..errors import StraussFitError
 from ..io.targets import Target, reduce_target
 from ..models.material import PARAMETER_NAMES, Material
 from ..precision import uses_float64
-from ..render.strauss import Prepared, RenderPlan, plan_render
+from ..rendering.strauss import Prepared, RenderPlan, plan_render
 from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene
 from ..stats import laplace
@@ -118,7 +118,7 @@ def parse_fixed(options: FitOptions, allowed: list[str]) -> dict[str, Any]:
 
 def reference_noise(target: Target, options: FitOptions) -> float:
     """The noise level the identifiability analysis and the cost's scale use: the given
-    one, else :func:`~strauss_fit.fit.identifiability.reference_noise_level` of the
+    one, else :func:`~strauss_fit.fitting.identifiability.reference_noise_level` of the
     target's usable pixels."""
     if options.reference_noise is not None:
         return options.reference_noise
@@ -280,7 +280,7 @@ class _FirstGuess:
     options: FitOptions
     #: why the edge pixels were included or left out, if that was decided (a note)
     edge_note: str | None
-    #: a value for every candidate parameter (:func:`~strauss_fit.fit.guess.initial_guess`)
+    #: a value for every candidate parameter (:func:`~strauss_fit.fitting.guess.initial_guess`)
     guess: dict[str, Any]
     #: the target's noise at the pixels used (:func:`~strauss_fit.stats.noise.describe_noise`)
     noise: NoiseModel
@@ -311,7 +311,7 @@ def _first_guess_steps(setup: _SetUp, options: FitOptions, prepared_cache: dict,
 def _initial_guess(
     guess_problem: Problem, index: np.ndarray, scene: Scene, material: Material, exposure: float
 ) -> dict[str, Any]:
-    """The closed-form first guess (:func:`~strauss_fit.fit.guess.initial_guess`) of every
+    """The closed-form first guess (:func:`~strauss_fit.fitting.guess.initial_guess`) of every
     candidate parameter from the pixels of ``guess_problem``, the exposure included."""
     direct = guess_problem.prepared.direct
     real = guess_problem.real  # host arrays, NumPy only: nothing here compiles per pixel count
@@ -355,7 +355,7 @@ def _rounds_steps(
 ) -> Steps:
     """Steps giving the :class:`Round` that stands and the number of fits run: the fit
     under ``decision``, then, while the decision taken again at its optimum is new, the
-    fit under that one (at most :data:`~strauss_fit.fit.identifiability.MAX_DECISIONS`)."""
+    fit under that one (at most :data:`~strauss_fit.fitting.identifiability.MAX_DECISIONS`)."""
     options, sigma_ref, say = context.options, context.sigma_ref, context.say
     kept: Round | None = None  # the fit that stands
     tried = [decision_key(decision, material, scene.lights, exposure)]
@@ -504,7 +504,7 @@ def _with_held(
 def _verdict_steps(context: _Context, kept: Round, noise: NoiseModel) -> Steps:
     """Steps giving the round that stands and its :class:`_Outcome`: the verdict on
     ``kept``, and with the ``auto`` loss, when the model visibly cannot reproduce the
-    target, the fit again under :data:`~strauss_fit.fit.options.MISMATCH_LOSS` instead."""
+    target, the fit again under :data:`~strauss_fit.fitting.options.MISMATCH_LOSS` instead."""
     target, options, loss, say = context.target, context.options, context.loss, context.say
     outcome = yield from _conclude(kept, target, options, noise, loss, say)
     visible = float(np.mean(outcome.delta_e)) >= VISIBLE_DELTA_E
@@ -617,7 +617,7 @@ def _conclude(
 def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, sigma: np.ndarray | None) -> bool:
     """Whether the out-of-reach check needs the reachable maximum (88 renders of the used
     pixels: a fifth of a warm fit): only where the target exceeds, by the check's margin
-    (:func:`~strauss_fit.fit.diagnosis.diagnose`'s: 2 % and 3 σ of the noise at the fitted
+    (:func:`~strauss_fit.fitting.diagnosis.diagnose`'s: 2 % and 3 σ of the noise at the fitted
     model, ``sigma``, when it is known, 2 % alone otherwise), a ``floor`` of values that Strauss
     materials reach: the fit itself and a white matte plastic. A pixel within the margin of
     a reachable value is not out of reach (were the envelope's sampling of s ever below the

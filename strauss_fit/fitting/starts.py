@@ -1,15 +1,15 @@
 """Where a fit's solves start: the closed-form guess, a fixed grid, and a scan over n.
 
-The guess (:mod:`strauss_fit.fit.guess`) comes first, then points of :data:`START_GRID`
+The guess (:mod:`strauss_fit.fitting.guess`) comes first, then points of :data:`START_GRID`
 (colour always from the guess), each kept :data:`START_MARGIN` inside the bounds, where the
-transforms of :mod:`strauss_fit.fit.parameters` are flat. When the index of refraction is
+transforms of :mod:`strauss_fit.fitting.parameters` are flat. When the index of refraction is
 fitted, a patterned background seen through the sphere makes the cost oscillate in n, so
 the best local minima of a scan over :data:`IOR_SCAN` (:func:`scan_ior`) each get their
 own copy of the starts.
 
 Where the colour can be projected out (an opaque material fitted by least squares), the
 starts come instead from a global search over smoothness and metalness
-(:mod:`strauss_fit.fit.search`), per ``FitOptions.search`` (:func:`start_points_steps`).
+(:mod:`strauss_fit.fitting.search`), per ``FitOptions.search`` (:func:`start_points_steps`).
 """
 
 from __future__ import annotations
@@ -84,8 +84,8 @@ def scan_ior_steps(problem: Problem, guess: dict[str, Any], keep: int = 3) -> St
 
 def uses_grid(problem: Problem, options: FitOptions) -> bool:
     """Whether ``problem``'s starts come from the grid search: ``options.search`` is
-    ``"grid"`` or ``"auto"`` (:data:`~strauss_fit.fit.options.SEARCHES`) and the colour
-    can be projected out (:func:`strauss_fit.fit.search.grid_applies`)."""
+    ``"grid"`` or ``"auto"`` (:data:`~strauss_fit.fitting.options.SEARCHES`) and the colour
+    can be projected out (:func:`strauss_fit.fitting.search.grid_applies`)."""
     return options.search in ("auto", "grid") and grid_applies(problem) is None
 
 
@@ -99,7 +99,7 @@ def start_points_steps(
 ) -> Steps:
     """The unconstrained starts of a fit on ``problem`` (the coarse one, where there is one)
     and where each came from (``"guess"``, ``"fixed"`` or ``"grid"``): the grid search's
-    best distinct minima (:func:`strauss_fit.fit.search.grid_search_steps`, up to
+    best distinct minima (:func:`strauss_fit.fitting.search.grid_search_steps`, up to
     ``options.starts``) where :func:`uses_grid`, else :func:`starts`. With ``exact_first``
     the guess, exactly, comes first in either case (a refit from the optimum before it).
     ``say``, if given, is told when the grid is searched."""
@@ -125,7 +125,7 @@ def start_points_steps(
 def grid_thetas(layout: Layout, points: np.ndarray) -> np.ndarray:
     """θ of the grid's physical ``points`` (rows): kept :data:`START_MARGIN` inside the
     bounds, where the transforms are flat, except the upper bound of s, kept only
-    :data:`~strauss_fit.fit.search.SMOOTH_EDGE` below 1 — the grid resolves 1 − s down to
+    :data:`~strauss_fit.fitting.search.SMOOTH_EDGE` below 1 — the grid resolves 1 − s down to
     1e-5 (a highlight a few pixels wide), and a margin of 0.02 would put every start near a
     mirror at s = 0.98. Near 1 the transform's flatness is no obstacle: the image's
     sensitivity to s grows as 1/(1 − s)² there, faster than the slope of the transform

@@ -16,7 +16,7 @@ the set of v around p̂ where :math:`D(v) \le \Delta E^*` (default 1, one just-n
 difference). Each side is found by doubling a step away from p̂ until D exceeds
 :math:`\Delta E^*` (or the bound is reached: then the range ends at the bound), then by
 bisection. The inner minimisation is a least-squares fit to :math:`\hat I` in the
-perceptual (cube-root, see :func:`strauss_fit.fit.problem.loss_residual`) space, a close
+perceptual (cube-root, see :func:`strauss_fit.fitting.problem.loss_residual`) space, a close
 and smooth stand-in for the CIEDE2000 it is judged by, warm-started at the previous point.
 
 It says nothing about the target: a parameter with a wide range is one the image of this
@@ -46,7 +46,7 @@ SCALE_MAX = 10.0
 
 
 def _real(problem: Any, per_pixel: Any) -> np.ndarray:
-    """``per_pixel`` without a padded problem's padding (:meth:`strauss_fit.fit.problem.Problem.real`)."""
+    """``per_pixel`` without a padded problem's padding (:meth:`strauss_fit.fitting.problem.Problem.real`)."""
     real = getattr(problem, "real", None)
     return real(per_pixel) if real is not None else np.asarray(per_pixel)
 

@@ -1,7 +1,7 @@
 r"""Fitting many targets in one call: :func:`fit_many`.
 
 Every target is fitted exactly as :func:`strauss_fit.fit` fits it — the same steps
-(:func:`strauss_fit.fit.api.fit_steps`), the same decisions, the same result — but the
+(:func:`strauss_fit.fitting.api.fit_steps`), the same decisions, the same result — but the
 targets of a chunk advance together (:func:`strauss_fit.engine.run_batched`): their calls
 of the same compiled kernel with arguments of the same structure (the targets of one
 scene and image size) run as one compiled call over the chunk, and the scene is prepared
@@ -12,7 +12,7 @@ Failures stay with their target: a target that cannot be read, does not match it
 or breaks the fit is returned as a :class:`FitFailure` (with the one-line message the
 single fit would print) and the others go on.
 
-Where the work runs is the ``executor``'s business (:mod:`strauss_fit.fit.executors`): in
+Where the work runs is the ``executor``'s business (:mod:`strauss_fit.fitting.executors`): in
 this process (the default), or on a Dask cluster, in chunks of targets.
 """
 
@@ -133,7 +133,7 @@ def fit_chunk(
     max_batch: int | None = None,
 ) -> list[FitResult | FitFailure]:
     """Fit ``jobs`` in this process, advancing together (see the module docstring); in
-    order, each a :class:`~strauss_fit.fit.result.FitResult` or a :class:`FitFailure`.
+    order, each a :class:`~strauss_fit.fitting.result.FitResult` or a :class:`FitFailure`.
     ``on_result(index, result)`` is called as each finishes."""
     release_compiled_code_if_needed()
     scenes: dict[str, Scene] = {}
@@ -164,7 +164,7 @@ def fit_chunk(
 class InProcessExecutor:
     """Fit the chunks here, one after the other (:func:`fit_chunk`): :func:`fit_many`'s
     default executor. It lives beside the work it runs; the executors that send chunks
-    elsewhere (:mod:`strauss_fit.fit.executors`) sit above this module."""
+    elsewhere (:mod:`strauss_fit.fitting.executors`) sit above this module."""
 
     def __init__(self, max_batch: int | None = None):
         self.max_batch = max_batch
@@ -189,14 +189,14 @@ def fit_many(
     on_result: Callable[[int, FitResult | FitFailure], None] | None = None,
 ) -> list[FitResult | FitFailure]:
     """Fit many targets: the results in the order of ``targets``, each a
-    :class:`~strauss_fit.fit.result.FitResult` (the same as :func:`strauss_fit.fit` gives
+    :class:`~strauss_fit.fitting.result.FitResult` (the same as :func:`strauss_fit.fit` gives
     for that target alone) or a :class:`FitFailure`.
 
     ``targets``: images (paths or loaded targets) or :class:`FitJob` s; ``scenes``: one
     scene for all (a path or a loaded scene) or one per target; ``options``: one
-    :class:`~strauss_fit.fit.options.FitOptions` for all or one per target. The targets
+    :class:`~strauss_fit.fitting.options.FitOptions` for all or one per target. The targets
     run ``chunk_size`` at a time on the ``executor``: ``None`` (this process), or an
-    executor of :mod:`strauss_fit.fit.executors` (e.g. ``DaskExecutor(workers=2)``).
+    executor of :mod:`strauss_fit.fitting.executors` (e.g. ``DaskExecutor(workers=2)``).
     ``progress`` is called with a :class:`BatchProgress` after each target,
     ``on_result(index, result)`` with each result as it arrives (to write it at once:
     a killed run then loses only the targets in flight).

@@ -1,7 +1,7 @@
 r"""Rendering the sphere with any registered reflectance model
 (:mod:`strauss_fit.models.reflectance`).
 
-Like Phong's renderer (:mod:`strauss_fit.render.phong`), the other models are local and
+Like Phong's renderer (:mod:`strauss_fit.rendering.phong`), the other models are local and
 opaque: :func:`render_model` evaluates the model at every pixel that sees the sphere, every
 directional and point light as seen from the point, plus the scene's ambient light
 reflected as the model's ambient reflectance, and shows the scene's background elsewhere

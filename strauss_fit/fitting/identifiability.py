@@ -23,7 +23,7 @@ Two kinds of reasons, checked in this order:
    says that the image barely changes with it.
 
 :func:`decide_free` applies both at a probe point. A fit decides first at its guess and
-then again at each optimum (:func:`strauss_fit.fit.api.fit`); the rules that turn the
+then again at each optimum (:func:`strauss_fit.fitting.api.fit`); the rules that turn the
 decision at an optimum into held values — a mirror's metalness held at 1
 (:func:`held_at_optimum`), n held without a transparency distinguishable from 0
 (:func:`hold_ior_without_significant_transparency`), parameters invisible only jointly held
@@ -41,7 +41,7 @@ import numpy as np
 from ..engine import Steps, run
 from ..io.targets import Target
 from ..models.material import FRACTION_NAMES, Material
-from ..render.strauss import plan_render
+from ..rendering.strauss import plan_render
 from ..scene.lights import Lights
 from ..scene.loading import Scene
 from ..stats import laplace

@@ -12,7 +12,7 @@ both sides:
   (:func:`strauss_fit.stats.noise.binned_laplacian_bound`).
 
 ``consistent`` when the residual is within even the lower bound; ``mismatch`` when its RMS
-exceeds :data:`strauss_fit.fit.capture.BOUND_FACTOR` times the upper bound (whatever the
+exceeds :data:`strauss_fit.fitting.capture.BOUND_FACTOR` times the upper bound (whatever the
 noise, the model does not reproduce the photographs); ``undetermined`` in between.
 """
 
@@ -348,9 +348,9 @@ def fit_capture(
 
     ``equivalence`` adds each material parameter's perceptual equivalence range (within
     ``equivalence_de``, default one JND of mean CIEDE2000;
-    :mod:`strauss_fit.fit.capture_equivalence`); ``stability`` fits two disjoint halves of
+    :mod:`strauss_fit.fitting.capture_equivalence`); ``stability`` fits two disjoint halves of
     the images and each image alone and says where and why they disagree
-    (:mod:`strauss_fit.fit.capture_stability`).
+    (:mod:`strauss_fit.fitting.capture_stability`).
 
     With ``holdout``, the images it names are left out of the fit and predicted by it; the
     models in ``compare`` (default: Lambert, Phong and Blinn–Phong) are fitted to the same
@@ -518,7 +518,7 @@ def _stability(
     train: CaptureSamples, fit: CaptureFit, options: CaptureFitOptions, delta_e: float, log: Callable[[str], Any]
 ) -> dict[str, Any]:
     """The result's ``stability``: two disjoint halves of the images fitted and compared
-    within ``delta_e``, and each image fitted alone (:mod:`strauss_fit.fit.capture_stability`)."""
+    within ``delta_e``, and each image fitted alone (:mod:`strauss_fit.fitting.capture_stability`)."""
     return {
         **capture_stability.halves(train, options, delta_e=delta_e, progress=log),
         "single_images": capture_stability.single_images(
@@ -649,7 +649,7 @@ def reload_capture_fit(
     result: dict[str, Any], *, base: str | Path | None = None, capture: Capture | None = None
 ) -> tuple[CaptureSamples, CaptureFit]:
     """A capture's fit again from its result: the images it was fitted to (the held-out ones
-    left out again) and a :class:`strauss_fit.fit.capture.CaptureFit` with its values, its
+    left out again) and a :class:`strauss_fit.fitting.capture.CaptureFit` with its values, its
     prediction of them and the covariances the result states (the image-cluster sandwich
     from the ± and correlations, the Laplace one diagonal).
 

@@ -2,11 +2,11 @@ r"""A fit's problem: the prepared scene at the usable pixels, the target, and th
 
 The fit minimises :math:`\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
 over the usable sphere pixels p (linear RGB), with θ the unconstrained parameters of
-:mod:`strauss_fit.fit.parameters`.
+:mod:`strauss_fit.fitting.parameters`.
 
 Speed: everything that does not depend on the material (pixel geometry, the angular terms
 F, G and j of every light, backgrounds seen along mirror directions) is computed once
-(:func:`strauss_fit.render.strauss.prepare`, with every light at unit intensity) and
+(:func:`strauss_fit.rendering.strauss.prepare`, with every light at unit intensity) and
 restricted to the usable pixels (:func:`build_problem`); the solver then evaluates only
 the material-dependent part, with the intensities applied (:func:`scaled`). On a large
 image the starts run on an evenly strided subsample (:func:`coarse_problem`).
@@ -42,8 +42,8 @@ from ..errors import StraussFitError
 from ..io.targets import Target
 from ..models.material import Material
 from ..precision import uses_float64
-from ..render.coverage import fully_covered, pixel_coverage, silhouette_blend
-from ..render.strauss import Prepared, RenderPlan, first_pixels, prepare, shade_prepared, take_pixels
+from ..rendering.coverage import fully_covered, pixel_coverage, silhouette_blend
+from ..rendering.strauss import Prepared, RenderPlan, first_pixels, prepare, shade_prepared, take_pixels
 from ..scene.lights import Lights
 from ..scene.loading import Scene
 from .losses import FOLDED_LOSSES as FOLDED_LOSSES  # re-exported: other modules import the names from here
@@ -57,7 +57,7 @@ if TYPE_CHECKING:
 
 #: Above twice this many usable pixels, the starts run on an evenly strided subsample of
 #: about this size and only the best start is continued on every pixel
-#: (:func:`strauss_fit.fit.solvers.solve`).
+#: (:func:`strauss_fit.fitting.solvers.solve`).
 COARSE_PIXELS = 8192
 
 
@@ -152,7 +152,7 @@ class Problem(eqx.Module):
 
     def physical(self, theta: Array) -> Array:
         """Physical values of θ, with pinned entries (at a bound, see
-        :func:`strauss_fit.fit.solvers.polish`) replaced."""
+        :func:`strauss_fit.fitting.solvers.polish`) replaced."""
         return jnp.where(self.pinned, self.pinned_values, self.layout.to_physical(theta))
 
     def pin(self, mask: np.ndarray, values: np.ndarray) -> Problem:
@@ -203,7 +203,7 @@ class Problem(eqx.Module):
 EXPOSURE = "exposure"
 
 # The losses themselves (their names, which are robust, which fold into the kernel) are plain
-# data in :mod:`strauss_fit.fit.losses`, whose LOSSES, ROBUST_LOSSES and FOLDED_LOSSES are
+# data in :mod:`strauss_fit.fitting.losses`, whose LOSSES, ROBUST_LOSSES and FOLDED_LOSSES are
 # imported above and stay importable from here; how each loss computes is LOSS_RESIDUALS below.
 
 #: A kernel form's ``loss``: one of :data:`FOLDED_LOSSES`, the one ``loss_code`` names
@@ -324,7 +324,7 @@ def _cauchy_psi(z: Array) -> Array:
 #: The robust losses' ψ on the noise-scaled residual z (ψ²/2 = ρ), by name.
 ROBUST_PSI: dict[str, Callable[[Array], Array]] = {"huber": _huber_psi, "cauchy": _cauchy_psi}
 
-#: How each loss of :data:`strauss_fit.fit.losses.LOSS_REGISTRY` transforms the residuals,
+#: How each loss of :data:`strauss_fit.fitting.losses.LOSS_REGISTRY` transforms the residuals,
 #: keyed by the same names (``tests/test_registries.py`` checks that the two agree): a
 #: function of the problem, the model radiance and the target, (N, 3) each, returning the
 #: residuals in units of the reference noise (:func:`loss_residual`).
@@ -344,7 +344,7 @@ def _perceptual_fields(pixels: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def scaled(prepared: Prepared, lights: Lights) -> Prepared:
-    """A unit-intensity :class:`~strauss_fit.render.strauss.Prepared` with the lights'
+    """A unit-intensity :class:`~strauss_fit.rendering.strauss.Prepared` with the lights'
     intensities applied."""
     changes = {}
     if prepared.irradiance is not None:
@@ -367,9 +367,9 @@ def _prepare_float64(scene: Scene, plan: RenderPlan, mode: str, table_size: int)
     return prepare(scene, plan, mode, table_size, jnp.float64)
 
 
-#: :func:`strauss_fit.render.strauss.prepare` in float64.
+#: :func:`strauss_fit.rendering.strauss.prepare` in float64.
 prepare_float64 = Kernel(_prepare_float64, "prepare")
-#: :func:`strauss_fit.render.strauss.take_pixels`.
+#: :func:`strauss_fit.rendering.strauss.take_pixels`.
 take_pixels_jit = Kernel(take_pixels, "take_pixels")
 
 
@@ -569,7 +569,7 @@ def resolve_edge_pixels_steps(
     scene: Scene, target: Target, plan: RenderPlan, options: FitOptions, cache: dict, exposure: float = 1.0
 ) -> Steps:
     """``options.edge_pixels`` as a fit uses it — ``"include"`` or ``"exclude"`` — and a
-    note saying why when it was ``"auto"`` (:func:`strauss_fit.render.coverage.silhouette_blend`:
+    note saying why when it was ``"auto"`` (:func:`strauss_fit.rendering.coverage.silhouette_blend`:
     included for a point-sampled silhouette; excluded for a blended one or when it cannot
     be told)."""
     if options.edge_pixels != "auto":
@@ -593,7 +593,7 @@ def used_pixels(
     """(H, W) bool: the pixels a fit uses — on the sphere (``hit``: the ray through the
     centre hits it), usable in ``target`` (not masked out or clipped) and, with
     ``edge_pixels="exclude"``, wholly covered by the sphere
-    (:func:`strauss_fit.render.coverage.fully_covered`; ``covered``, when already known)."""
+    (:func:`strauss_fit.rendering.coverage.fully_covered`; ``covered``, when already known)."""
     used = np.asarray(hit) & target.usable
     if edge_pixels == "exclude":
         used &= fully_covered(scene.camera) if covered is None else covered
