@@ -90,13 +90,13 @@ class Report:
 
 
 def _render_strauss(scene: Any, material: Any) -> tuple[Any, Any]:
-    from strauss_fit.render.strauss import render
+    from strauss_fit.rendering.strauss import render
 
     return render(scene, material)
 
 
 def _render_phong(scene: Any, material: Any) -> tuple[Any, Any]:
-    from strauss_fit.render.phong import render_phong
+    from strauss_fit.rendering.phong import render_phong
 
     return render_phong(scene, material)
 
@@ -105,7 +105,7 @@ def _reflectance_renderer(name: str) -> Callable[[Any, Any], tuple[Any, Any]]:
     """The renderer of the registry model ``name``: its material is the values dict."""
 
     def render(scene: Any, values: Any) -> tuple[Any, Any]:
-        from strauss_fit.render.reflectance import render_model as render_reflectance
+        from strauss_fit.rendering.reflectance import render_model as render_reflectance
 
         return render_reflectance(scene, name, values)
 
