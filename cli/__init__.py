@@ -1,7 +1,7 @@
 """The ``strauss-fit`` command line (installed as the package ``strauss_fit_cli``).
 
 When this package is imported by the ``strauss-fit`` command itself, the interrupt handler
-of :mod:`strauss_fit_cli.interrupts` is installed first, before anything heavy is imported,
+of `strauss_fit_cli.interrupts` is installed first, before anything heavy is imported,
 so that Ctrl-C is honoured from the first instant (exit status 130, nothing written), and
 its watchdog started, which honours it even inside blocking compiled code.
 """

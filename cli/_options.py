@@ -3,8 +3,8 @@ option means, accepts and defaults to the same in every command that has it.
 
 The names an option accepts come from the library's registries (plain data, imported
 without NumPy or JAX, so that ``strauss-fit --help`` stays fast): the losses
-(:data:`strauss_fit.fitting.losses.LOSS_REGISTRY`), the starts' searches and edge-pixel rules
-(:mod:`strauss_fit.fitting.options`), the solvers, the image encodings and the evaluators. A
+(`strauss_fit.fitting.losses.LOSS_REGISTRY`), the starts' searches and edge-pixel rules
+(`strauss_fit.fitting.options`), the solvers, the image encodings and the evaluators. A
 function takes the help texts that differ between commands (what ``-o`` writes, what
 ``--quiet`` leaves out) as arguments; the rest is written once, here.
 """
@@ -71,7 +71,7 @@ def add_image_inputs(
     encoding_default: str | None = "auto",
 ) -> None:
     """TARGET (``target``: the positional's ``nargs`` and ``help``; None: none), ``--scene``,
-    ``--mask`` and ``--encoding`` (:data:`~strauss_fit.io.table_formats.IMAGE_ENCODINGS`;
+    ``--mask`` and ``--encoding`` (`IMAGE_ENCODINGS`;
     ``encoding_default`` None where the default comes from a fit result)."""
     if target is not None:
         parser.add_argument("target", metavar="TARGET", **target)
@@ -162,7 +162,7 @@ def add_fitting_options(parser: Container, *, as_for_fit: bool = False) -> None:
 
 
 def loss_help() -> str:
-    """``--loss``'s help: every loss of :data:`strauss_fit.fitting.losses.LOSS_REGISTRY` with its
+    """``--loss``'s help: every loss of `strauss_fit.fitting.losses.LOSS_REGISTRY` with its
     description, then ``auto``, the default."""
     losses = "; ".join(f"{name}, {loss.description}" for name, loss in LOSS_REGISTRY.items())
     return (
@@ -238,7 +238,7 @@ def add_evaluator_options(
 
 
 def add_quality_option(parser: Container) -> None:
-    """``--quality``: a preset of :data:`~strauss_fit.fitting.options.QUALITY_PRESETS`."""
+    """``--quality``: a preset of `QUALITY_PRESETS`."""
     parser.add_argument(
         "--quality",
         choices=tuple(QUALITY_PRESETS),

@@ -1,7 +1,7 @@
 """Helpers shared by several subcommands: argparse types, checks, escaping what input files
 bring to the terminal, progress lines. The option groups themselves are added by
-:mod:`strauss_fit_cli._options`; the quality presets live in the library
-(:data:`strauss_fit.fitting.options.QUALITY_PRESETS`)."""
+`strauss_fit_cli._options`; the quality presets live in the library
+(`strauss_fit.fitting.options.QUALITY_PRESETS`)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ MAX_COUNT = 10**9
 #: Largest --table-size: entries of the F/G tables, and per axis of the j table (N² entries).
 MAX_TABLE_SIZE = 1 << 20
 MAX_J_TABLE_SIZE = 4096
-#: Largest image side, as in scene files (:data:`strauss_fit.scene.loading.MAX_IMAGE_SIDE`).
+#: Largest image side, as in scene files (`strauss_fit.scene.loading.MAX_IMAGE_SIDE`).
 MAX_IMAGE_SIDE = 8192
 
 
@@ -52,10 +52,10 @@ def bounded_int(low: int, high: int):
     return parse
 
 
-#: argparse type: an integer >= 1 (and at most :data:`MAX_COUNT`).
+#: argparse type: an integer >= 1 (and at most `MAX_COUNT`).
 positive_int = bounded_int(1, MAX_COUNT)
 positive_int.__name__ = "positive integer"
-#: argparse type: an image side in pixels, 1 to :data:`MAX_IMAGE_SIDE`.
+#: argparse type: an image side in pixels, 1 to `MAX_IMAGE_SIDE`.
 image_side = bounded_int(1, MAX_IMAGE_SIDE)
 
 
@@ -95,7 +95,7 @@ def escape(text: str, *, newlines: bool = False) -> str:
 
 
 class EscapingStream:
-    """A text stream that escapes control characters (:func:`escape`) except tab, LF and
+    """A text stream that escapes control characters (`escape`) except tab, LF and
     CR (the progress bar's), so nothing quoted from an input file reaches the terminal raw."""
 
     def __init__(self, stream):
@@ -124,6 +124,6 @@ def progress_printer(quiet: bool, prefix: str = "", stream=None):
 
 def by_quality(setting: str) -> str:
     """``fast 2, balanced 2, accurate 4``: a setting of every quality preset, read from
-    :data:`~strauss_fit.fitting.options.QUALITY_PRESETS` (for help texts, which so always say
+    `QUALITY_PRESETS` (for help texts, which so always say
     what the presets use)."""
     return ", ".join(f"{name} {values[setting]:g}" for name, values in QUALITY_PRESETS.items())

@@ -1,8 +1,8 @@
 """``strauss-fit compare``: several reflectance models fitted to the same target or capture,
 and whether Strauss is distinguishable from the best (see docs/commands/compare.md).
 
-A thin shell over :func:`strauss_fit.fitting.compare.fit_models` and
-:func:`strauss_fit.reporting.compare_figure.comparison_figure`.
+A thin shell over `strauss_fit.fitting.compare.fit_models` and
+`strauss_fit.reporting.compare_figure.comparison_figure`.
 """
 
 from __future__ import annotations

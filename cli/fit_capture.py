@@ -1,7 +1,7 @@
 """``strauss-fit fit --capture``: one material from a capture (many photographs of one sphere).
 
-A thin shell over :func:`strauss_fit.fitting.capture_result.fit_capture`; the options are added
-to ``fit`` by :func:`add_capture_options` (see docs/captures.md).
+A thin shell over `strauss_fit.fitting.capture_result.fit_capture`; the options are added
+to ``fit`` by `add_capture_options` (see docs/captures.md).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ NOT_TAKEN = (
     "free",
 )
 #: What several targets fitted with another model than Strauss into a folder do not take:
-#: :data:`NOT_TAKEN` less what a folder of results does as a Strauss one does (``--resume``,
+#: `NOT_TAKEN` less what a folder of results does as a Strauss one does (``--resume``,
 #: ``--manifest``).
 BATCH_NOT_TAKEN = tuple(option for option in NOT_TAKEN if option not in ("resume", "manifest"))
 
@@ -184,7 +184,7 @@ def scene_model_options(args: argparse.Namespace):
 
 def model_batch(args: argparse.Namespace):
     """How ``fit T1 T2 … --scene SCENE --model NAME -o OUTDIR/`` fits each target: as
-    :func:`run_scene_model` fits one (a :class:`strauss_fit.fitting.folder.ModelFit`). An option
+    `run_scene_model` fits one (a `strauss_fit.fitting.folder.ModelFit`). An option
     the capture fitter does not take is refused, naming it."""
     from strauss_fit.errors import StraussFitError
     from strauss_fit.fitting.batch import DEFAULT_CHUNK
@@ -209,9 +209,9 @@ def model_batch(args: argparse.Namespace):
 
 def run_scene_model(args: argparse.Namespace) -> int:
     """``fit TARGET --scene SCENE --model NAME``: another reflectance model than Strauss on one
-    target (:func:`strauss_fit.fitting.scene_samples.samples_from_scene`, then the capture
+    target (`strauss_fit.fitting.scene_samples.samples_from_scene`, then the capture
     fitter, which fits every model). Several targets go to a folder
-    (:func:`strauss_fit_cli.fit_cmd.run_batch`)."""
+    (`strauss_fit_cli.fit_cmd.run_batch`)."""
     from strauss_fit.errors import StraussFitError
     from strauss_fit.fitting.capture_result import fit_capture as fit_capture_api
     from strauss_fit.fitting.capture_result import format_capture_table

@@ -141,7 +141,7 @@ def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]]
 
 
 def fit_options(args: argparse.Namespace, fixed, **more):
-    """The :class:`~strauss_fit.fitting.options.FitOptions` of ``--quality`` with the options
+    """The `FitOptions` of ``--quality`` with the options
     given explicitly (also used by ``sample`` when it fits first)."""
     from strauss_fit import FitOptions
 
@@ -331,9 +331,9 @@ def recorded(args: argparse.Namespace, target, scene, mask, encoding) -> dict:
 
 
 def run_batch(args: argparse.Namespace) -> int:
-    """Several targets into the folder ``-o`` (:func:`strauss_fit.fitting.folder.fit_to_folder`),
+    """Several targets into the folder ``-o`` (`strauss_fit.fitting.folder.fit_to_folder`),
     with the Strauss fit or, with ``--model NAME``, another reflectance model (each target as
-    :func:`strauss_fit_cli.fit_capture.run_scene_model` fits one)."""
+    `strauss_fit_cli.fit_capture.run_scene_model` fits one)."""
     import sys
     import time
 

@@ -7,24 +7,24 @@ KeyboardInterrupt"), after which the run went on and wrote its outputs; or modul
 outside ``main``'s ``try``, which gave a raw traceback.
 
 This module needs nothing but the standard library, and the package's ``__init__``
-installs :data:`HANDLER` before anything heavy is imported:
+installs `HANDLER` before anything heavy is imported:
 
-- before :func:`arm` (imports), an interrupt is only recorded (``HANDLER.pending``);
+- before `arm` (imports), an interrupt is only recorded (``HANDLER.pending``);
   ``main`` arms the handler inside its ``try`` and then raises what was recorded;
 - after it, an interrupt is recorded *and* raised at once;
 - a ``KeyboardInterrupt`` that a callback swallowed is recorded silently (through
-  :data:`sys.unraisablehook`), and raised at the next safe point: :func:`check` (called by
+  `sys.unraisablehook`), and raised at the next safe point: `check` (called by
   the commands' progress lines) or, at the latest, when the outputs are committed
-  (:func:`strauss_fit.io.files.raise_if_interrupted` reads ``HANDLER.pending``).
+  (`strauss_fit.io.files.raise_if_interrupted` reads ``HANDLER.pending``).
 
 A Python signal handler runs only when the main thread executes Python code. Inside a
 blocking call of compiled code that never returns to Python (an image library opening a
 FIFO, a read from a hung network file system) the handler never runs, and Ctrl-C seemed
-lost. :func:`watch` starts a *watchdog* thread for that: the C-level signal handler writes
-every signal's number to a pipe (:func:`signal.set_wakeup_fd`) even while the main thread
+lost. `watch` starts a *watchdog* thread for that: the C-level signal handler writes
+every signal's number to a pipe (`signal.set_wakeup_fd`) even while the main thread
 is stuck, and when a SIGINT has not reached the Python handler within
-:data:`WATCHDOG_GRACE_S`, the watchdog removes every staged temporary output
-(:func:`strauss_fit.io.files.remove_staged_temporaries`), prints "strauss-fit:
+`WATCHDOG_GRACE_S`, the watchdog removes every staged temporary output
+(`strauss_fit.io.files.remove_staged_temporaries`), prints "strauss-fit:
 interrupted" and ends the process with status 130. Nothing is half-renamed: the commit's
 renames run in Python with SIGINT deferred, which counts as handled.
 """
@@ -41,7 +41,7 @@ import time
 class InterruptHandler:
     """The SIGINT handler: ``pending`` is true once Ctrl-C was pressed; ``armed`` says
     whether it also raises KeyboardInterrupt at once; ``finished`` is set by the final
-    commit of the command's outputs (:meth:`strauss_fit.io.files.Outputs.commit` with
+    commit of the command's outputs (`strauss_fit.io.files.Outputs.commit` with
     ``final=True``): the work is done and written, and a later Ctrl-C changes nothing."""
 
     def __init__(self) -> None:
@@ -76,7 +76,7 @@ def _unraisable(info) -> None:
 def install() -> tuple | None:
     """Install the recording handler (main thread only; a no-op if SIGINT is ignored, as
     for a background job started by a non-interactive shell). Returns what it replaced,
-    for :func:`restore`."""
+    for `restore`."""
     if threading.current_thread() is not threading.main_thread():
         return None
     try:
@@ -95,7 +95,7 @@ def install() -> tuple | None:
 
 
 def restore(previous: tuple | None) -> None:
-    """Put back the SIGINT handler and unraisable hook :func:`install` replaced."""
+    """Put back the SIGINT handler and unraisable hook `install` replaced."""
     if previous is None or threading.current_thread() is not threading.main_thread():
         return
     handler, hook = previous
@@ -151,7 +151,7 @@ _WATCHDOG: list[threading.Thread] = []
 def watch(grace_s: float = WATCHDOG_GRACE_S) -> bool:
     """Start the watchdog for SIGINTs that cannot reach Python (see the module docstring);
     once per process, in the ``strauss-fit`` process only (it ends the process). Returns
-    whether it runs. A no-op where SIGINT is not :data:`HANDLER`'s (ignored, say)."""
+    whether it runs. A no-op where SIGINT is not `HANDLER`'s (ignored, say)."""
     if _WATCHDOG:
         return True
     if threading.current_thread() is not threading.main_thread():

@@ -1,10 +1,10 @@
 """Entry point of the ``strauss-fit`` command: subcommands, error handling, JAX set-up.
 
-Every user error (a :class:`strauss_fit.errors.StraussFitError`) is printed as one line,
+Every user error (a `strauss_fit.errors.StraussFitError`) is printed as one line,
 ``strauss-fit: error: ...``, with exit status 2; an interrupt (Ctrl-C, at any moment,
-see :mod:`strauss_fit_cli.interrupts`) exits with 130 and leaves no output behind. A full
+see `strauss_fit_cli.interrupts`) exits with 130 and leaves no output behind. A full
 disk or another OSError is one line too. Nothing else is caught, so a real bug still shows
-its traceback. Text the commands print passes through :func:`strauss_fit_cli.common.escape`
+its traceback. Text the commands print passes through `strauss_fit_cli.common.escape`
 (control characters from input files, such as terminal escape sequences, are shown as
 ``\\x1b``, never sent to the terminal).
 """
@@ -43,7 +43,7 @@ def _load_numeric_libraries() -> None:
 
 
 def _enable_compilation_cache() -> None:
-    """Keep compiled XLA programs between runs (:func:`strauss_fit.runtime.enable_compilation_cache`)."""
+    """Keep compiled XLA programs between runs (`strauss_fit.runtime.enable_compilation_cache`)."""
     from strauss_fit.runtime import enable_compilation_cache
 
     enable_compilation_cache()

@@ -1,7 +1,7 @@
 """``strauss-fit phong2strauss`` and ``strauss-fit strauss2phong``: convert materials by fitting.
 
-This module registers both subcommands (see :data:`COMMANDS` in ``main.py``: the module's
-``add_parser`` adds both). The work is :func:`strauss_fit.convert.converter.convert_files`.
+This module registers both subcommands (see `COMMANDS` in ``main.py``: the module's
+``add_parser`` adds both). The work is `strauss_fit.convert.converter.convert_files`.
 """
 
 from __future__ import annotations

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_model(args: argparse.Namespace, scene) -> int:
-    """``render --model NAME``: :func:`strauss_fit.rendering.reflectance.render_model`."""
+    """``render --model NAME``: `strauss_fit.rendering.reflectance.render_model`."""
 
     from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import read_json

@@ -1,6 +1,6 @@
 """``strauss-fit report``: a self-contained HTML (and Markdown) uncertainty report
-(:func:`strauss_fit.reporting.fit_report.report_from_files`; for a capture's fit result,
-:func:`strauss_fit.reporting.capture_report.capture_report_from_files`)."""
+(`strauss_fit.reporting.fit_report.report_from_files`; for a capture's fit result,
+`strauss_fit.reporting.capture_report.capture_report_from_files`)."""
 
 from __future__ import annotations
 
@@ -61,10 +61,10 @@ RECORDED_INPUTS = ("target", "scene", "mask", "encoding")
 
 
 def recorded_inputs(fit: str, given: dict[str, str | None], spelled: dict[str, str]) -> dict[str, str | None]:
-    """The inputs (:data:`RECORDED_INPUTS`) of a command given the fit result ``fit`` (the
+    """The inputs (`RECORDED_INPUTS`) of a command given the fit result ``fit`` (the
     path of its JSON): each one ``given`` (not None) as it is, else the one the result
     records, a recorded path tried as written and then relative to the result's folder
-    (:func:`strauss_fit.reporting.fit_report.recorded_path`, as ``report`` reads a fit or a
+    (`strauss_fit.reporting.fit_report.recorded_path`, as ``report`` reads a fit or a
     chain), else None. A recorded path found in neither place is a one-line error naming it
     and the option to give instead (``spelled``: how the command writes each input,
     ``TARGET`` or ``--target``). The one rule of ``report --fit`` and ``sample --fit``."""
@@ -128,7 +128,7 @@ def _is_capture_chain(chain: str) -> bool:
 
 def run_capture(args: argparse.Namespace) -> int:
     """The report of a capture's fit result, its chain, or both
-    (:func:`strauss_fit.reporting.capture_report.capture_report_from_files`; with --chain
+    (`strauss_fit.reporting.capture_report.capture_report_from_files`; with --chain
     alone, the fit its metadata holds)."""
     from strauss_fit.errors import StraussFitError
     from strauss_fit.io.files import check_distinct

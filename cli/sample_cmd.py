@@ -1,6 +1,6 @@
 """``strauss-fit sample``: sample the posterior of a fit with emcee (resumable HDF5 chain).
 
-The work is :func:`strauss_fit.inference.sampler.sample`; this module parses the options,
+The work is `strauss_fit.inference.sampler.sample`; this module parses the options,
 shows the progress and prints the summary.
 """
 
@@ -48,7 +48,7 @@ MAX_WALKERS = 100_000
 #: Options fixed by an existing chain, which --resume refuses to change.
 _CHAIN_FIXED = ("fit", "sigma", "walkers", "prior", "seed", "adjust", "values")
 #: A capture's likelihood: values evaluated by default
-#: (:data:`strauss_fit.inference.capture_posterior.DEFAULT_VALUES`, not imported here: the
+#: (`strauss_fit.inference.capture_posterior.DEFAULT_VALUES`, not imported here: the
 #: command line starts without JAX).
 _DEFAULT_VALUES = 100_000
 #: The single image's inputs, which a capture's fit result does not take.
@@ -198,7 +198,7 @@ class ProgressBar:
 
     The goal shown is the length the stopping rule needs (``min_tau_multiple`` times τ̂)
     while the chain is shorter. Once it is that long the run still goes on until τ̂ has
-    settled (:data:`strauss_fit.inference.sampler.TAU_STABILITY`), at a step nobody knows
+    settled (`strauss_fit.inference.sampler.TAU_STABILITY`), at a step nobody knows
     in advance: the goal is then the cap, ``max_steps``, and the line says what it waits
     for — rather than a goal equal to the steps done, a full bar on every line while
     sampling goes on."""
@@ -461,7 +461,7 @@ MAX_DIGITS = 10
 
 
 def separating_digits(values: tuple[float, ...]) -> int:
-    """The fewest significant digits, from :data:`MIN_DIGITS` to :data:`MAX_DIGITS`, that
+    """The fewest significant digits, from `MIN_DIGITS` to `MAX_DIGITS`, that
     print the distinct ``values`` (a row's 16 %, median and 84 %) as distinct strings. A
     narrow posterior (a deviation of 10⁻⁵ on a value near 0.2) needs more than four digits,
     or its interval collapses to one number in every column; a wide one keeps four."""

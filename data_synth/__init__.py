@@ -1,23 +1,23 @@
 """Synthetic sphere datasets with ground truth, rendered by Strauss or by Phong.
 
-A TOML *dataset spec* (:mod:`data_synth.spec`) names the model, the scenes, a grid or a
-seeded random draw over the model's parameters (:mod:`data_synth.params`), a sensor
-(:mod:`data_synth.sensor`) and the output formats. :func:`generate` renders every sample
-(:mod:`data_synth.plan`), writes an image, a JSON sidecar with the exact parameters, and
-keeps ``index.json`` listing the complete samples (:mod:`data_synth.index`), so that a run
+A TOML *dataset spec* (`data_synth.spec`) names the model, the scenes, a grid or a
+seeded random draw over the model's parameters (`data_synth.params`), a sensor
+(`data_synth.sensor`) and the output formats. `generate` renders every sample
+(`data_synth.plan`), writes an image, a JSON sidecar with the exact parameters, and
+keeps ``index.json`` listing the complete samples (`data_synth.index`), so that a run
 can be interrupted and resumed. The command line is ``strauss-fit synth``.
 
-Example::
+Example:
 
     from data_synth import generate, load_spec
     report = generate(load_spec("data_synth/specs/bundled.toml"), "out/", force=True)
 
 ``data_synth/bundled/`` holds a small dataset generated from ``specs/bundled.toml``;
-:data:`BUNDLED` is its folder. ``data_synth/bundled_mitsuba/`` (:data:`BUNDLED_MITSUBA`) holds
-physically based targets rendered by Mitsuba 3 (:mod:`data_synth.mitsuba_backend`), made by
-``python -m data_synth.make_bundled_mitsuba`` (:mod:`data_synth.make_bundled_mitsuba`);
-:func:`load_sample` reads both.
-:func:`write_capture` (:mod:`data_synth.capture`) writes synthetic captures: many photos of one sphere, with truth.
+`BUNDLED` is its folder. ``data_synth/bundled_mitsuba/`` (`BUNDLED_MITSUBA`) holds
+physically based targets rendered by Mitsuba 3 (`data_synth.mitsuba_backend`), made by
+``python -m data_synth.make_bundled_mitsuba`` (`data_synth.make_bundled_mitsuba`);
+`load_sample` reads both.
+`write_capture` (`data_synth.capture`) writes synthetic captures: many photos of one sphere, with truth.
 """
 
 from pathlib import Path

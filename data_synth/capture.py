@@ -2,7 +2,7 @@ r"""Synthetic captures with known truth: many photographs of one sphere, a manif
 
 A *capture* (docs/captures.md) is a set of photographs of one sample sphere under known
 lights, taken by a camera that does not move, with the sphere anywhere in a larger frame.
-:func:`write_capture` renders one from a :class:`CaptureSpec` into a folder:
+`write_capture` renders one from a `CaptureSpec` into a folder:
 
 - ``001.png``, ``002.png``, … (``.jpg`` for ``srgb8-jpeg``): the stored images;
 - ``mask.png``: 8-bit grey, 255 on the pixels whose *centre* ray hits the sphere (exact,
@@ -11,7 +11,7 @@ lights, taken by a camera that does not move, with the sphere anywhere in a larg
   level, the mask, the camera, and each image's file and lights. It states neither the
   circle (the library must find the sphere) nor the exposures (a real user does not know
   them);
-- ``truth.json``: everything the manifest leaves out (see :func:`render_capture_images`).
+- ``truth.json``: everything the manifest leaves out (see `render_capture_images`).
 
 Conventions (those of docs/captures.md). Pixel (row i, column k) covers [k, k+1) × [i, i+1)
 in pixel units; the camera frame has +x to the image's right, +y **up** and +z toward the
@@ -19,57 +19,57 @@ camera. A light's ``direction`` points from the sphere toward the light; a ``pos
 a point light in sphere radii from the sphere's centre, in the camera frame's axes.
 
 Geometry. Each pixel is sampled at S × S sub-pixel positions
-:math:`x = k + (a + \tfrac12)/S`, :math:`y = i + (b + \tfrac12)/S` (S = ``supersample``);
+`x = k + (a + \tfrac12)/S`, `y = i + (b + \tfrac12)/S` (S = ``supersample``);
 a ray is cast through each and intersected with the sphere here, independently of the
 library's own sphere geometry (so that tests of that geometry are a real check):
 
-- orthographic: the ray is the line through :math:`(x, -y, z_c)` along :math:`w = (0, 0, -1)`,
-  the sphere has centre :math:`(c_x, -c_y, z_c)` and radius r, all in pixel units;
-  :math:`V = (0, 0, 1)`;
-- perspective: a pinhole at the origin, focal length f and principal point :math:`(p_x, p_y)`;
-  the ray through (x, y) has direction :math:`w = \mathrm{normalise}((x - p_x)/f, -(y - p_y)/f, -1)`
-  and :math:`V = -w`; the sphere has radius R = 1 and centre :math:`C = u / \sin\rho`, the
+- orthographic: the ray is the line through `(x, -y, z_c)` along `w = (0, 0, -1)`,
+  the sphere has centre `(c_x, -c_y, z_c)` and radius r, all in pixel units;
+  `V = (0, 0, 1)`;
+- perspective: a pinhole at the origin, focal length f and principal point `(p_x, p_y)`;
+  the ray through (x, y) has direction `w = \mathrm{normalise}((x - p_x)/f, -(y - p_y)/f, -1)`
+  and `V = -w`; the sphere has radius R = 1 and centre `C = u / \sin\rho`, the
   cone of half-angle ρ around the unit direction u.
 
-The first intersection :math:`P = o + t w`, :math:`t = w\cdot(C - o) - \sqrt{(w\cdot(C - o))^2 - |C - o|^2 + R^2}`,
-gives the normal :math:`n = (P - C)/R`; a sample whose discriminant is not positive sees
+The first intersection `P = o + t w`, `t = w\cdot(C - o) - \sqrt{(w\cdot(C - o))^2 - |C - o|^2 + R^2}`,
+gives the normal `n = (P - C)/R`; a sample whose discriminant is not positive sees
 the background. For a perspective spec, u and ρ are chosen so that the silhouette — an
 ellipse elongated along the radial direction from the principal point — has its centre at
-``center_px`` and the area of a circle of radius ``radius_px`` (:func:`perspective_silhouette`).
+``center_px`` and the area of a circle of radius ``radius_px`` (`perspective_silhouette`).
 
-Shading, per sample (float64, inside :func:`strauss_fit.float64`; ``shade`` compiled with
+Shading, per sample (float64, inside `strauss_fit.float64`; ``shade`` compiled with
 ``jax.jit``, which agrees with its eager evaluation to about 1e-16). A light of per-channel
-intensity :math:`I` contributes :math:`I_c \cdot \mathrm{shade}_c(N, L, V; C_L = \text{white})`
-with the library's Strauss model (:func:`strauss_fit.models.strauss.shade`): a per-channel
+intensity `I` contributes `I_c \cdot \mathrm{shade}_c(N, L, V; C_L = \text{white})`
+with the library's Strauss model (`strauss_fit.models.strauss.shade`): a per-channel
 intensity scales the radiance of a white light of unit intensity, channel by channel (the
 DiLiGenT convention; for a grey light it is the library's scalar intensity exactly). A
-directional light has the same L everywhere; a point light at :math:`p` (sphere radii) has
-:math:`L = \mathrm{normalise}(p - P)` and its intensity scaled by :math:`(|p| / |p - P|)^2`,
+directional light has the same L everywhere; a point light at `p` (sphere radii) has
+`L = \mathrm{normalise}(p - P)` and its intensity scaled by `(|p| / |p - P|)^2`,
 so that ``intensity`` is the irradiance at the sphere's centre. The room's ambient light
-adds :math:`A_c\, r_d\, C_c` (Strauss's ambient term, :math:`r_d = 1 - s^3` for an opaque
+adds `A_c\, r_d\, C_c` (Strauss's ambient term, `r_d = 1 - s^3` for an opaque
 material). Background samples take ``background``.
 
 A mirror ball (``chrome=True``) replaces the material: the radiance of a sample is
-:math:`\rho_c \sum_\ell [R\cdot L_\ell \ge \cos\delta_\ell]\, I_{\ell,c}/\Omega` with
-:math:`R = 2(N\cdot V)N - V`, ρ the ``mirror_reflectance`` and each light a uniform disc of
-angular radius δ = ``light_radius_deg`` and solid angle :math:`\Omega = 2\pi(1 - \cos\delta)`,
+`\rho_c \sum_\ell [R\cdot L_\ell \ge \cos\delta_\ell]\, I_{\ell,c}/\Omega` with
+`R = 2(N\cdot V)N - V`, ρ the ``mirror_reflectance`` and each light a uniform disc of
+angular radius δ = ``light_radius_deg`` and solid angle `\Omega = 2\pi(1 - \cos\delta)`,
 so that its radiance integrated over the disc is its intensity (the irradiance it gives a
-surface facing it is :math:`I\,(1 + \cos\delta)/2 \approx I`). Where R meets no light the
+surface facing it is `I\,(1 + \cos\delta)/2 \approx I`). Where R meets no light the
 mirror shows ``background`` (times ρ). A point light is a spherical lamp seen from the
 sphere's centre at angular radius δ: from the surface point P its direction is
-:math:`\mathrm{normalise}(p - P)` and its angular radius :math:`\arcsin(\sin\delta\,|p|/|p - P|)`,
-with the same radiance. Ambient light adds nothing to a mirror (its :math:`r_d` is 0).
+`\mathrm{normalise}(p - P)` and its angular radius `\arcsin(\sin\delta\,|p|/|p - P|)`,
+with the same radiance. Ambient light adds nothing to a mirror (its `r_d` is 0).
 
 Sensor, per image and pixel (channel c): the sub-samples are averaged (an anti-aliased
 silhouette and highlight), then
 
-.. math::
+```text
+v = e\,\bar L + s_c, \qquad
+o = \mathrm{clip}\big(v + \sqrt{\sigma^2 + k \max(v, 0)}\;\varepsilon + b,\ 0,\ 1\big),
+\quad \varepsilon \sim \mathcal N(0, 1),
+```
 
-    v = e\,\bar L + s_c, \qquad
-    o = \mathrm{clip}\big(v + \sqrt{\sigma^2 + k \max(v, 0)}\;\varepsilon + b,\ 0,\ 1\big),
-    \quad \varepsilon \sim \mathcal N(0, 1),
-
-with e the image's exposure, :math:`s` the ``stray`` light (veiling glare: added to every
+with e the image's exposure, `s` the ``stray`` light (veiling glare: added to every
 pixel, not scaled by the exposure), σ = ``noise_sd``, k = ``shot_slope`` and b the
 ``black_level``. o is the stored value as a fraction of full scale; ``linear16`` stores the
 code round(65535·o) in a 16-bit PNG, ``srgb8`` the code round(255·sRGB(o)) in an 8-bit
@@ -79,7 +79,7 @@ from them by a few units). The noise of image j comes from
 a seed fixes every byte.
 
 ``python -m data_synth.capture KIND OUTDIR [--force] [--seed N]`` writes one of the ready-made
-specs of :func:`example_capture_spec`.
+specs of `example_capture_spec`.
 """
 
 from __future__ import annotations
@@ -110,10 +110,10 @@ MASK_NAME = "mask.png"
 #: The truth file's ``format``.
 TRUTH_FORMAT = "strauss-fit synthetic capture"
 CAMERAS = ("orthographic", "perspective")
-#: Encodings: 16-bit linear PNG, 8-bit sRGB PNG, 8-bit sRGB JPEG (quality :data:`JPEG_QUALITY`).
+#: Encodings: 16-bit linear PNG, 8-bit sRGB PNG, 8-bit sRGB JPEG (quality `JPEG_QUALITY`).
 ENCODINGS = ("linear16", "srgb8", "srgb8-jpeg")
 JPEG_QUALITY = 95
-#: The ready-made specs of :func:`example_capture_spec`.
+#: The ready-made specs of `example_capture_spec`.
 EXAMPLES = ("plastic", "perspective", "srgb8", "chrome")
 #: How a light's per-channel intensity enters (recorded in the truth).
 LIGHT_MODEL = (
@@ -127,7 +127,7 @@ _BLOCK_SAMPLES = 1 << 20
 @dataclass(frozen=True)
 class CaptureSpec:
     """What to render: the material, every image's lights, the camera, the sphere's place in
-    the frame and the sensor. Values are checked on construction (:class:`SpecError`, one
+    the frame and the sensor. Values are checked on construction (`SpecError`, one
     line naming the field).
 
     - ``material``: ``{"color": [r, g, b], "smoothness": s, "metalness": m}`` (opaque:
@@ -147,11 +147,11 @@ class CaptureSpec:
     - ``background``: the radiance of the distant, constant background around the sphere.
     - ``black_level``, ``noise_sd``, ``shot_slope``: the sensor (fractions of full scale; the
       noise variance is noise_sd² + shot_slope · value).
-    - ``encoding``: one of :data:`ENCODINGS`.
+    - ``encoding``: one of `ENCODINGS`.
     - ``chrome``: a mirror ball of reflectance ``mirror_reflectance`` instead of the
       material, each light a disc of angular radius ``light_radius_deg`` (module docstring).
     - ``supersample``: sub-pixels per axis; ``seed``: the noise; ``write_mask``: whether
-      :func:`write_capture` writes ``mask.png`` and names it in the manifest.
+      `write_capture` writes ``mask.png`` and names it in the manifest.
     """
 
     material: dict
@@ -276,7 +276,7 @@ def _normalised_lights(spec: CaptureSpec) -> list[list[dict[str, Any]]]:
 
 
 def _material_values(spec: CaptureSpec) -> dict[str, Any] | None:
-    """The material as :class:`~strauss_fit.models.material.Material` keyword arguments,
+    """The material as `Material` keyword arguments,
     checked (None for a mirror ball)."""
     if spec.chrome:
         return None
@@ -368,10 +368,10 @@ def _ellipse(theta: float, rho: float, focal: float) -> tuple[float, float, floa
     image plane at distance f: (c, a, b) = the centre's distance from the principal point,
     the radial and the tangential semi-axes, in pixels.
 
-    The radial extremes are the rays at θ ∓ ρ, at :math:`f\tan(\theta \mp \rho)`, so
-    :math:`c = f(\tan(\theta + \rho) + \tan(\theta - \rho))/2` and
-    :math:`a = f(\tan(\theta + \rho) - \tan(\theta - \rho))/2 = f\sin\rho\cos\rho/(\cos^2\theta - \sin^2\rho)`;
-    the tangential semi-axis is :math:`b = f\sin\rho/\sqrt{\cos^2\theta - \sin^2\rho}`
+    The radial extremes are the rays at θ ∓ ρ, at `f\tan(\theta \mp \rho)`, so
+    `c = f(\tan(\theta + \rho) + \tan(\theta - \rho))/2` and
+    `a = f(\tan(\theta + \rho) - \tan(\theta - \rho))/2 = f\sin\rho\cos\rho/(\cos^2\theta - \sin^2\rho)`;
+    the tangential semi-axis is `b = f\sin\rho/\sqrt{\cos^2\theta - \sin^2\rho}`
     (a ≥ b: the ellipse is elongated radially)."""
     upper, lower = math.tan(theta + rho), math.tan(theta - rho)
     b = focal * math.sin(rho) / math.sqrt(math.cos(theta) ** 2 - math.sin(rho) ** 2)
@@ -526,7 +526,7 @@ def _light_at(light: dict[str, Any], point: np.ndarray) -> tuple[np.ndarray, np.
 
 @functools.cache
 def _compiled_shade():
-    """:func:`strauss_fit.models.strauss.shade`, compiled once per array size (the material is
+    """`strauss_fit.models.strauss.shade`, compiled once per array size (the material is
     an argument, so every material shares the compilation): eager evaluation compiles each
     of its few dozen operations anew for every new number of samples, seconds per capture."""
     import jax
@@ -614,7 +614,7 @@ def render_capture_images(spec: CaptureSpec) -> tuple[list[np.ndarray], np.ndarr
     - ``camera`` (``type``, ``focal_px`` and ``principal_point`` for a perspective camera);
     - ``circle``: orthographic ``{"center", "radius"}`` in pixel units; perspective also
       ``direction``, ``angular_radius_deg``, ``ellipse``, ``sphere_center``, ``off_axis_deg``
-      (:func:`perspective_silhouette`), where ``center``/``radius`` are the equal-area circle;
+      (`perspective_silhouette`), where ``center``/``radius`` are the equal-area circle;
     - ``ambient``, ``stray``, ``background``, ``black_level`` (RGB triples, the last a number);
     - ``noise``: ``{"sd", "shot_slope", "variance"}`` (the variance's formula);
     - ``encoding`` (the spec's), ``manifest_encoding`` (``linear`` or ``srgb``), ``bits``;
@@ -786,7 +786,7 @@ def write_capture(spec: CaptureSpec, folder: str | Path, *, force: bool = False)
     """Render ``spec`` and write it to ``folder`` (created if missing): the images, ``mask.png``
     (unless ``write_mask`` is false), ``capture.toml`` and ``truth.json``; returns the truth.
 
-    All files are written together (temporaries renamed at once, :class:`strauss_fit.io.files.Outputs`):
+    All files are written together (temporaries renamed at once, `strauss_fit.io.files.Outputs`):
     either all appear or none. An existing file is not replaced unless ``force`` is true;
     with ``force``, files of an earlier capture that this one does not write (more images)
     are left as they were."""
@@ -909,12 +909,12 @@ def _example_fields(kind: str) -> dict[str, Any]:
 
 
 def example_capture_spec(kind: str = "plastic", **overrides: Any) -> CaptureSpec:
-    """A ready-made :class:`CaptureSpec`, with any field replaced by ``overrides``:
+    """A ready-made `CaptureSpec`, with any field replaced by ``overrides``:
 
     - ``"plastic"``: an orange plastic (C = (0.75, 0.35, 0.18), s = 0.65, m = 0), orthographic,
       the sphere off-centre in 320 × 240 (centre (171.3, 118.6), radius 62.4), 12 images
       each under one coloured directional light, the directions spread evenly within 45° of
-      the view axis (:func:`cone_directions`), strengths 0.8 to 2.2: the red channel of the
+      the view axis (`cone_directions`), strengths 0.8 to 2.2: the red channel of the
       highlight saturates in the 16-bit PNGs of the stronger half;
     - ``"perspective"``: a blue metallic paint (s = 0.75, m = 0.3) seen by a wide pinhole
       (f = 260 px) 20° off its axis, so that the silhouette is an ellipse; 8 images: 5

@@ -1,16 +1,16 @@
 """Encoding a sample's files reproducibly (same pixels → same bytes).
 
 - HDR: float32 linear OpenEXR (zip compression, no timestamp:
-  :func:`strauss_fit.io.images.encode_image`), so that the same seed gives byte-identical
+  `strauss_fit.io.images.encode_image`), so that the same seed gives byte-identical
   files.
 - LDR: 8-bit PNG holding exactly the given sRGB codes.
 - Clip mask: 8-bit single-channel PNG, 255 where the LDR image is clipped, 0 elsewhere.
 - Float images with another compression or channel layout (the bundled Mitsuba targets:
-  PXR24 images, a one-channel coverage): :func:`float_exr_bytes`, read back with
-  :func:`decode_exr`.
+  PXR24 images, a one-channel coverage): `float_exr_bytes`, read back with
+  `decode_exr`.
 
-The ``*_bytes`` functions encode in memory; :mod:`data_synth.generate` writes a sample's
-files together through :class:`strauss_fit.io.files.Outputs` (temporary files, every write
+The ``*_bytes`` functions encode in memory; `data_synth.generate` writes a sample's
+files together through `strauss_fit.io.files.Outputs` (temporary files, every write
 checked, then renamed together). The ``write_*`` functions write one file the same way.
 """
 
@@ -59,7 +59,7 @@ def float_exr_bytes(image: np.ndarray, *, compression: str = "zip", channel_name
 def encoded_bytes(data: np.ndarray, spec: Any, name: str, what: str) -> bytes:
     """``data`` encoded by OpenImageIO with ``spec`` into the format ``name``'s extension
     names (written to a scratch folder, since OpenImageIO encodes to files), or an
-    :class:`ImageError` naming ``what``."""
+    `ImageError` naming ``what``."""
     with tempfile.TemporaryDirectory(prefix="strauss-fit-encode-") as folder:
         path = str(Path(folder) / name)
         import OpenImageIO as oiio
@@ -75,7 +75,7 @@ def encoded_bytes(data: np.ndarray, spec: Any, name: str, what: str) -> bytes:
 
 
 def decode_exr(data: bytes) -> np.ndarray:
-    """The pixels (H, W, C) float64 of OpenEXR bytes (see :func:`float_exr_bytes`)."""
+    """The pixels (H, W, C) float64 of OpenEXR bytes (see `float_exr_bytes`)."""
     import OpenImageIO as oiio
 
     with tempfile.TemporaryDirectory(prefix="strauss-fit-exr-") as folder:

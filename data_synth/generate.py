@@ -7,7 +7,7 @@ Per sample, in this order:
    ``ID.png`` (8-bit sRGB) with ``ID.clip.png`` (255 where the PNG is clipped), and the
    sidecar ``ID.json`` (model, exact parameters, scene, sensor, seed, files);
 2. the files are written to temporary files, every write checked, then renamed into place
-   together (:class:`strauss_fit.io.files.Outputs`);
+   together (`strauss_fit.io.files.Outputs`);
 3. the index ``index.json`` is rewritten (atomically) to list the sample (with the SHA-256
    of its files).
 
@@ -18,10 +18,10 @@ are removed again); the run stops (a full disk stops every later sample too)
 and says how many samples are complete. A sample that cannot be made — its scene is not
 usable (an environment map holding NaN), its rendering is not finite — is reported, its
 files are not written and the batch goes on; the run then ends with
-:attr:`Report.failed` listing them (the command exits with status 1). Resuming skips every
+`Report.failed` listing them (the command exits with status 1). Resuming skips every
 listed sample whose files still exist with the recorded checksums and renders the rest
 (failed samples are tried again); since every sample has its own seed
-(:mod:`data_synth.plan`), the result is byte-identical to an uninterrupted run.
+(`data_synth.plan`), the result is byte-identical to an uninterrupted run.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class Progress:
 
 @dataclass(frozen=True)
 class Report:
-    """The outcome of :func:`generate`."""
+    """The outcome of `generate`."""
 
     output: Path
     total: int
@@ -113,7 +113,7 @@ def _reflectance_renderer(name: str) -> Callable[[Any, Any], tuple[Any, Any]]:
 
 
 #: Every model's renderer by name (as colour-science's ``*_METHODS``): the classic ones
-#: (:data:`~data_synth.params.CLASSIC_MODELS`), then every registry model synth offers.
+#: (`CLASSIC_MODELS`), then every registry model synth offers.
 RENDER_METHODS: MappingProxyType[str, Callable[[Any, Any], tuple[Any, Any]]] = MappingProxyType(
     {
         "strauss": _render_strauss,
@@ -126,7 +126,7 @@ RENDER_METHODS: MappingProxyType[str, Callable[[Any, Any], tuple[Any, Any]]] = M
 def render_model(model: str, scene: Any, material: Any) -> tuple[np.ndarray, np.ndarray]:
     """Render ``scene`` with a material of ``model`` (``"strauss"``: the full renderer,
     global model included; ``"phong"``: the local classic Phong model; any other name of
-    :data:`~data_synth.params.MODELS`: that registry model, local and opaque, its material
+    `MODELS`: that registry model, local and opaque, its material
     the values dict): the linear radiance (H, W, 3) float64 and the sphere mask (H, W), as
     numpy arrays."""
     try:
@@ -161,7 +161,7 @@ class _WriteFailed(Exception):
 
 def write_sample(spec: DatasetSpec, sample: SamplePlan, output: Path) -> dict[str, Any]:
     """Render and write one sample's images and sidecar (all or none); return its index
-    entry. Raises :class:`SampleFailed` if the sample cannot be made and ``_WriteFailed``
+    entry. Raises `SampleFailed` if the sample cannot be made and ``_WriteFailed``
     if its files cannot be written."""
     import json
 
@@ -290,8 +290,8 @@ def generate(
     same spec, same seed) or ``force`` (replace it: the files of the old index are removed,
     others are left alone). ``limit`` caps the number of samples written by this call.
     ``progress`` is called after every sample. A sample that cannot be made is skipped and
-    listed in :attr:`Report.failed`. Returns a :class:`Report`; raises
-    :class:`GenerationError` (one line, naming how many samples are complete) if a write
+    listed in `Report.failed`. Returns a `Report`; raises
+    `GenerationError` (one line, naming how many samples are complete) if a write
     fails, and lets ``KeyboardInterrupt`` through: in both cases the index lists exactly
     the complete samples.
     """

@@ -72,7 +72,7 @@ def read_index(folder: str | Path) -> dict[str, Any]:
 
 #: Models whose samples are rendered outside strauss-fit: their sidecars have synth's shape,
 #: but ``parameters`` is not a strauss-fit material (``"mitsuba"``: a Mitsuba 3 BSDF, see
-#: :mod:`data_synth.mitsuba_backend` and :mod:`data_synth.make_bundled_mitsuba`).
+#: `data_synth.mitsuba_backend` and `data_synth.make_bundled_mitsuba`).
 EXTERNAL_MODELS = ("mitsuba",)
 
 
@@ -80,7 +80,7 @@ class Sample(NamedTuple):
     """A sample read back: its sidecar, the scene and material it was rendered with (the
     scene's ``material`` is the sample's for Strauss), and the paths of its files. For a
     registry model (``"lambert"``, ``"cook-torrance"``, …) ``material`` is the checked
-    values dict that :func:`~data_synth.generate.render_model` takes. For a Mitsuba sample
+    values dict that `render_model` takes. For a Mitsuba sample
     (``sidecar["model"] == "mitsuba"``) ``material`` is None: no Strauss or Phong material
     is the truth (the scene keeps its default material); the BSDF is
     ``sidecar["parameters"]`` and ``files`` holds ``exr``, ``coverage`` and ``mask``."""
@@ -95,9 +95,9 @@ def load_sample(sidecar_path: str | Path, scene_dir: str | Path | None = None) -
     """Rebuild a sample from its sidecar. ``scene_dir`` resolves relative paths inside the
     scene definition (an environment image); by default the sidecar's folder.
 
-    Reads the sidecars of :func:`data_synth.generate` (every model of
-    :data:`~data_synth.params.MODELS`) and of the bundled Mitsuba targets (model
-    ``mitsuba``: the BSDF is checked with :func:`~data_synth.mitsuba_backend.validate_bsdf`,
+    Reads the sidecars of `data_synth.generate` (every model of
+    `MODELS`) and of the bundled Mitsuba targets (model
+    ``mitsuba``: the BSDF is checked with `validate_bsdf`,
     which needs no Mitsuba, and ``material`` is None)."""
     import equinox as eqx
 

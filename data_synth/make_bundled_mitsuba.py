@@ -1,5 +1,5 @@
 """Regenerate the bundled Mitsuba 3 targets, ``data_synth/bundled_mitsuba``
-(:data:`data_synth.BUNDLED_MITSUBA`).
+(`data_synth.BUNDLED_MITSUBA`).
 
 Usage (needs Mitsuba 3, ``pip install -e '.[mitsuba]'``; about 3 minutes with
 ``llvm_ad_rgb`` on two cores, 4-10 times longer with ``scalar_rgb``)::
@@ -14,17 +14,17 @@ these samples only, even if intact; the index lists the others as pending unless
 kept by ``--resume``), ``--force`` (replace the dataset in a non-empty folder: the files its
 index lists) or ``--resume`` (keep the intact samples of an earlier run of the same plan).
 
-The set is :data:`GROUPS`, stated here because a dataset spec (:mod:`data_synth.spec`)
+The set is `GROUPS`, stated here because a dataset spec (`data_synth.spec`)
 cannot select the Mitsuba backend; ``index.json`` names this file as its ``spec``. Ids,
-order and seeds follow synth's rules (:mod:`data_synth.plan`): sample j of group g is every
+order and seeds follow synth's rules (`data_synth.plan`): sample j of group g is every
 BSDF of the group in every scene of it, BSDF-major, with the id ``NAME-jjjj``; its two
 Mitsuba seeds are ``SeedSequence(SEED, spawn_key=(2, g, j)).generate_state(2)`` (stream 2,
 beside synth's 0 for parameter draws and 1 for sensor noise).
 
 Per sample (64 x 64, no sensor noise), written together through
-:class:`strauss_fit.io.files.Outputs` (all or none), then the index (atomically):
+`strauss_fit.io.files.Outputs` (all or none), then the index (atomically):
 
-- ``ID.exr``: the mean of two renders (:data:`SPP` samples per pixel each, one seed each),
+- ``ID.exr``: the mean of two renders (`SPP` samples per pixel each, one seed each),
   linear float32, PXR24 compression, no timestamp;
 - ``ID.coverage.exr``: each pixel's coverage by the sphere (one channel ``Y``, float32, zip);
 - ``ID.mask.png``: 255 on the fully covered pixels;
@@ -33,9 +33,9 @@ Per sample (64 x 64, no sensor noise), written together through
   seeds, version, wall-clock ``seconds``, the scene translation), ``noise`` (the measured
   Monte Carlo noise: std(a - b)/2 of the two renders a, b over the fully covered pixels,
   with the EXR's quantization added in quadrature), ``image`` and, where a person would
-  name a body colour (:func:`body_bsdf`), ``reference.diffuse_albedo``: the same BSDF with
+  name a body colour (`body_bsdf`), ``reference.diffuse_albedo``: the same BSDF with
   its specular reflection off, divided by a white Lambertian render of the scene (both
-  :data:`REFERENCE_SPP` samples per pixel, the sample's first seed), the median over the
+  `REFERENCE_SPP` samples per pixel, the sample's first seed), the median over the
   fully covered pixels lit at more than half the peak.
 
 Reproducibility: two runs with the same variant and Mitsuba version give byte-identical
@@ -72,9 +72,9 @@ from . import mitsuba_backend as mb
 from .files import decode_exr, float_exr_bytes, mask_bytes, sha256_bytes
 from .index import INDEX_FORMAT, INDEX_NAME, INDEX_VERSION, write_index
 
-#: The bundled set's folder, the default output (:data:`data_synth.BUNDLED_MITSUBA`).
+#: The bundled set's folder, the default output (`data_synth.BUNDLED_MITSUBA`).
 OUTPUT = BUNDLED_MITSUBA
-#: The scene files the cases name (:data:`data_synth.SCENES`).
+#: The scene files the cases name (`data_synth.SCENES`).
 SCENE_DIR = SCENES
 #: What ``index.json`` names as the dataset's spec.
 SPEC_NAME = "make_bundled_mitsuba.py"
@@ -112,7 +112,7 @@ NOISE_METHOD = (
 @dataclass(frozen=True)
 class Group:
     """Samples rendered alike: every BSDF of ``bsdfs`` (Mitsuba parameters, completed by
-    :func:`~data_synth.mitsuba_backend.validate_bsdf`) in every scene of ``scenes`` (names
+    `validate_bsdf`) in every scene of ``scenes`` (names
     of ``data_synth/scenes/NAME.toml``), ``size`` (width, height) overriding the scenes'."""
 
     name: str
@@ -261,7 +261,7 @@ def load_definition(name: str, size: tuple[int, int] | None = None) -> dict[str,
 
 def plan(groups: Sequence[Group] = GROUPS) -> list[BundledSample]:
     """Every sample of the set, in order (no Mitsuba needed). The BSDFs and scenes are
-    validated (one-line :class:`~data_synth.mitsuba_backend.MitsubaBackendError`)."""
+    validated (one-line `MitsubaBackendError`)."""
     samples = []
     for g, group in enumerate(groups):
         bsdfs = [mb.validate_bsdf(b, f"{group.name}: bsdf") for b in group.bsdfs]
@@ -459,7 +459,7 @@ def build_index(samples: Sequence[BundledSample], entries: dict[str, dict[str, A
 
 
 def default_variant() -> str:
-    """:data:`VARIANT` when it loads, else ``scalar_rgb`` (raises if Mitsuba is missing)."""
+    """`VARIANT` when it loads, else ``scalar_rgb`` (raises if Mitsuba is missing)."""
     try:
         mb._mitsuba(VARIANT)
         return VARIANT
@@ -481,7 +481,7 @@ def make_bundled(
 
     A non-empty folder is refused unless ``force`` (its old dataset's files are removed
     first) or ``resume`` (intact samples of the same plan are kept), as for
-    :func:`data_synth.generate`; ``only`` renders the named samples even if they are intact
+    `data_synth.generate`; ``only`` renders the named samples even if they are intact
     and cannot be combined with ``force`` (which would remove the others). Each sample's
     files are written together, then the index."""
     from .generate import prepare_output

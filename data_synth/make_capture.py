@@ -1,7 +1,7 @@
 """``python -m data_synth.make_capture KIND OUTDIR``: write one of the example synthetic
-captures of :mod:`data_synth.capture` (images, ``mask.png``, ``capture.toml``, ``truth.json``).
+captures of `data_synth.capture` (images, ``mask.png``, ``capture.toml``, ``truth.json``).
 
-A module of its own so that running it does not import :mod:`data_synth.capture` twice
+A module of its own so that running it does not import `data_synth.capture` twice
 (once by the package, once as ``__main__``).
 """
 

@@ -6,11 +6,11 @@ the *same scene* (a scene definition mapping, as a synth sidecar stores it under
 images a Strauss material cannot reproduce exactly (GGX highlights, measured metals,
 Fresnel-weighted plastic coats, refraction by real glass).
 
-Mitsuba is optional and imported only when rendering (:func:`render_mitsuba`); everything
-else here — the BSDF schema (:func:`validate_bsdf`), the scene translation
-(:func:`translate_scene`), the sphere coverage and the directly seen background
-(:func:`coverage_and_background`) — is numpy only. strauss-fit is used only to validate a
-definition (:func:`strauss_fit.parse_scene`, when importable) and for its error base class.
+Mitsuba is optional and imported only when rendering (`render_mitsuba`); everything
+else here — the BSDF schema (`validate_bsdf`), the scene translation
+(`translate_scene`), the sphere coverage and the directly seen background
+(`coverage_and_background`) — is numpy only. strauss-fit is used only to validate a
+definition (`strauss_fit.parse_scene`, when importable) and for its error base class.
 
 Radiometric correspondence (docs/datasets.md has the derivation and what cannot correspond):
 
@@ -28,13 +28,13 @@ Radiometric correspondence (docs/datasets.md has the derivation and what cannot 
   Mitsuba (``hide_emitters``) but composited exactly as strauss-fit defines it, weighted by
   the uncovered fraction of each pixel. What the *sphere* sees (reflection, refraction,
   indirect light) is Mitsuba's world: the ambient environment for a colour background; the
-  checkerboard as an emitting (unlit) plane of half-size :data:`BOARD_HALF_SIZE` with the
+  checkerboard as an emitting (unlit) plane of half-size `BOARD_HALF_SIZE` with the
   same softened squares; an environment map resampled so that Mitsuba's lookup equals
   strauss-fit's bilinear lookup exactly (plus ambient).
 - camera: strauss-fit's pixel grid (orthographic: the image spans x, y ∈ [−1, 1], pixel
   (i, k) centred at x = (k + ½)/W·2 − 1, y = 1 − (i + ½)/H·2 as in ``docs/formats.md``;
   perspective: vertical ``fov_deg``); box pixel filter, so a silhouette pixel is the area
-  average of sphere and background, and :func:`sphere_coverage` says how much is sphere.
+  average of sphere and background, and `sphere_coverage` says how much is sphere.
 """
 
 from __future__ import annotations
@@ -66,16 +66,16 @@ class MitsubaUnavailableError(MitsubaBackendError):
 #: Variants the backend knows; ``scalar_rgb`` needs nothing else, ``llvm_ad_rgb`` needs
 #: libLLVM (Debian: ``apt-get install libllvm19``).
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
-#: Minimum Mitsuba version. Checkerboard backgrounds need :data:`MIN_VERSION_BOARD`: before
+#: Minimum Mitsuba version. Checkerboard backgrounds need `MIN_VERSION_BOARD`: before
 #: 3.8 the path tracer's ``hide_emitters`` hid only the environment, so the camera would see
 #: the emitting board directly and the composited background would count it twice. Tested:
-#: 3.9.1 (the envmap lookup convention used by :func:`environment_for_mitsuba` is the same
+#: 3.9.1 (the envmap lookup convention used by `environment_for_mitsuba` is the same
 #: from 3.5 to 3.9).
 MIN_VERSION = (3, 5, 0)
 MIN_VERSION_BOARD = (3, 8, 0)
 
 #: Named conductors of Mitsuba 3.9 (``data/ior/<name>.eta.spd``) plus ``none`` (a perfect
-#: mirror). Checked without Mitsuba; :func:`named_metals` reads the installed list.
+#: mirror). Checked without Mitsuba; `named_metals` reads the installed list.
 NAMED_METALS = frozenset(
     """
     a-C Ag Al AlAs AlAs_palik AlSb AlSb_palik Au Be Be_palik Cr CsI CsI_palik Cu Cu2O
@@ -171,7 +171,7 @@ BSDF_SCHEMA: dict[str, dict[str, _Param]] = {
 
 def named_metals() -> frozenset[str]:
     """The conductor names the installed Mitsuba knows (its ``data/ior`` folder), or
-    :data:`NAMED_METALS` if Mitsuba is not installed."""
+    `NAMED_METALS` if Mitsuba is not installed."""
     try:
         import importlib.util
 
@@ -229,7 +229,7 @@ def _check_param(where: str, name: str, p: _Param, value: Any) -> Any:
 
 def validate_bsdf(bsdf: Mapping[str, Any], where: str = "bsdf") -> dict[str, Any]:
     """Check a BSDF table (``{"type": NAME, PARAM: VALUE, ...}``) and return it complete:
-    defaults filled in, colours as 3-lists of floats. Raises :class:`MitsubaBackendError`
+    defaults filled in, colours as 3-lists of floats. Raises `MitsubaBackendError`
     with one line naming the problem (unknown type or key, wrong type, out of range, a
     metal Mitsuba does not know)."""
     if not isinstance(bsdf, Mapping):
@@ -297,7 +297,7 @@ def bsdf_to_mitsuba(bsdf: Mapping[str, Any]) -> dict[str, Any]:
 @dataclass
 class Translation:
     """A scene definition translated for Mitsuba, as plain data (JSON-able via
-    :meth:`to_dict`): the camera, the emitters with their radiometric values, the ambient
+    `to_dict`): the camera, the emitters with their radiometric values, the ambient
     radiance, the background, and ``notes`` on what does not correspond."""
 
     camera: dict[str, Any]
@@ -329,8 +329,8 @@ def translate_scene(definition: Mapping[str, Any], base_dir: str | Path = ".", *
     """Translate a strauss-fit scene definition (the TOML mapping) for Mitsuba.
 
     With ``validate`` (default) the definition is first checked by strauss-fit's own
-    :func:`strauss_fit.parse_scene` when strauss-fit is importable. Raises
-    :class:`MitsubaBackendError` for what has no physical counterpart: a point light whose
+    `strauss_fit.parse_scene` when strauss-fit is importable. Raises
+    `MitsubaBackendError` for what has no physical counterpart: a point light whose
     attenuation is not (0, 0, c2).
     """
     definition = copy.deepcopy(dict(definition))
@@ -671,7 +671,7 @@ def _mitsuba(variant: str | None):
 
 def environment_for_mitsuba(image: np.ndarray, ambient: float = 0.0, refine: tuple[int, int] = (3, 2)) -> np.ndarray:
     """Resample a strauss-fit latitude–longitude image so that Mitsuba 3.9's ``envmap``
-    lookup reproduces strauss-fit's bilinear lookup (see :func:`environment_lookup`).
+    lookup reproduces strauss-fit's bilinear lookup (see `environment_lookup`).
 
     Mitsuba (3.9) puts column c's centre at azimuth 2π(c + ½)/W′ (measured from −z toward
     +x, like strauss-fit, but without its half-turn offset) and row r at polar angle
@@ -834,7 +834,7 @@ def split_emitters(scene: dict[str, Any]) -> list[dict[str, Any]]:
 
 @dataclass
 class MitsubaRender:
-    """What :func:`render_mitsuba_full` returns: the composited ``image`` (H, W, 3) float32,
+    """What `render_mitsuba_full` returns: the composited ``image`` (H, W, 3) float32,
     the sphere ``coverage`` (H, W) in [0, 1], the ``sphere_part`` (Mitsuba's render: the
     sphere's radiance times coverage), the ``background_part``, the Mitsuba ``variant`` and
     ``version``, the ``translation`` and the render ``seconds``."""
@@ -862,8 +862,8 @@ def render_mitsuba_full(
     split: bool = True,
 ) -> MitsubaRender:
     """Render the canonical sphere of ``definition`` with ``bsdf`` in Mitsuba 3 (see
-    :func:`render_mitsuba`), keeping every part of the result. ``split`` renders one pass
-    per emitter and sums them (see :func:`split_emitters`)."""
+    `render_mitsuba`), keeping every part of the result. ``split`` renders one pass
+    per emitter and sums them (see `split_emitters`)."""
     if isinstance(spp, bool) or not isinstance(spp, int) or not 1 <= spp <= 1 << 20:
         raise MitsubaBackendError(f"spp must be an integer in [1, 1048576], got {spp!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
@@ -910,7 +910,7 @@ def render_mitsuba(
     pixel is the area average of sphere and background — and the sphere coverage (H, W),
     the fraction of each pixel's area that sees the sphere (1 inside, 0 outside). ``spp``
     samples per pixel, ``seed`` Mitsuba's sampler seed (same seed, variant and version: same
-    image), ``variant`` one of :data:`VARIANTS` (default ``scalar_rgb``), ``base_dir``
+    image), ``variant`` one of `VARIANTS` (default ``scalar_rgb``), ``base_dir``
     resolves a relative environment image path.
     """
     result = render_mitsuba_full(definition, bsdf, spp=spp, seed=seed, variant=variant, base_dir=base_dir)

@@ -1,17 +1,17 @@
 r"""Parameter spaces of the models and how a dataset spec samples them.
 
-Each model (:data:`MODELS`) names its parameters, their shapes (a number, an RGB triple,
+Each model (`MODELS`) names its parameters, their shapes (a number, an RGB triple,
 either, or a bool) and their ranges. The table is built from the registry of reflectance
-models (:data:`strauss_fit.models.reflectance.REFLECTANCE_MODELS`):
+models (`strauss_fit.models.reflectance.REFLECTANCE_MODELS`):
 
 - ``"strauss"``: the registry's Strauss parameters (colour, smoothness, metalness,
   transparency, ior), rendered by the full (global) Strauss renderer;
-- ``"phong"``: the classic Phong material of :mod:`strauss_fit.models.phong` (ka, kd, ks,
+- ``"phong"``: the classic Phong material of `strauss_fit.models.phong` (ka, kd, ks,
   exponent, diffuse_color, specular_color, blinn), rendered by its own renderer. The name
   is taken by it, so the registry's unnormalised Phong is not offered;
 - every other registry model (``"lambert"``, ``"blinn-phong"``, ``"cook-torrance"``, and any
   added later): its parameters as the registry declares them (size 3: an RGB triple, size
-  1: a number), rendered by :func:`strauss_fit.rendering.reflectance.render_model`.
+  1: a number), rendered by `strauss_fit.rendering.reflectance.render_model`.
 
 A dataset spec's ``[group.parameters]`` table gives each parameter as one *axis*:
 
@@ -119,7 +119,7 @@ def _registry_parameters(name: str) -> tuple[Parameter, ...]:
 def _reflectance_values(name: str) -> Callable[[dict[str, Value]], dict[str, Value]]:
     """The "material" of a registry model: its values, checked by the model (every
     parameter given, each within its range), as the plain numbers and lists that
-    :func:`~strauss_fit.rendering.reflectance.render_model` reads."""
+    `render_model` reads."""
     model = reflectance_model(name)
 
     def make(values: dict[str, Value]) -> dict[str, Value]:
@@ -132,7 +132,7 @@ def _reflectance_values(name: str) -> Callable[[dict[str, Value]], dict[str, Val
 #: The models synth renders with their own renderers rather than the registry's local one:
 #: Strauss with the global renderer (transparency, refraction), Phong as the classic material.
 CLASSIC_MODELS = ("strauss", "phong")
-#: The registry models that synth renders with :func:`strauss_fit.rendering.reflectance.render_model`:
+#: The registry models that synth renders with `strauss_fit.rendering.reflectance.render_model`:
 #: every one whose name no classic model takes (the registry's own Phong is not offered).
 REFLECTANCE_SYNTH_MODELS = tuple(name for name in REFLECTANCE_MODELS if name not in CLASSIC_MODELS)
 

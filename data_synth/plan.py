@@ -2,7 +2,7 @@
 and its own seed.
 
 Seeds: all randomness derives from the spec's integer ``seed`` through
-:class:`numpy.random.SeedSequence` spawn keys, so that any one sample can be produced on
+`numpy.random.SeedSequence` spawn keys, so that any one sample can be produced on
 its own (a resumed run gives the same bytes as an uninterrupted one):
 
 - the random parameter draws of group g use ``SeedSequence(seed, spawn_key=(0, g))``;

@@ -2,28 +2,28 @@ r"""A simple camera sensor: exposure, shot noise, read noise, and 8-bit sRGB enc
 
 For a rendered linear radiance L (per pixel and channel) the recorded linear value is
 
-.. math::
-
-    E = k\,L, \qquad
-    S = \begin{cases} P/g,\ P \sim \mathrm{Poisson}(g \max(E, 0)) & g > 0 \\ E & g = 0 \end{cases},
-    \qquad O = S + \varepsilon,\ \varepsilon \sim \mathcal N(0, \sigma^2),
+```text
+E = k\,L, \qquad
+S = \begin{cases} P/g,\ P \sim \mathrm{Poisson}(g \max(E, 0)) & g > 0 \\ E & g = 0 \end{cases},
+\qquad O = S + \varepsilon,\ \varepsilon \sim \mathcal N(0, \sigma^2),
+```
 
 with k the ``exposure`` scale, g the ``gain`` (photons per unit of exposed radiance, the
 photon scale of the shot noise; 0 switches shot noise off) and σ the ``read_noise``
 standard deviation (in the same units as E; 0 switches it off). Every pixel and channel,
 background included, is independent, and for E ≥ 0
 
-.. math::
+```text
+\mathbb E[O] = E, \qquad \operatorname{Var}[O] = E/g + \sigma^2 .
+```
 
-    \mathbb E[O] = E, \qquad \operatorname{Var}[O] = E/g + \sigma^2 .
-
-The noise comes from the :class:`numpy.random.Generator` passed in (Poisson draws first,
+The noise comes from the `numpy.random.Generator` passed in (Poisson draws first,
 then the Gaussian draws, both in C order), so a seed fixes it bit for bit.
 
-LDR output (:func:`encode_ldr`): O is clipped to [0, 1], sRGB-encoded with colour-science
-(:func:`strauss_fit.color.srgb_encode`) and rounded to 8 bits. A pixel is *clipped* where any
+LDR output (`encode_ldr`): O is clipped to [0, 1], sRGB-encoded with colour-science
+(`strauss_fit.color.srgb_encode`) and rounded to 8 bits. A pixel is *clipped* where any
 channel has the top code 255: its true value is unknown (at or above the code's lower
-edge), exactly the rule :func:`strauss_fit.io.images.read_image` applies when reading an LDR
+edge), exactly the rule `strauss_fit.io.images.read_image` applies when reading an LDR
 image. Values below 0 become code 0 and are not marked.
 """
 

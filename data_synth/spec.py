@@ -31,8 +31,8 @@ Every sample of a group is one parameter set rendered in one scene: the group ha
 (number of parameter sets) × (number of scenes) samples, each parameter set rendered in
 every scene. Loading is strict: unknown keys, wrong types and values outside a model's
 ranges, a scene file that is missing or not TOML, are one-line
-:class:`~data_synth.params.SpecError` messages naming the file, the group and the key. A
-scene file that is TOML but not a usable scene (see :class:`SceneRef`) fails only its own
+`SpecError` messages naming the file, the group and the key. A
+scene file that is TOML but not a usable scene (see `SceneRef`) fails only its own
 samples.
 """
 
@@ -62,7 +62,7 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 class SceneRef:
     """A scene of a group: ``file`` as written in the spec, ``definition`` the scene's TOML
     mapping as rendered (camera size and depth overrides applied, ``[material]`` removed:
-    the sample's parameters replace it), ``scene`` the parsed :class:`Scene`, or None and
+    the sample's parameters replace it), ``scene`` the parsed `Scene`, or None and
     ``error`` the one-line reason when the file is valid TOML but not a usable scene (an
     environment map holding NaN, a value out of range): its samples are reported as failed
     and the rest of the dataset is produced."""
@@ -248,7 +248,7 @@ def _parse_group(table: Any, number: int, source: str, base_dir: Path, seen: set
 def parse_spec(
     data: dict[str, Any], source: str = "spec", base_dir: str | Path = ".", seed: int | None = None
 ) -> DatasetSpec:
-    """Build a :class:`DatasetSpec` from a parsed TOML mapping; ``seed`` overrides the spec's."""
+    """Build a `DatasetSpec` from a parsed TOML mapping; ``seed`` overrides the spec's."""
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
         raise SpecError(f"{source}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_TOP_KEYS))}")

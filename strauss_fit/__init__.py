@@ -4,18 +4,18 @@ The data flow, and the subpackage of each step:
 
 scene → geometry → shading → image → fit → uncertainty → report
 
-- :mod:`strauss_fit.models`: the Strauss and Phong shading models and materials;
-- :mod:`strauss_fit.scene`: camera, lights, background, the scene file;
-- :mod:`strauss_fit.rendering`: rendering the sphere (Strauss with its global model, Phong);
-- :mod:`strauss_fit.io`: images, fit targets, material tables, safe writes;
-- :mod:`strauss_fit.stats`: Laplace and sandwich covariances, the target's noise;
-- :mod:`strauss_fit.fitting`: least-squares recovery of the material;
-- :mod:`strauss_fit.inference`: the posterior, emcee sampling;
-- :mod:`strauss_fit.reporting`: the uncertainty report and the study's report;
-- :mod:`strauss_fit.convert`: Phong ↔ Strauss conversion; :mod:`strauss_fit.study`: the
+- `strauss_fit.models`: the Strauss and Phong shading models and materials;
+- `strauss_fit.scene`: camera, lights, background, the scene file;
+- `strauss_fit.rendering`: rendering the sphere (Strauss with its global model, Phong);
+- `strauss_fit.io`: images, fit targets, material tables, safe writes;
+- `strauss_fit.stats`: Laplace and sandwich covariances, the target's noise;
+- `strauss_fit.fitting`: least-squares recovery of the material;
+- `strauss_fit.inference`: the posterior, emcee sampling;
+- `strauss_fit.reporting`: the uncertainty report and the study's report;
+- `strauss_fit.convert`: Phong ↔ Strauss conversion; `strauss_fit.study`: the
   intuitive-parameter study.
 
-The whole workflow is importable from here::
+The whole workflow is importable from here:
 
     import strauss_fit as sf
 
@@ -26,12 +26,12 @@ The whole workflow is importable from here::
     print(result.to_json()["smoothness"], result.uncertainty["smoothness"])
 
 Precision: importing the package does not touch ``jax_enable_x64``; the library runs its
-own computations in float64 inside a scope (:mod:`strauss_fit.precision`, and
-:func:`float64` for your code). Nor does it touch JAX's CPU device count:
-:func:`use_cpu_cores` asks for one device per core (the command line and the first batch
-call it; see :mod:`strauss_fit.runtime`).
+own computations in float64 inside a scope (`strauss_fit.precision`, and
+`float64` for your code). Nor does it touch JAX's CPU device count:
+`use_cpu_cores` asks for one device per core (the command line and the first batch
+call it; see `strauss_fit.runtime`).
 
-Every public name is listed once, in :data:`_PUBLIC` (name → module), and imported on first
+Every public name is listed once, in `_PUBLIC` (name → module), and imported on first
 use, so that ``import strauss_fit`` stays light: no JAX until something needs it (the
 command line's ``--help`` and its errors load none). The block under ``TYPE_CHECKING``
 states the same re-exports for type checkers and editors (``X as X``, the optimistix

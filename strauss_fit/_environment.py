@@ -1,5 +1,5 @@
 """How the package reads its environment settings (a leaf: no imports of its own), shared
-by :mod:`strauss_fit.runtime` and :mod:`strauss_fit.export_cache`."""
+by `strauss_fit.runtime` and `strauss_fit.export_cache`."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
 """Colour: the sRGB transfer functions and CIEDE2000 colour differences.
 
-sRGB (IEC 61966-2-1): :func:`srgb_decode` takes 8-bit style encoded values in [0, 1] to
-linear radiance, :func:`srgb_encode` the reverse (clipping to [0, 1] first).
+sRGB (IEC 61966-2-1): `srgb_decode` takes 8-bit style encoded values in [0, 1] to
+linear radiance, `srgb_encode` the reverse (clipping to [0, 1] first).
 
-CIEDE2000 (:func:`delta_e_2000`): both images are read as linear sRGB (D65). HDR values
+CIEDE2000 (`delta_e_2000`): both images are read as linear sRGB (D65). HDR values
 are first divided by a common scale, the larger of 1 and the reference's 99th-percentile
 value, so that the difference is the one seen on a display exposed for the reference; the
 values are then clipped to [0, 1], converted to CIE XYZ (sRGB's matrix) and CIE L*a*b*

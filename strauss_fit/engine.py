@@ -3,39 +3,39 @@ r"""Running a fit's numeric work for one target, or batched across many.
 A fit is mostly Python decisions (which parameters to free, which bounds to pin, whether
 to refit) around a handful of compiled numeric *kernels* (a solve from some starts, a
 Jacobian, a render). The fit is written once, as a generator of *steps*
-(:func:`strauss_fit.fitting.api.fit_steps`): wherever it needs numeric work it yields a
-:class:`Call` — a :class:`Kernel` and its arguments — and receives the result.
+(`strauss_fit.fitting.api.fit_steps`): wherever it needs numeric work it yields a
+`Call` — a `Kernel` and its arguments — and receives the result.
 
-- :func:`run` drives one such generator, calling each kernel directly: that is
-  :func:`strauss_fit.fit` (one target).
-- :func:`run_batched` drives many at once: it collects the pending calls of all of them,
+- `run` drives one such generator, calling each kernel directly: that is
+  `strauss_fit.fit` (one target).
+- `run_batched` drives many at once: it collects the pending calls of all of them,
   groups the calls of the same kernel whose arguments have the same structure (the same
   static settings, the same array shapes and dtypes — the targets of one scene and image
   size) and runs each group, then hands every generator its own result. That is
-  :func:`strauss_fit.fit_many`: the per-target Python decisions stay exactly those of a
+  `strauss_fit.fit_many`: the per-target Python decisions stay exactly those of a
   single fit, while the compiled programs, and their compilation, are shared.
 
 Compiled once, whatever the batch: a kernel's program depends on the structure of its
 arguments only, never on how many targets a batch has or how they diverge. On a CPU every
 call of a group runs alone, as the single-item program a single fit uses
-(:data:`SEQUENTIAL_BATCH`): a CPU runs a batch's items one after the other anyway, and
+(`SEQUENTIAL_BATCH`): a CPU runs a batch's items one after the other anyway, and
 JAX dispatches each call without waiting. On an accelerator the group's items run side by
 side (``jax.vmap``), each stopping at its own convergence (a finished item's state is
 carried unchanged by the batched loop), in a batch padded to a power of four
-(:func:`batch_bucket`): a few programs per kernel, whatever the group's size. (Under
+(`batch_bucket`): a few programs per kernel, whatever the group's size. (Under
 ``vmap`` on a CPU every iteration of a solver's loop would run every item's branches until
 the slowest item converged: five times slower on two cores, measured.) An argument may
-fold what varies between calls into data (``kernel_form``, :func:`split_arguments`): a
+fold what varies between calls into data (``kernel_form``, `split_arguments`): a
 fit's problem holds its loss as data, so that least squares, Huber and Cauchy share their
-programs. And all kernels run on one device (:func:`compute_device`), a single fit's as a
+programs. And all kernels run on one device (`compute_device`), a single fit's as a
 batch's: a program belongs to its device, in memory and in the persistent compilation
 cache.
 
 While compiled work runs, Python runs too: the generators are split into *cohorts*
-(:func:`cohort_devices`), and one cohort's decisions are taken while the others' compiled
-calls run, JAX dispatching a call and returning at once (:class:`Pending`). On a CPU the
+(`cohort_devices`), and one cohort's decisions are taken while the others' compiled
+calls run, JAX dispatching a call and returning at once (`Pending`). On a CPU the
 compiled calls go to CPU devices other than the first
-(:func:`strauss_fit.runtime.use_cpu_cores`), since a device runs its work in order and
+(`strauss_fit.runtime.use_cpu_cores`), since a device runs its work in order and
 the small eager operations of the Python would otherwise wait behind the kernels; with
 cores to spare and many items, cohorts run on several devices at once. Which cohort a
 generator belongs to is fixed by its position, so that a run is repeatable.
@@ -62,7 +62,7 @@ import numpy as np
 from .export_cache import ExportedKernel, kernel_identity
 from .runtime import usable_cores
 
-#: A fit (or any computation) written as steps: it yields :class:`Call` and receives results.
+#: A fit (or any computation) written as steps: it yields `Call` and receives results.
 Steps = Generator["Call", Any, Any]
 
 
@@ -89,7 +89,7 @@ class _Static(eqx.Module):
 class Kernel:
     """A numeric function of array pytrees, run directly (``kernel(*args)``, jitted: arrays
     are traced, everything else is static) or over a batch of argument tuples of identical
-    structure (:meth:`run_many`), on :func:`compute_device` unless a device was chosen."""
+    structure (`run_many`), on `compute_device` unless a device was chosen."""
 
     def __init__(self, fn: Callable[..., Any], name: str | None = None):
         self.fn = fn
@@ -124,7 +124,7 @@ class Kernel:
         if not sequential:
             return jax.vmap(one)(stacked)
         # One item after the other, the first ``count`` rows only: a batch padded to its
-        # bucket (:func:`batch_bucket`) spends nothing on the padding, and one program
+        # bucket (`batch_bucket`) spends nothing on the padding, and one program
         # serves every count up to the bucket's size. The results' shapes come from the
         # single-item program (``jax.jit``'s trace cache: usually traced already, by the
         # calls of one item, and reused by them otherwise), not from tracing ``fn`` again.
@@ -142,7 +142,7 @@ class Kernel:
         return eqx.combine(jax.lax.fori_loop(0, count, body, buffers), rest.value)
 
     def run_many(self, argument_lists: list[tuple], sequential: bool | None = None) -> list[Any]:
-        """The kernel on every argument tuple (all of one structure, see :func:`batch_key`),
+        """The kernel on every argument tuple (all of one structure, see `batch_key`),
         as one compiled call; results as NumPy pytrees, one per tuple."""
         return self.start_many(argument_lists, sequential)()
 
@@ -153,10 +153,10 @@ class Kernel:
         parts: list[tuple] | None = None,
         size: int | None = None,
     ) -> Pending:
-        """:meth:`run_many` started: JAX dispatches the compiled call and returns at once
-        (see :class:`Pending`). ``parts``: the argument tuples already partitioned
-        (:attr:`Call.parts`). ``size``: the batch's compiled size, at least the number of
-        tuples (default :func:`batch_bucket`): the tuples are padded to it, so that every
+        """`run_many` started: JAX dispatches the compiled call and returns at once
+        (see `Pending`). ``parts``: the argument tuples already partitioned
+        (`Call.parts`). ``size``: the batch's compiled size, at least the number of
+        tuples (default `batch_bucket`): the tuples are padded to it, so that every
         count up to it shares one program."""
         if sequential is None:
             sequential = jax.default_backend() == "cpu"
@@ -183,11 +183,11 @@ class Kernel:
 
 def compute_device() -> Any:
     """The device kernels run on: on a CPU with several devices
-    (:func:`strauss_fit.runtime.use_cpu_cores`) the second, else None (JAX's default).
+    (`strauss_fit.runtime.use_cpu_cores`) the second, else None (JAX's default).
 
     Why not the first: a device runs its work in order, and the small eager operations of
     the Python around the kernels (``jnp.asarray``, ``.at[].set``) run on the first; they
-    then never wait behind a kernel (see :func:`cohort_devices`). Why one device for every
+    then never wait behind a kernel (see `cohort_devices`). Why one device for every
     kernel, a single fit's as a batch's: a compiled program belongs to its device, in memory
     and in the persistent compilation cache (whose key holds the device on a CPU). With
     single fits on the first device and batches on the second, a process (or a cache) that
@@ -199,7 +199,7 @@ def compute_device() -> Any:
 
 
 def on_compute_device() -> contextlib.AbstractContextManager:
-    """The context in which a kernel call runs on :func:`compute_device`, unless a device
+    """The context in which a kernel call runs on `compute_device`, unless a device
     was chosen already (``jax.default_device``: a cohort's, or the caller's)."""
     if jax.config.jax_default_device is not None:
         return contextlib.nullcontext()
@@ -211,10 +211,10 @@ def _is_array(leaf: Any) -> bool:
     return isinstance(leaf, (np.ndarray, jax.Array))
 
 
-#: The compiled sizes of a batched call (:func:`batch_bucket`): powers of four, so that a
+#: The compiled sizes of a batched call (`batch_bucket`): powers of four, so that a
 #: kernel has few programs whatever its batches' sizes, with at most 4x padding.
 _BUCKET_BASE = 4
-#: Calls per compiled call on a CPU (:func:`_start_group`): 1, every call runs alone, as
+#: Calls per compiled call on a CPU (`_start_group`): 1, every call runs alone, as
 #: the single-item program — a single fit's. Measured on 2 cores (2026-12-03, 40 targets
 #: of 64², in one process, alternated): batches of up to 64 (padded to 4, 16 or 64, the
 #: padding not run) compiled 31 programs cold where single calls compiled 18 (61 s against
@@ -227,7 +227,7 @@ SEQUENTIAL_BATCH = 1
 
 def batch_bucket(count: int) -> int:
     """The compiled size of a batch of ``count`` (≥ 2) items: the smallest power of four
-    that holds them (4, 16, 64, 256, …). A batch is padded to it (:meth:`Kernel.start_many`),
+    that holds them (4, 16, 64, 256, …). A batch is padded to it (`Kernel.start_many`),
     so that a kernel has a handful of batched programs, the same whatever sizes its batches
     come in. Sequentially (a CPU) the padding costs nothing but its rows' memory (it is not
     run); side by side (an accelerator) it costs idle lanes."""
@@ -269,7 +269,7 @@ def _stack_items(items: list[list], size: int | None = None, pad_with_first: boo
 
 
 class Pending:
-    """Compiled work dispatched and maybe still running: :meth:`ready` says whether it has
+    """Compiled work dispatched and maybe still running: `ready` says whether it has
     finished (without waiting); calling it waits and returns the results (a list, one per
     call)."""
 
@@ -288,9 +288,9 @@ class _DispatchingJit:
     """``jax.jit`` over the array leaves of the arguments, everything else static — as
     equinox's ``filter_jit``, but returning as soon as JAX has dispatched the call:
     ``filter_jit`` waits for every call to finish (to word its runtime errors), which
-    would keep the Python of other targets from running meanwhile (:func:`run_batched`).
+    would keep the Python of other targets from running meanwhile (`run_batched`).
     A runtime error then surfaces when the result is read. The arguments are split once
-    into their arrays and a :class:`StaticPart` (:func:`split_arguments`); arguments with
+    into their arrays and a `StaticPart` (`split_arguments`); arguments with
     a leaf that cannot be hashed go through ``filter_jit``."""
 
     def __init__(self, fn: Callable[..., Any], identity: str | None = None):
@@ -314,7 +314,7 @@ class _DispatchingJit:
         return self.call_parts(args, split_arguments(args))
 
     def call_parts(self, args: tuple, parts: tuple[list, StaticPart | None]) -> Any:
-        """The call on ``args`` already split into ``parts`` (:attr:`Call.parts`)."""
+        """The call on ``args`` already split into ``parts`` (`Call.parts`)."""
         arrays, static = parts
         if static is None:
             return self._filtered(*args)
@@ -327,7 +327,7 @@ class _DispatchingJit:
 
 
 class _ArraySlot:
-    """Where an array stands among a :class:`StaticPart`'s leaves."""
+    """Where an array stands among a `StaticPart`'s leaves."""
 
     def __repr__(self) -> str:
         return "<array>"
@@ -336,13 +336,13 @@ class _ArraySlot:
         return "ARRAY_SLOT"
 
 
-#: The marker of an array's place in :attr:`StaticPart.leaves`.
+#: The marker of an array's place in `StaticPart.leaves`.
 ARRAY_SLOT = _ArraySlot()
 
 
 class StaticPart:
     """The non-array part of a kernel call's arguments: their pytree structure and their
-    leaves, each array replaced by :data:`ARRAY_SLOT`. Hashed once, compared structurally.
+    leaves, each array replaced by `ARRAY_SLOT`. Hashed once, compared structurally.
 
     Why not ``eqx.partition``'s static pytree: hashing and comparing that walks every
     equinox module of the arguments in Python (a conversion's problem: ~50 µs a hash, and
@@ -378,7 +378,7 @@ class StaticPart:
     def describe(self, plain: tuple[type, ...]) -> str | None:
         """A text that tells this static part from any other, or None when a leaf is not of
         a ``plain`` type (its ``repr`` might not tell two values apart) nor a
-        :class:`StaticPart` itself (a batched call's)."""
+        `StaticPart` itself (a batched call's)."""
         texts = []
         for leaf in self.leaves:
             if leaf is ARRAY_SLOT or type(leaf) in plain:
@@ -394,11 +394,11 @@ class StaticPart:
 
 
 def split_arguments(args: tuple) -> tuple[list, StaticPart | None]:
-    """``args`` as their array leaves (in order) and their :class:`StaticPart` (None when a
+    """``args`` as their array leaves (in order) and their `StaticPart` (None when a
     leaf cannot be hashed), each argument with a ``kernel_form()`` method replaced by what
     it returns: the form a compiled program takes it in, which may hold as data what the
     object holds as structure, so that its variants share one program (a fit's problem
-    and its loss: :meth:`strauss_fit.fitting.problem.Problem.kernel_form`)."""
+    and its loss: `strauss_fit.fitting.problem.Problem.kernel_form`)."""
     args = tuple(_kernel_form(argument) for argument in args)
     leaves, treedef = jax.tree.flatten(args)
     arrays = [x for x in leaves if isinstance(x, _ARRAY_TYPES)]
@@ -427,13 +427,13 @@ class Call:
 
     @functools.cached_property
     def parts(self) -> tuple[list, StaticPart | None]:
-        """The arguments' arrays and :class:`StaticPart` (:func:`split_arguments`), split
+        """The arguments' arrays and `StaticPart` (`split_arguments`), split
         once: grouping, stacking and the call all need them."""
         return split_arguments(self.args)
 
 
 def run(steps: Steps) -> Any:
-    """Drive one step generator to its end, running every :class:`Call` directly, and
+    """Drive one step generator to its end, running every `Call` directly, and
     return its value."""
     try:
         request = next(steps)
@@ -470,7 +470,7 @@ def run_batched(
     each generator's value, or the exception that ended it. ``on_done(index, value)`` is
     called as each finishes (value: the result or the exception). ``max_batch`` caps the
     items of one compiled call (memory). ``cohorts``: into how many groups the generators
-    are split (default :func:`cohort_devices`, which ``python_bound`` informs); each
+    are split (default `cohort_devices`, which ``python_bound`` informs); each
     advances while the others' compiled calls run."""
     generators = list(step_lists)
     results: list[Any] = [None] * len(generators)
@@ -528,25 +528,25 @@ def run_batched(
 
 
 def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool = True) -> list[Any]:
-    """The device of each cohort of :func:`run_batched` (None: JAX's default device).
+    """The device of each cohort of `run_batched` (None: JAX's default device).
 
     Two cohorts at least, so that one cohort's Python (the fits' decisions, the noise
     estimate) runs while the other's compiled calls do: JAX dispatches a compiled call
     and returns at once. But a device runs its work in order, so a small eager JAX
     operation in that Python (``jnp.asarray``, ``.at[].set``) would wait for the batch
     running on the same device. On a CPU with several devices
-    (:func:`strauss_fit.runtime.use_cpu_cores`: one per core, up to eight, and one more)
+    (`strauss_fit.runtime.use_cpu_cores`: one per core, up to eight, and one more)
     the batches therefore run on the devices after the first, which is left to the eager
     operations, one cohort per device: as many devices as there are cores less the one
     the Python needs (``python_bound``, a fit's case), or as cores (a conversion's, almost
     all compiled work). A batch runs on the first of them whatever its size, and on one
-    more per :data:`ITEMS_PER_DEVICE` items. Why not the default device for a small batch
+    more per `ITEMS_PER_DEVICE` items. Why not the default device for a small batch
     (which would share a single fit's programs): a compiled program belongs to its device,
     in memory and in the persistent compilation cache (whose key holds the device on a
     CPU), so a batch that moved between devices with its size would compile everything
     again — a run of 13 targets after one of 40 compiled 29 programs in 65 s, against none.
     Each further device compiles its own programs (and holds them: memory mappings,
-    :mod:`strauss_fit.runtime`), hence only for large batches."""
+    `strauss_fit.runtime`), hence only for large batches."""
     devices = jax.local_devices() if jax.default_backend() == "cpu" else []
     if cohorts is None:
         cohorts = 2
@@ -559,7 +559,7 @@ def cohort_devices(items: int, cohorts: int | None = None, *, python_bound: bool
     return [None] * max(1, min(cohorts, items))
 
 
-#: Items per CPU device from which :func:`run_batched` spreads a batch over one more device.
+#: Items per CPU device from which `run_batched` spreads a batch over one more device.
 ITEMS_PER_DEVICE = 16
 
 
@@ -576,9 +576,9 @@ def _start_group(calls: list[Call], sequential: bool | None, device: Any = None)
 
     The programs compiled per kernel are few and the same however the targets split up as
     their fits diverge: on a CPU (``sequential``) every call runs alone, as the
-    single-item program (:data:`SEQUENTIAL_BATCH`), all of them dispatched before any is
+    single-item program (`SEQUENTIAL_BATCH`), all of them dispatched before any is
     waited for; on an accelerator the group runs side by side as one batch padded to its
-    :func:`batch_bucket` (4, 16, 64, … items) with copies of its first item, whose results
+    `batch_bucket` (4, 16, 64, … items) with copies of its first item, whose results
     are dropped."""
     if sequential is None:
         sequential = jax.default_backend() == "cpu"

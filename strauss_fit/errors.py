@@ -1,7 +1,7 @@
 """User-facing errors.
 
 Every problem a user can cause (bad input files, values out of range, an impossible
-request) raises a subclass of :class:`StraussFitError` whose message is one line naming the
+request) raises a subclass of `StraussFitError` whose message is one line naming the
 problem. The command-line front end prints that line and exits non-zero; anything else that
 escapes is a bug.
 """

@@ -1,10 +1,10 @@
-"""Kernels traced and lowered once, kept on disk with :mod:`jax.export`.
+"""Kernels traced and lowered once, kept on disk with `jax.export`.
 
-JAX's persistent compilation cache (:mod:`strauss_fit.runtime`) spares a new process the
+JAX's persistent compilation cache (`strauss_fit.runtime`) spares a new process the
 XLA compilation of a kernel, but not its *tracing* (running the Python of the solvers,
 renders and Jacobians to build a jaxpr) nor the lowering of that jaxpr to StableHLO: for a
 single 64² fit, several seconds per process. Here each kernel call's traced and lowered
-program is serialised with :func:`jax.export.export` the first time, and later processes
+program is serialised with `jax.export.export` the first time, and later processes
 deserialise it and run ``exported.call`` inside ``jax.jit`` (tracing that is one
 primitive; the XLA compilation of the result then hits the compilation cache).
 
@@ -12,18 +12,18 @@ Where: beside the compilation cache, in the folder ``<cache folder>-export`` (by
 ``~/.cache/strauss-fit/jax-export``; ``STRAUSS_FIT_CACHE_DIR=PATH`` moves both,
 ``STRAUSS_FIT_CACHE_DIR=off`` turns both off). ``STRAUSS_FIT_EXPORT_CACHE=off`` turns
 only this one off; ``STRAUSS_FIT_EXPORT_CACHE=PATH`` moves it. It is on only where the
-compilation cache was enabled (:func:`strauss_fit.runtime.enable_compilation_cache`: the
+compilation cache was enabled (`strauss_fit.runtime.enable_compilation_cache`: the
 command line, Dask workers), never for the library used directly.
 
 One file per program, named by a SHA-256 digest of: the kernel's identity (module-level
-functions of :mod:`strauss_fit` only), the static (non-array) part of its arguments (its
+functions of `strauss_fit` only), the static (non-array) part of its arguments (its
 tree structure and the ``repr`` of its leaves, which must be plain: numbers, strings,
-None; :meth:`strauss_fit.engine.StaticPart.describe`), the tree structure, shapes,
+None; `strauss_fit.engine.StaticPart.describe`), the tree structure, shapes,
 dtypes and weak types of the array leaves, JAX's tracing context (the ``jax_enable_x64``
 scope and the other settings that key ``jax.jit``'s own cache, less the default device:
 one program serves every device), the versions of jax, jaxlib, equinox, lineax,
 optimistix and numpy, equinox's ``EQX_*`` environment settings, and a hash of the source
-files of :mod:`strauss_fit`. A static part whose ``repr`` is not stable between
+files of `strauss_fit`. A static part whose ``repr`` is not stable between
 processes (it shows an address, ``0x…``) is not kept on disk. The file holds the
 serialised program, the output's structure and its non-array part (pickled), or a marker
 saying that the program cannot be exported (host callbacks: ``eqx.error_if``,
@@ -84,7 +84,7 @@ def folder() -> Path | None:
 
 def kernel_identity(fn: Callable[..., Any]) -> str | None:
     """The name under which ``fn``'s programs are kept, or None where they must not be:
-    only module-level functions of :mod:`strauss_fit`, whose source is in the digest (a
+    only module-level functions of `strauss_fit`, whose source is in the digest (a
     lambda, a closure or a function of other code may change, or capture values, unseen)."""
     module, qualname = getattr(fn, "__module__", None) or "", getattr(fn, "__qualname__", None) or "<"
     if not module.startswith("strauss_fit.") or "<" in qualname or getattr(fn, "__closure__", None):
@@ -122,7 +122,7 @@ def _trace_context() -> tuple:
     """JAX's tracing context (what keys ``jax.jit``'s own cache) and the float64 scope,
     without the default device: a program does not depend on it (``jax.jit`` places each
     call), and a batch on another CPU device would otherwise keep its own copy. Cheap and
-    hashable: it keys every call's lookup in memory (:meth:`ExportedKernel.call`)."""
+    hashable: it keys every call's lookup in memory (`ExportedKernel.call`)."""
     try:
         from jax._src import config
 
@@ -133,7 +133,7 @@ def _trace_context() -> tuple:
 
 
 def _context_text(context: tuple) -> str:
-    """:func:`_trace_context` as text for the digest (parts that show an address left out)."""
+    """`_trace_context` as text for the digest (parts that show an address left out)."""
     return repr([part for part in map(repr, context) if " at 0x" not in part])
 
 
@@ -143,9 +143,9 @@ _PLAIN = (bool, int, float, complex, str, bytes, type(None))
 
 class ExportedKernel:
     """``fn(arrays, static)`` through exported programs kept on disk; one per
-    :class:`strauss_fit.engine._DispatchingJit`, whose ``fn`` rebuilds a kernel's
-    arguments from their arrays and their :class:`strauss_fit.engine.StaticPart`.
-    :meth:`call` returns None where the call cannot go this way (the caller then runs its
+    `strauss_fit.engine._DispatchingJit`, whose ``fn`` rebuilds a kernel's
+    arguments from their arrays and their `strauss_fit.engine.StaticPart`.
+    `call` returns None where the call cannot go this way (the caller then runs its
     ``jax.jit``)."""
 
     def __init__(self, fn: Callable[..., Any], identity: str):

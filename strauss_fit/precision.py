@@ -7,13 +7,13 @@ process. So ``import strauss_fit`` leaves ``jax_enable_x64`` as it was, and the 
 switches float64 on only *inside* its own calls:
 
 - every public entry point that creates or computes arrays (scene loading and
-  :func:`~strauss_fit.scene.loading.parse_scene`, constructing a
-  :class:`~strauss_fit.models.material.Material` or
-  :class:`~strauss_fit.models.phong.PhongMaterial`, :func:`~strauss_fit.rendering.strauss.render`,
-  :func:`~strauss_fit.rendering.phong.render_phong`, :func:`~strauss_fit.fitting.api.fit`, the
+  `parse_scene`, constructing a
+  `Material` or
+  `PhongMaterial`, `render`,
+  `render_phong`, `fit`, the
   posterior and the sampler, the conversions, the study, the reports) is decorated with
-  :func:`uses_float64`, which runs it inside :func:`float64`;
-- :func:`float64` is a context manager (``jax.enable_x64(True)``) for your own code.
+  `uses_float64`, which runs it inside `float64`;
+- `float64` is a context manager (``jax.enable_x64(True)``) for your own code.
 
 The rule for users. Arrays created inside a scope *stay* float64 afterwards, but JAX
 operations run *outside* a scope canonicalise their inputs to float32 (``x + 1``,
@@ -66,7 +66,7 @@ def float64() -> Iterator[None]:
 
 
 def uses_float64(function: F) -> F:
-    """Decorator: run ``function`` inside :func:`float64` (see the module docstring).
+    """Decorator: run ``function`` inside `float64` (see the module docstring).
 
     Applied to every public entry point of the library that creates or computes arrays.
     """

@@ -1,7 +1,7 @@
 """JAX's runtime: the persistent compilation cache, and keeping a long-running process
 healthy while it compiles many programs.
 
-The compilation cache (:func:`enable_compilation_cache`): compiled XLA programs are kept
+The compilation cache (`enable_compilation_cache`): compiled XLA programs are kept
 on disk (``~/.cache/strauss-fit/jax``; ``STRAUSS_FIT_CACHE_DIR=PATH`` moves it,
 ``STRAUSS_FIT_CACHE_DIR=off`` turns it off), so that a new process — the next
 ``strauss-fit`` command, a Dask worker — loads them instead of compiling again. Every
@@ -19,23 +19,23 @@ and then dies inside LLVM ("Cannot allocate memory", then a segmentation fault) 
 gigabytes of memory free. Measured here: about 700 mappings per configuration, so about
 90 configurations per process.
 
-:func:`release_compiled_code_if_needed` is called before every fit: past
-:data:`MAP_FRACTION` of the limit it clears JAX's caches (the programs are compiled again
+`release_compiled_code_if_needed` is called before every fit: past
+`MAP_FRACTION` of the limit it clears JAX's caches (the programs are compiled again
 when next needed, which costs time, never correctness). Where ``/proc`` does not exist it
 does nothing.
 
-CPU devices (:func:`use_cpu_cores`): XLA:CPU runs the work of one device in order, on
+CPU devices (`use_cpu_cores`): XLA:CPU runs the work of one device in order, on
 one core for the small programs of a fit, and a small eager operation waits for the
 program before it. Where JAX has several CPU devices the compiled kernels
-(:mod:`strauss_fit.engine`) therefore run on a device other than the first, which is left
+(`strauss_fit.engine`) therefore run on a device other than the first, which is left
 to the eager operations of the fits' Python — a single fit's kernels as a batch's, so that
-both share their programs (:func:`strauss_fit.engine.compute_device`: a program belongs to
+both share their programs (`strauss_fit.engine.compute_device`: a program belongs to
 its device, in memory and in the compilation cache) — and a large batch on several of them
 where there are cores to spare. JAX's CPU device count is the process's, so the package
 never changes it on import: the ``strauss-fit`` command asks for one device per usable core
 (at most eight) and one more when it starts, and so does the first batch
-(:func:`strauss_fit.fit_many`) of a process whose JAX has not run anything yet. In a
-program of your own, call :func:`use_cpu_cores` right after importing the package (before
+(`strauss_fit.fit_many`) of a process whose JAX has not run anything yet. In a
+program of your own, call `use_cpu_cores` right after importing the package (before
 any JAX work) for the same; without it everything runs on JAX's one default CPU device,
 with the same results, batches slower. A count you chose (``JAX_NUM_CPU_DEVICES``,
 ``XLA_FLAGS``' host device count, ``jax.config``'s ``jax_num_cpu_devices``) is kept.
@@ -55,8 +55,8 @@ _MAPS = Path("/proc/self/maps")
 _LIMIT = Path("/proc/sys/vm/max_map_count")
 
 
-#: CPU devices for batches at most (:func:`use_cpu_cores`): a batch of 64 fits uses at most
-#: four (:data:`strauss_fit.engine.ITEMS_PER_DEVICE`), and each device holds its own programs.
+#: CPU devices for batches at most (`use_cpu_cores`): a batch of 64 fits uses at most
+#: four (`strauss_fit.engine.ITEMS_PER_DEVICE`), and each device holds its own programs.
 MAX_COMPUTE_DEVICES = 8
 
 
@@ -69,7 +69,7 @@ def usable_cores() -> int:
 
 
 def use_cpu_cores() -> bool:
-    """Ask JAX for one CPU device per usable core (at most :data:`MAX_COMPUTE_DEVICES`)
+    """Ask JAX for one CPU device per usable core (at most `MAX_COMPUTE_DEVICES`)
     and one more (see the module docstring), unless a count was chosen
     (``JAX_NUM_CPU_DEVICES``, ``XLA_FLAGS``' host device count, ``jax_num_cpu_devices``) or
     JAX already ran something (the count cannot change then). True when the count was set.
@@ -104,7 +104,7 @@ def cache_folder() -> Path | None:
 
 
 def enable_compilation_cache() -> Path | None:
-    """Turn on JAX's persistent compilation cache in :func:`cache_folder` (see the module
+    """Turn on JAX's persistent compilation cache in `cache_folder` (see the module
     docstring); returns the folder, or None (turned off, or not writable: it only costs
     time)."""
     folder = cache_folder()

@@ -1,9 +1,9 @@
 """Captures: many photographs of one sample sphere under several lights.
 
-The flow: a capture is described (:func:`read_capture`: a manifest, a DiLiGenT folder, or
+The flow: a capture is described (`read_capture`: a manifest, a DiLiGenT folder, or
 image files with a lights file), its sphere found in the frame and its pixels read
-(:func:`load_samples`), and then fitted (:func:`strauss_fit.fitting.capture_result.fit_capture`).
-Lights can be estimated from photographs of a mirror ball (:func:`estimate_lights`).
+(`load_samples`), and then fitted (`strauss_fit.fitting.capture_result.fit_capture`).
+Lights can be estimated from photographs of a mirror ball (`estimate_lights`).
 See docs/captures.md.
 """
 

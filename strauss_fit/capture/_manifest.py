@@ -3,7 +3,7 @@
 A capture is many photographs of one sample sphere, each under its own lights, taken by one
 camera that does not move (docs/captures.md states the format and the conventions). This
 module only reads and checks the description; the pixels are read by
-:mod:`strauss_fit.capture._samples`.
+`strauss_fit.capture._samples`.
 """
 
 from __future__ import annotations
@@ -418,8 +418,8 @@ def open_capture(
     mask: str | Path | None = None,
     encoding: str | None = None,
 ) -> Capture:
-    """The capture the command line names: one manifest or folder (:func:`read_capture`), or
-    image files with a lights file (:func:`capture_from_images`); ``mask`` replaces none
+    """The capture the command line names: one manifest or folder (`read_capture`), or
+    image files with a lights file (`capture_from_images`); ``mask`` replaces none
     given, ``encoding`` ("linear" or "srgb") replaces the capture's. The one rule of
     ``fit --capture``, ``sample`` and ``report``."""
     paths = [str(p) for p in paths]
@@ -444,7 +444,7 @@ def capture_inputs(
     paths: Sequence[str | Path], lights: str | Path | None, mask: str | Path | None, encoding: str | None = None
 ) -> dict[str, Any]:
     """The inputs a capture's result records, so that ``sample`` and ``report`` can read the
-    capture again (:func:`open_capture`)."""
+    capture again (`open_capture`)."""
     return {
         "capture": [str(p) for p in paths],
         "lights": None if lights is None else str(lights),

@@ -12,7 +12,7 @@ toward the light). Per photograph:
 2. its sub-pixel centre: the centroid of the pixels of that blob, each weighted by its
    value above the background (a saturated core is fine: the centroid of a flat top is its
    centre);
-3. the normal and view vector at that point (:func:`~strauss_fit.capture._sphere.surface_at`,
+3. the normal and view vector at that point (`surface_at`,
    orthographic or perspective), and l by the reflection above.
 
 **Uncertainty.** The centroid's covariance from the pixel noise σ (1.4826 × the MAD of the
@@ -135,7 +135,7 @@ def _light_at(
 
 
 def _geometry(circle: Circle, camera: Camera, shape: Sequence[int]) -> tuple[tuple[float, ...], np.ndarray]:
-    """The sphere's parameters for :func:`_light_at` and their standard deviations."""
+    """The sphere's parameters for `_light_at` and their standard deviations."""
     if not camera.perspective:
         cx, cy = circle.center
         sd = np.array([circle.center_sd[0], circle.center_sd[1], circle.radius_sd])
@@ -333,7 +333,7 @@ class _Highlight:
     seed: tuple[int, int]
     #: its luminance
     peak: float
-    #: the connected regions above the half level (:func:`scipy.ndimage.label`)
+    #: the connected regions above the half level (`scipy.ndimage.label`)
     labels: np.ndarray
     #: the highlight: the region of the seed
     blob: np.ndarray
@@ -511,11 +511,11 @@ def estimate_lights(
     highlight's position is what matters, its intensity needs linear values). The ball's
     circle: ``circle`` if given (for a perspective camera its cone is derived when it has
     none), else from the mask at ``mask_path``, else from the images
-    (:func:`~strauss_fit.capture._sphere.circle_from_images`, which needs a ball brighter
+    (`circle_from_images`, which needs a ball brighter
     than the background: a ball reflecting a dark room needs the mask or the circle).
     ``saturation``: stored values at or above it are saturated (default: the largest code
     of an integer file, none for a float file). Intensities are scaled so that their
-    largest channel is 1 (those known). A :class:`CaptureError` names the file it concerns."""
+    largest channel is 1 (those known). A `CaptureError` names the file it concerns."""
     from ..color import srgb_decode
     from ..io.images import read_image
 
@@ -595,7 +595,7 @@ _TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n"
 def toml_string(text: str) -> str:
     """``text`` as a TOML basic string: quotes, backslashes and control characters escaped
     (\\uXXXX where TOML has no short escape). A lone surrogate (a file name that is not
-    valid UTF-8) cannot be written and is a :class:`CaptureError`."""
+    valid UTF-8) cannot be written and is a `CaptureError`."""
     out = ['"']
     for char in text:
         code = ord(char)

@@ -1,15 +1,15 @@
 r"""A capture's pixels: every image decoded, the sphere located once, its pixels' normals.
 
 The fit of a capture works on one set of sphere pixels shared by all images (the camera does
-not move): per pixel p a normal :math:`n_p` and a view vector :math:`v_p`
-(:mod:`strauss_fit.capture._sphere`), per image l and pixel p the observed linear radiance
-:math:`I_{lp}` (RGB) and which of its channels are usable, and per image its lights. Nothing
+not move): per pixel p a normal `n_p` and a view vector `v_p`
+(`strauss_fit.capture._sphere`), per image l and pixel p the observed linear radiance
+`I_{lp}` (RGB) and which of its channels are usable, and per image its lights. Nothing
 is cropped or resampled: the pixels are read where they lie in the frame.
 
 Decoding of a stored value x (a fraction of full scale, as the file holds it):
 
 - saturated where x ≥ ``saturation`` (per channel; by default within
-  :data:`SATURATION_MARGIN` of the largest code of an integer file), under-exposed where
+  `SATURATION_MARGIN` of the largest code of an integer file), under-exposed where
   the decoded value is below ``dark`` (by default: code 0 of an integer file, which clips
   the noise at black); both are left out of the fit. Why judged by the neighbours: a
   value near a clip is censored by its own noise (those pushed over are lost, the rest
@@ -83,7 +83,7 @@ class CaptureSamples:
     #: (L, P, 3): the five-point Laplacian 4 I(p) − Σ I(neighbours) of each image at each
     #: pixel whose four neighbours are sphere pixels and usable; NaN elsewhere. Noise of
     #: level σ gives it a spread of √20 σ; the image's own curvature only adds to it, so it
-    #: bounds the noise from above (:func:`strauss_fit.fitting.capture_result.noise_bound`).
+    #: bounds the noise from above (`strauss_fit.fitting.capture_result.noise_bound`).
     laplacian: np.ndarray
     circle: Circle
     camera: Camera
@@ -91,7 +91,7 @@ class CaptureSamples:
     #: How each image's lights were given (per image, the CaptureImage).
     images: tuple[CaptureImage, ...]
     #: Per image and channel, a known ambient light reaching every point (a scene's ambient
-    #: light, :mod:`strauss_fit.fitting.scene_samples`); None when the images state none.
+    #: light, `strauss_fit.fitting.scene_samples`); None when the images state none.
     ambient_light: np.ndarray | None = None
 
     @property

@@ -248,7 +248,7 @@ class Circle:
         shape: Sequence[int] | None = None,
     ) -> Circle:
         """A circle stated by the user (``source="given"``, no uncertainty). With a
-        perspective camera the cone is derived from it (:func:`cone_of_circle`), which needs
+        perspective camera the cone is derived from it (`cone_of_circle`), which needs
         the image ``shape`` when the principal point is the image centre."""
         circle = cls(tuple(center), radius, source="given")  # type: ignore[arg-type]
         if camera is not None and camera.perspective:
@@ -311,7 +311,7 @@ class Circle:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Circle:
-        """The inverse of :meth:`to_dict` (``center`` and ``radius`` are required)."""
+        """The inverse of `to_dict` (``center`` and ``radius`` are required)."""
         if not isinstance(data, dict):
             raise CaptureError(f"a circle must be a table, got {type(data).__name__}")
         known = {
@@ -509,7 +509,7 @@ def _outline(circle: Circle, camera: Camera, shape: Sequence[int], count: int = 
 
 
 def check_in_frame(circle: Circle, shape: Sequence[int], camera: Camera) -> None:
-    """A one-line :class:`CaptureError` when the circle (for a perspective camera the
+    """A one-line `CaptureError` when the circle (for a perspective camera the
     ellipse the cone projects to) reaches beyond the frame by more than half a pixel."""
     height, width = int(shape[0]), int(shape[1])
     outline = _outline(circle, camera, shape)
@@ -546,7 +546,7 @@ def sphere_geometry(
     (w · u > cos ρ) and so do the rays of 16 points around it at distance ``margin``; the
     normal is that of the ray's first intersection with the sphere.
 
-    A circle that reaches beyond the frame is an error (:func:`check_in_frame`) unless
+    A circle that reaches beyond the frame is an error (`check_in_frame`) unless
     ``clip``, which keeps the pixels in the frame. No pixel inside is an error too."""
     camera = camera or Camera()
     margin = float(margin)
@@ -644,7 +644,7 @@ def _edge_points(
     pixels leave the frame or cross the silhouette twice keep their midpoint (E = 0.5).
     The brightness returned is B(0), the edge's contrast. Without ``extrapolate`` the
     brightness is held at the brighter of B₋₁ and B₋₂ (the systematic check of
-    :func:`circle_from_images`)."""
+    `circle_from_images`)."""
     rows, cols, drows, dcols = pairs
     height, width = image.shape
     t = np.arange(-2, 4)
@@ -1085,7 +1085,7 @@ def circle_from_mask(mask: np.ndarray, camera: Camera | None = None) -> Circle:
     the boundary points halfway between inside and outside neighbours; the outline is
     fitted robustly (module docstring), so a bump or a bite (a stand, an occluder) along it
     is left out. ``mask``: booleans, or numbers (true where at least half their maximum).
-    A :class:`CaptureError` when the mask holds nothing or too little, when too little of
+    A `CaptureError` when the mask holds nothing or too little, when too little of
     the outline is circular, and when the circle is cut by the frame."""
     camera = camera or Camera()
     inside = _as_mask(mask)
@@ -1230,7 +1230,7 @@ def circle_from_images(images: Sequence[np.ndarray], camera: Camera | None = Non
 
 def _check_region_inside(component: np.ndarray, circle: Circle, camera: Camera) -> None:
     """A sphere's silhouette lies inside its outline: a region of which more than
-    :data:`MAX_OUTSIDE_FRACTION` lies over 2 px outside the fitted outline is something
+    `MAX_OUTSIDE_FRACTION` lies over 2 px outside the fitted outline is something
     else (a glare's star, a mirror ball's highlights, a lit stand), not a sphere."""
     grown = sphere_geometry(circle.grown(2.0), component.shape, camera, clip=True)
     inside = np.zeros_like(component)

@@ -1,8 +1,8 @@
 """The batch driver both conversion directions run on.
 
-A direction (:class:`Direction`) says how an entry becomes an item and which steps convert
-an item; :func:`stream` prepares the entries one by one, converts them a chunk at a time
-(their kernel calls batched by :func:`strauss_fit.engine.run_batched`) and yields the
+A direction (`Direction`) says how an entry becomes an item and which steps convert
+an item; `stream` prepares the entries one by one, converts them a chunk at a time
+(their kernel calls batched by `strauss_fit.engine.run_batched`) and yields the
 results in input order. A material that fails is an error result and the batch goes on.
 """
 
@@ -22,9 +22,9 @@ Progress = Callable[[int, int, str], None]
 
 @dataclass
 class Direction:
-    """One direction of the conversion for the generic chunk driver (:func:`stream`): how
+    """One direction of the conversion for the generic chunk driver (`stream`): how
     an item is made from an entry (``prepare``, raises for a bad material) and the steps
-    that convert it (``steps``: a generator of :class:`strauss_fit.engine.Call`, returning
+    that convert it (``steps``: a generator of `strauss_fit.engine.Call`, returning
     the result dict)."""
 
     prepare: Callable[[int, Entry], tuple]
@@ -111,7 +111,7 @@ def stream(
 
 def run_chunk(chunk: list[tuple], direction: Direction, batched: bool) -> list[dict[str, Any]]:
     """Convert the items of ``chunk`` (``(i, entry, ...)``) together: their steps run
-    batched (:func:`strauss_fit.engine.run_batched`; a material that fails is an error
+    batched (`strauss_fit.engine.run_batched`; a material that fails is an error
     result, the others go on)."""
     outcomes = run_batched([direction.steps(item) for item in chunk], sequential=not batched, python_bound=False)
     return [

@@ -1,13 +1,13 @@
 r"""Closed-form guesses both conversion directions start from.
 
-- :func:`strauss_guess`: Strauss parameters for a Phong material (the Phong → Strauss
-  fit's first start, :mod:`strauss_fit.convert._to_strauss`);
-- :func:`phong_guess`: Phong's identifiable parameters for a Strauss material (the
-  Strauss → Phong fit's first start, :mod:`strauss_fit.convert._to_phong`);
-- :func:`metallic_tint`: whether a Phong highlight is tinted, which decides the canonical
+- `strauss_guess`: Strauss parameters for a Phong material (the Phong → Strauss
+  fit's first start, `strauss_fit.convert._to_strauss`);
+- `phong_guess`: Phong's identifiable parameters for a Strauss material (the
+  Strauss → Phong fit's first start, `strauss_fit.convert._to_phong`);
+- `metallic_tint`: whether a Phong highlight is tinted, which decides the canonical
   branch (metal or dielectric) of a Phong → Strauss conversion.
 
-Public through :mod:`strauss_fit.convert.converter`.
+Public through `strauss_fit.convert.converter`.
 """
 
 from __future__ import annotations
@@ -34,28 +34,28 @@ def triple(value: Any) -> np.ndarray:
 def strauss_guess(phong: PhongMaterial) -> tuple[dict[str, Any], list[str]]:
     r"""Closed-form Strauss parameters for a Phong material (the fit's first start).
 
-    With :math:`D = k_d C_d` and :math:`S = k_s C_{sp}` (RGB) and the exponent n:
+    With `D = k_d C_d` and `S = k_s C_{sp}` (RGB) and the exponent n:
 
-    - smoothness from the lobe width: Strauss's highlight is :math:`\cos^h\beta` with
-      :math:`h = 3/(1 - s)`, Phong's :math:`\cos^n\beta`, so :math:`s = 1 - 3/n`, clipped to
+    - smoothness from the lobe width: Strauss's highlight is `\cos^h\beta` with
+      `h = 3/(1 - s)`, Phong's `\cos^n\beta`, so `s = 1 - 3/n`, clipped to
       [0, 1) (n ≤ 3 gives s = 0: Strauss has no lobe wider than h = 3). For Blinn–Phong,
-      whose :math:`\cos^n(N\cdot H)` is close to :math:`\cos^{n/4}(R\cdot V)`, n/4 is used.
+      whose `\cos^n(N\cdot H)` is close to `\cos^{n/4}(R\cdot V)`, n/4 is used.
       For a pure Phong lobe the guessed s reproduces the lobe's shape exactly. Without a
       highlight (S = 0) s = 0, whatever n says.
     - metalness from the tint of the highlight: Strauss's highlight colour at small
-      angles of incidence is :math:`C_s \approx (1 - m)\,\mathrm{white} + m\,C`, so with
-      :math:`\hat C = D/\max D` (the diffuse hue) and the tint :math:`T = S/\max S`,
-      :math:`m = (1 - \min T)/(1 - \min\hat C)`, clipped to [0, 1]; a white highlight gives
+      angles of incidence is `C_s \approx (1 - m)\,\mathrm{white} + m\,C`, so with
+      `\hat C = D/\max D` (the diffuse hue) and the tint `T = S/\max S`,
+      `m = (1 - \min T)/(1 - \min\hat C)`, clipped to [0, 1]; a white highlight gives
       m = 0, and so does a grey diffuse colour (no hue to compare with). Without a diffuse
       term (D = 0) a tinted highlight means a metal of that colour (m = 1, C = T), a
       white one a black dielectric (m = 0, C = 0), and no highlight either Strauss's
       darkest material (C = 0, m = 1, s = 0: its off-specular term never vanishes).
     - colour from the diffuse term: Strauss's diffuse reflectance is
-      :math:`(1 - ms)(1 - s^3)\,C`, so :math:`C = D / ((1 - ms)(1 - s^3))`; where that
+      `(1 - ms)(1 - s^3)\,C`, so `C = D / ((1 - ms)(1 - s^3))`; where that
       exceeds 1 it is scaled down to a largest channel of 1 (keeping the hue), with a note.
 
     Phong's ks has no Strauss counterpart of its own: the highlight's strength follows
-    from s (:math:`r_n = s^3`) and m. Returns the guess and notes.
+    from s (`r_n = s^3`) and m. Returns the guess and notes.
     """
     notes: list[str] = []
     d = triple(phong.kd) * np.asarray(phong.diffuse_color, dtype=np.float64)
@@ -95,14 +95,14 @@ def strauss_guess(phong: PhongMaterial) -> tuple[dict[str, Any], list[str]]:
 
 def phong_guess(material: Material) -> tuple[np.ndarray, float]:
     r"""Closed-form Phong parameters for an (opaque) Strauss material: the vector
-    (D, S, u) of :data:`strauss_fit.convert.phong_fit.PHONG_LAYOUT` and the ambient coefficient.
+    (D, S, u) of `strauss_fit.convert.phong_fit.PHONG_LAYOUT` and the ambient coefficient.
 
     - n = h = 3/(1 − s) (clipped to [1, 10000]; s = 1 gives 10000);
     - D = (1 − ms)(1 − s³) C, Strauss's diffuse reflectance;
-    - S = r_j C_s evaluated at α = γ = :data:`GUESS_ANGLE_DEG` (j and F there), with
-      :math:`r_j = \min(1, r_n + j(r_n + k_j))`, :math:`r_n = s^3`;
-    - ka = (1 − s³)·max C, so that Phong's ambient term :math:`k_a C_d` with
-      :math:`C_d = D/\max D` equals Strauss's :math:`r_d C` (exactly when the diffuse hue
+    - S = r_j C_s evaluated at α = γ = `GUESS_ANGLE_DEG` (j and F there), with
+      `r_j = \min(1, r_n + j(r_n + k_j))`, `r_n = s^3`;
+    - ka = (1 − s³)·max C, so that Phong's ambient term `k_a C_d` with
+      `C_d = D/\max D` equals Strauss's `r_d C` (exactly when the diffuse hue
       is C's, which it always is).
     """
     c = np.asarray(material.color, dtype=np.float64)
@@ -120,7 +120,7 @@ def phong_guess(material: Material) -> tuple[np.ndarray, float]:
 
 def metallic_tint(phong: PhongMaterial) -> bool:
     """Whether a Phong material's highlight is tinted — what a metal shows (its colour
-    differs from white by more than 5 %, as :func:`strauss_guess` reads it)."""
+    differs from white by more than 5 %, as `strauss_guess` reads it)."""
     specular = triple(phong.ks) * np.asarray(phong.specular_color, dtype=np.float64)
     top = float(specular.max())
     return top > 0 and 1.0 - float(specular.min()) / top > 0.05

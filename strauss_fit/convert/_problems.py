@@ -1,8 +1,8 @@
 """The Strauss least-squares problems of a conversion scene.
 
-Built once per :class:`~strauss_fit.convert.converter.Converter` and shared by both
-directions: Phong → Strauss fits them (:mod:`strauss_fit.convert._to_strauss`), and
-Strauss → Phong renders its targets with the full one (:mod:`strauss_fit.convert._to_phong`).
+Built once per `Converter` and shared by both
+directions: Phong → Strauss fits them (`strauss_fit.convert._to_strauss`), and
+Strauss → Phong renders its targets with the full one (`strauss_fit.convert._to_phong`).
 Every material of a conversion has the same geometry, so one problem per set of free
 parameters serves all of them, with only the target, its residual scale and (for the
 held parameters) the material swapped in.
@@ -25,16 +25,16 @@ from ..rendering.strauss import plan_render
 from ..scene.loading import Scene
 
 #: Strauss parameters the conversion fits (t and n are carried over, see
-#: :mod:`strauss_fit.convert.converter`).
+#: `strauss_fit.convert.converter`).
 STRAUSS_FREE = OPAQUE_NAMES
 #: The starts run on every COARSE_STRIDE-th pixel of the conversion image, the polish on all.
 COARSE_STRIDE = 4
 
 
 class StraussProblems:
-    """The Strauss problems on ``scene`` (depth 1) with the fit ``options``: :attr:`full`
-    frees every fitted parameter (C, s, m), :meth:`template` any subset (built once per
-    set of names); :attr:`index` holds the flat pixels used, :attr:`coarse` the subsample
+    """The Strauss problems on ``scene`` (depth 1) with the fit ``options``: `full`
+    frees every fitted parameter (C, s, m), `template` any subset (built once per
+    set of names); `index` holds the flat pixels used, `coarse` the subsample
     of them the starts run on (None for a small image)."""
 
     def __init__(self, scene: Scene, options: FitOptions):

@@ -1,8 +1,8 @@
 """What both conversion directions share: the Phong rendering kernel, the residual
 statistics of a result, the residual scale of a target, error results and notes.
 
-Both :mod:`strauss_fit.convert._to_strauss` and :mod:`strauss_fit.convert._to_phong`
-(and the batch driver, :mod:`strauss_fit.convert._batches`) build their results with
+Both `strauss_fit.convert._to_strauss` and `strauss_fit.convert._to_phong`
+(and the batch driver, `strauss_fit.convert._batches`) build their results with
 these, so that a result reads the same whichever direction made it.
 """
 
@@ -29,13 +29,13 @@ def _phong_pixels(scene: Scene, material: PhongMaterial, index: Any) -> Any:
 
 
 #: The Phong rendering (N, 3) of a material in a scene at the flat pixel ``index``; a
-#: :class:`~strauss_fit.engine.Kernel`, so that a chunk's targets render as one call.
+#: `Kernel`, so that a chunk's targets render as one call.
 phong_pixels = Kernel(_phong_pixels, "phong_pixels")
 
 
 def residual_stats(model: np.ndarray, target: np.ndarray) -> dict[str, float]:
     """RMS and largest absolute difference in linear RGB, mean and 95th percentile of the
-    per-pixel CIEDE2000 (:func:`strauss_fit.color.delta_e_2000`: exposed for ``target``)."""
+    per-pixel CIEDE2000 (`strauss_fit.color.delta_e_2000`: exposed for ``target``)."""
     diff = model - target
     delta = delta_e_2000(model, target)
     return {
@@ -47,7 +47,7 @@ def residual_stats(model: np.ndarray, target: np.ndarray) -> dict[str, float]:
 
 
 def scale_of(pixels: np.ndarray) -> float:
-    """Residual scale as in a fit (:mod:`strauss_fit.fitting.problem`): reference noise × √(values)."""
+    """Residual scale as in a fit (`strauss_fit.fitting.problem`): reference noise × √(values)."""
     return reference_noise_level(pixels) * math.sqrt(pixels.size)
 
 
@@ -64,7 +64,7 @@ def error_result(entry: Entry, message: str) -> dict[str, Any]:
 
 
 def message_of(exc: BaseException) -> str:
-    """The one-line message of an error result: a :class:`~strauss_fit.errors.StraussFitError`'s
+    """The one-line message of an error result: a `StraussFitError`'s
     own text, else the exception's type and first line (a bug, not a bad material)."""
     if isinstance(exc, StraussFitError):
         return str(exc)
@@ -94,7 +94,7 @@ def not_run() -> dict[str, Any]:
 
 
 def require_finite(values: Any, message: str) -> None:
-    """Raise :class:`~strauss_fit.errors.StraussFitError` with ``message`` unless every
+    """Raise `StraussFitError` with ``message`` unless every
     value is finite (a material's conversion then ends as an error result)."""
     if not np.all(np.isfinite(values)):
         raise StraussFitError(message)

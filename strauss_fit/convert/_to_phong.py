@@ -1,18 +1,18 @@
 """Strauss → Phong: the steps that convert one Strauss material (see
-:mod:`strauss_fit.convert.converter` for the method, :mod:`strauss_fit.convert.phong_fit`
+`strauss_fit.convert.converter` for the method, `strauss_fit.convert.phong_fit`
 for the least squares).
 
-:func:`phong_steps` is the whole conversion of one material, written as steps
-(:mod:`strauss_fit.engine`) so that a chunk's kernel calls run together; it reads, in order:
+`phong_steps` is the whole conversion of one material, written as steps
+(`strauss_fit.engine`) so that a chunk's kernel calls run together; it reads, in order:
 
 1. the target, the Strauss rendering of the opaque material; a black one gives Phong
-   black (:func:`_black_result`);
-2. every start solved to convergence and the best kept (:func:`_fit`);
+   black (`_black_result`);
+2. every start solved to convergence and the best kept (`_fit`);
 3. what the image constrains, decided at the optimum as a fit decides it, and the Laplace
-   deviations of the rest (:func:`_decide`);
-4. the result (:func:`_result`).
+   deviations of the rest (`_decide`);
+4. the result (`_result`).
 
-Each step takes the :class:`~strauss_fit.convert.converter.Converter` whose shared state
+Each step takes the `Converter` whose shared state
 (the scene, the settings, the Strauss problem that renders the targets) it works with.
 """
 
@@ -60,8 +60,8 @@ BLACK_LEVEL = 1e-4
 
 class Item(NamedTuple):
     """A material to convert: its place in the input, its entry, the closed-form guess
-    (the vector of :data:`strauss_fit.convert.phong_fit.PHONG_LAYOUT`,
-    :func:`strauss_fit.convert._guesses.phong_guess`), the ambient coefficient and the
+    (the vector of `strauss_fit.convert.phong_fit.PHONG_LAYOUT`,
+    `strauss_fit.convert._guesses.phong_guess`), the ambient coefficient and the
     Strauss parameter vector of the opaque material (what renders the target)."""
 
     index: int
@@ -87,7 +87,7 @@ class _Fit(NamedTuple):
 
 def direction(conv: Converter, blinn: bool) -> Direction:
     """Strauss → Phong (Blinn–Phong with ``blinn``) for the batch driver
-    (:func:`strauss_fit.convert._batches.stream`)."""
+    (`strauss_fit.convert._batches.stream`)."""
     template = dataclasses.replace(conv.phong_template, blinn=blinn) if blinn else conv.phong_template
     return Direction(functools.partial(prepare, conv.problems, blinn), functools.partial(phong_steps, conv, template))
 
@@ -106,7 +106,7 @@ def prepare(problems: StraussProblems, blinn: bool, i: int, entry: Entry) -> Ite
 
 def phong_steps(conv: Converter, template: Any, item: Item) -> Steps:
     """The Strauss → Phong conversion of one material, as steps: every start solved
-    to convergence (:data:`strauss_fit.convert.phong_fit.solve_starts`), the best
+    to convergence (`strauss_fit.convert.phong_fit.solve_starts`), the best
     kept, what the image constrains decided at it as a fit decides it. ``template``: the
     Phong problem (Blinn–Phong or not). Returns the result."""
     # rendered here, batched with the chunk's other renders (see _to_strauss.strauss_steps)
@@ -160,8 +160,8 @@ def _starts(guess: np.ndarray, count: int) -> np.ndarray:
 
 
 def _fit(conv: Converter, template: Any, item: Item, target: np.ndarray) -> Steps:
-    """Every start (:func:`_starts`) solved to convergence, the best kept, and the
-    Jacobian there. Returns the :class:`_Fit`."""
+    """Every start (`_starts`) solved to convergence, the best kept, and the
+    Jacobian there. Returns the `_Fit`."""
     settings = conv.settings
     scale = scale_of(target)
     problem = dataclasses.replace(
@@ -189,7 +189,7 @@ def _fit(conv: Converter, template: Any, item: Item, target: np.ndarray) -> Step
 
 def _decide(conv: Converter, fit: _Fit, target: np.ndarray) -> tuple[dict[str, Any], Any, Any, list[str]]:
     """What the image constrains at the optimum
-    (:func:`strauss_fit.fitting.identifiability.numerical_decision` at the target's reference
+    (`strauss_fit.fitting.identifiability.numerical_decision` at the target's reference
     noise, entries at a bound protected), the others held at the value the fit reached.
     Returns the held parameters (value and reason), the Laplace deviations and
     correlations of the free ones, and the labels of the entries at a bound."""

@@ -1,20 +1,20 @@
 """Phong → Strauss: the steps that convert one Phong material (see
-:mod:`strauss_fit.convert.converter` for the method).
+`strauss_fit.convert.converter` for the method).
 
-:func:`strauss_steps` is the whole conversion of one material, written as steps
-(:mod:`strauss_fit.engine`) so that a chunk's kernel calls run together; it reads, in order:
+`strauss_steps` is the whole conversion of one material, written as steps
+(`strauss_fit.engine`) so that a chunk's kernel calls run together; it reads, in order:
 
-1. the target, the Phong rendering (:func:`strauss_fit.convert._shared.phong_pixels`);
-   a black one returns the closed-form guess (:func:`_black_result`);
-2. the fit of C, s and m from every start (:func:`solve`);
+1. the target, the Phong rendering (`strauss_fit.convert._shared.phong_pixels`);
+   a black one returns the closed-form guess (`_black_result`);
+2. the fit of C, s and m from every start (`solve`);
 3. the canonical branch: for a tinted highlight the best metal, for a white one the best
-   dielectric, taken unless it looks less close (:func:`_canonical_branch`);
+   dielectric, taken unless it looks less close (`_canonical_branch`);
 4. what the image constrains at the optimum, decided as a fit decides it, a metalness
-   the image does not determine held at the source's canonical value (:func:`_hold`);
-5. the Laplace uncertainties of what stays free (:func:`_uncertainty`) and the result
-   (:func:`_result`).
+   the image does not determine held at the source's canonical value (`_hold`);
+5. the Laplace uncertainties of what stays free (`_uncertainty`) and the result
+   (`_result`).
 
-Each step takes the :class:`~strauss_fit.convert.converter.Converter` whose shared state
+Each step takes the `Converter` whose shared state
 (the scene, the settings, the Strauss problems) it works with.
 """
 
@@ -80,7 +80,7 @@ class _Solution:
 
 class Item(NamedTuple):
     """A material to convert: its place in the input, its entry, the closed-form guess
-    (:func:`strauss_fit.convert._guesses.strauss_guess`), the guess's notes and the
+    (`strauss_fit.convert._guesses.strauss_guess`), the guess's notes and the
     Phong material."""
 
     index: int
@@ -91,7 +91,7 @@ class Item(NamedTuple):
 
 
 def direction(conv: Converter) -> Direction:
-    """Phong → Strauss for the batch driver (:func:`strauss_fit.convert._batches.stream`)."""
+    """Phong → Strauss for the batch driver (`strauss_fit.convert._batches.stream`)."""
     return Direction(prepare, functools.partial(strauss_steps, conv))
 
 
@@ -104,9 +104,9 @@ def prepare(i: int, entry: Entry) -> Item:
 
 
 def strauss_steps(conv: Converter, item: Item) -> Steps:
-    """The Phong → Strauss conversion of one material (an item of :func:`prepare`), as
+    """The Phong → Strauss conversion of one material (an item of `prepare`), as
     steps: the fit of C, s, m; for a tinted highlight the best metal too; then what the
-    image constrains, decided as :func:`strauss_fit.fit` decides it, with a metalness the
+    image constrains, decided as `strauss_fit.fit` decides it, with a metalness the
     image does not determine held at the source's canonical value. Returns the result."""
     _, entry, guess, guess_notes, phong = item
     # rendered here, not when the item is prepared: the renders of a chunk then run as
@@ -142,11 +142,11 @@ def strauss_steps(conv: Converter, item: Item) -> Steps:
 def solve(
     conv: Converter, problem: Any, thetas: np.ndarray, target: np.ndarray, scale: float, ends: tuple | None = None
 ) -> Steps:
-    """Every start on the coarse pixels (:attr:`Settings.start_steps` steps), then the
-    best one polished on every pixel (:func:`strauss_fit.fitting.solvers.polish_steps`:
+    """Every start on the coarse pixels (`Settings.start_steps` steps), then the
+    best one polished on every pixel (`strauss_fit.fitting.solvers.polish_steps`:
     entries at a bound pinned there), and the model rendered there. ``ends``: the
     starts' ends (θ, costs, steps), when they were solved before. Returns the
-    :class:`_Solution`, the best start and the starts' ends."""
+    `_Solution`, the best start and the starts' ends."""
     settings = conv.settings
     if ends is None:
         screen = conv.problems.screen(problem, target, scale)
@@ -287,7 +287,7 @@ def _choose_branch(
 ) -> tuple[bool, str]:
     """Whether the fit on the canonical branch (``other``) is taken over the ``first``:
     when it ends on the branch and looks as close to the target (mean CIEDE2000 within
-    :data:`SAME_LOOK_DE`) or closer. Returns that and the note that says why."""
+    `SAME_LOOK_DE`) or closer. Returns that and the note that says why."""
     looks = float(np.mean(delta_e_2000(first.model, target)))
     other_looks = float(np.mean(delta_e_2000(other.model, target)))
     rms, other_rms = math.sqrt(first.rss / target.size), math.sqrt(other.rss / target.size)
@@ -329,9 +329,9 @@ def _choose_branch(
 def _hold(
     conv: Converter, phong: PhongMaterial, guess: dict[str, Any], current: _Solution, target: np.ndarray, scale: float
 ) -> Steps:
-    """What the conversion image constrains at the fit ``current`` (:func:`_decide`); the
-    parameters it does not are held (:func:`_held_values`) and the others refitted with
-    them (:func:`_refit_held`), or, when held at the fitted values, the optimum stands and
+    """What the conversion image constrains at the fit ``current`` (`_decide`); the
+    parameters it does not are held (`_held_values`) and the others refitted with
+    them (`_refit_held`), or, when held at the fitted values, the optimum stands and
     the ± are conditional on them. Returns the fit, its parameter values, the held
     parameters (value and reason) and the Jacobian at the first fit."""
     fitted = jsonable(current.problem.layout.split(current.x))
@@ -364,7 +364,7 @@ def _held_values(
     decision: Decision, before: Decision, fitted: dict[str, Any], tinted: bool, canonical: float
 ) -> tuple[dict[str, Any], dict[str, str], bool]:
     """Values and reasons for the parameters ``decision`` holds at the optimum and
-    ``before`` freed (:func:`strauss_fit.fitting.identifiability.held_at_optimum`, else the
+    ``before`` freed (`strauss_fit.fitting.identifiability.held_at_optimum`, else the
     fitted value), with
     a metalness the image does not determine held at the ``canonical`` value (the guess's
     for a ``tinted`` highlight, else 0) — unless it is a mirror's, held at 1. Returns the
@@ -397,9 +397,9 @@ def _refit_held(
     canonical: float | None,
 ) -> Steps:
     """The refit of the parameters ``decision`` frees with the held ones at ``values``
-    (:func:`_refit`). A metalness held at the ``canonical`` value (None: not held there)
+    (`_refit`). A metalness held at the ``canonical`` value (None: not held there)
     that would change what the image shows (mean CIEDE2000 above
-    :data:`strauss_fit.fitting.options.VISIBLE_DELTA_E` from ``current``'s model) is held at
+    `strauss_fit.fitting.options.VISIBLE_DELTA_E` from ``current``'s model) is held at
     the fitted value instead (``values`` and ``reasons`` are updated), and the fit redone
     if anything is still held elsewhere than fitted. Returns the refit, or None when the
     fitted values stand."""
@@ -421,11 +421,11 @@ def _refit_held(
 
 def _decide(conv: Converter, current: _Solution, sigma: float) -> Steps:
     """Which parameters the conversion image constrains at the solution ``current``:
-    :func:`strauss_fit.fitting.identifiability.numerical_decision` at the reference noise
+    `strauss_fit.fitting.identifiability.numerical_decision` at the reference noise
     ``sigma`` with the Jacobian there, as a fit decides at its optimum. An entry pinned
     at a bound is protected from being held, as in a fit, where the data push against
     it — not where the cost is nearly flat there (the fit's ``flat-at-bound`` warning:
-    free, its deviation would exceed :data:`strauss_fit.fitting.diagnosis.WEAK_FRACTION` of
+    free, its deviation would exceed `strauss_fit.fitting.diagnosis.WEAK_FRACTION` of
     its scale): then the bound, not the image, sets it. Returns the decision and the
     Jacobian."""
     layout = current.problem.layout

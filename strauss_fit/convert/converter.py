@@ -3,19 +3,19 @@ r"""Converting Phong materials to Strauss parameters and back, by fitting sphere
 Both directions render the source material on the *conversion scene* and fit the other
 model to that image by least squares, starting from a closed-form guess:
 
-- **Phong → Strauss** (:meth:`Converter.phong_to_strauss`): the target is the Phong
-  rendering (:func:`strauss_fit.rendering.phong.render_phong`); C, s and m are fitted with the
-  Strauss fit's machinery (:func:`strauss_fit.fitting.problem.build_problem`, its start grid
-  (:func:`strauss_fit.fitting.starts.starts`), its bound-aware polish
-  (:func:`strauss_fit.fitting.solvers.polish`) and its Laplace uncertainty
-  (:func:`strauss_fit.stats.laplace.problem_laplace`)). Transparency and index of refraction
+- **Phong → Strauss** (`Converter.phong_to_strauss`): the target is the Phong
+  rendering (`strauss_fit.rendering.phong.render_phong`); C, s and m are fitted with the
+  Strauss fit's machinery (`strauss_fit.fitting.problem.build_problem`, its start grid
+  (`strauss_fit.fitting.starts.starts`), its bound-aware polish
+  (`strauss_fit.fitting.solvers.polish`) and its Laplace uncertainty
+  (`strauss_fit.stats.laplace.problem_laplace`)). Transparency and index of refraction
   are not visible in a local rendering over black: the fit matches the *opaque* appearance
   (t = 0), and t = 1 − opacity (``d`` of a ``.mtl``) and n (``Ni``) are carried over as
   given. Strauss's t scales both its diffuse and its base specular reflectivity by
   (1 − t), as a dissolve d = 1 − t scales a Phong surface, so the pair stays consistent.
-- **Strauss → Phong** (:meth:`Converter.strauss_to_phong`): the target is the Strauss
+- **Strauss → Phong** (`Converter.strauss_to_phong`): the target is the Strauss
   rendering of the opaque material (local model); D = kd·Cd, S = ks·Cs and the exponent are
-  fitted (:mod:`strauss_fit.convert.phong_fit`); opacity = 1 − t and n are carried over.
+  fitted (`strauss_fit.convert.phong_fit`); opacity = 1 − t and n are carried over.
 
 The conversion scene (``data_synth/scenes/conversion_default.toml``, overridable): an
 orthographic 64 × 64 view of the unit sphere (V = +z) under three white directional lights
@@ -25,29 +25,29 @@ and any scene given is rendered at depth 1). Each light's highlight sits on its 
 of the sphere, so one image holds the lobes at three angles between light and viewer, and
 across the sphere every angle of incidence and of view from 0° to 90°.
 
-Batches: :data:`CHUNK` materials are converted together, each written as steps whose
+Batches: `CHUNK` materials are converted together, each written as steps whose
 kernel calls (the starts, the polish, the Jacobian, the renders) run as one compiled call
-over the materials (:func:`strauss_fit.convert._batches.stream`,
-:func:`strauss_fit.engine.run_batched`).
+over the materials (`strauss_fit.convert._batches.stream`,
+`strauss_fit.engine.run_batched`).
 A material that fails is reported with ``status: "error"`` and a message, and the batch
 goes on.
 
 Residuals are over the sphere's pixels of the conversion image: RMS of the linear RGB
 difference, its largest absolute value, and the mean and 95th percentile of the per-pixel
-CIEDE2000 difference (:func:`strauss_fit.color.delta_e_2000`). Uncertainties
-are Laplace (Gauss–Newton) standard deviations, :math:`\sigma^2 (J^\top J)^{-1}` with
-:math:`\sigma^2` = RSS/(N − P): with a noise-free target the residual is the models'
+CIEDE2000 difference (`strauss_fit.color.delta_e_2000`). Uncertainties
+are Laplace (Gauss–Newton) standard deviations, `\sigma^2 (J^\top J)^{-1}` with
+`\sigma^2` = RSS/(N − P): with a noise-free target the residual is the models'
 mismatch, so they say how loosely the *mismatch* pins each parameter, not a noise level.
 
-Entry points: :func:`phong_to_strauss` and :func:`strauss_to_phong` convert materials,
-:func:`convert_files` reads the inputs and writes the document the command line writes.
+Entry points: `phong_to_strauss` and `strauss_to_phong` convert materials,
+`convert_files` reads the inputs and writes the document the command line writes.
 
-The work is split by direction: :class:`Converter` holds what both share (the scene, the
-settings, the Strauss problems: :mod:`strauss_fit.convert._problems`) and hands each
-material to the steps of its direction, :mod:`strauss_fit.convert._to_strauss` (Phong →
-Strauss) or :mod:`strauss_fit.convert._to_phong` (Strauss → Phong), which start from the
-closed-form guesses of :mod:`strauss_fit.convert._guesses` and run on the batch driver
-of :mod:`strauss_fit.convert._batches`.
+The work is split by direction: `Converter` holds what both share (the scene, the
+settings, the Strauss problems: `strauss_fit.convert._problems`) and hands each
+material to the steps of its direction, `strauss_fit.convert._to_strauss` (Phong →
+Strauss) or `strauss_fit.convert._to_phong` (Strauss → Phong), which start from the
+closed-form guesses of `strauss_fit.convert._guesses` and run on the batch driver
+of `strauss_fit.convert._batches`.
 """
 
 from __future__ import annotations
@@ -116,8 +116,8 @@ __all__ = [
     "strauss_to_phong",
 ]
 
-#: Materials converted together (:func:`strauss_fit.convert._batches.stream`): their
-#: kernel calls run as one compiled call each (:func:`strauss_fit.engine.run_batched`).
+#: Materials converted together (`strauss_fit.convert._batches.stream`): their
+#: kernel calls run as one compiled call each (`strauss_fit.engine.run_batched`).
 CHUNK = 64
 #: The default conversion scene, in ``data_synth/scenes``.
 DEFAULT_SCENE_NAME = "conversion_default.toml"
@@ -159,8 +159,8 @@ _BALANCED = quality_preset(DEFAULT_QUALITY)
 class Settings:
     """Solver settings of a conversion (recorded in the output). The defaults of
     ``starts``, ``max_steps``, ``rtol`` and ``atol`` are the ``balanced`` quality preset
-    (:data:`strauss_fit.fitting.options.QUALITY_PRESETS`), the command line's default, so that
-    ``Settings()`` and ``strauss-fit phong2strauss`` agree; :meth:`preset` gives the others."""
+    (`strauss_fit.fitting.options.QUALITY_PRESETS`), the command line's default, so that
+    ``Settings()`` and ``strauss-fit phong2strauss`` agree; `preset` gives the others."""
 
     starts: int = int(_BALANCED["starts"])
     start_steps: int = 40
@@ -172,7 +172,7 @@ class Settings:
     @classmethod
     def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> Settings:
         """The solver settings of quality preset ``name``
-        (:data:`strauss_fit.fitting.options.QUALITY_PRESETS`: ``starts``, ``max_steps``,
+        (`strauss_fit.fitting.options.QUALITY_PRESETS`: ``starts``, ``max_steps``,
         ``rtol``, ``atol``), with ``overrides`` (a value of None keeps the preset's)."""
         values = quality_preset(name)
         settings = {key: values[key] for key in ("starts", "max_steps", "rtol", "atol")}
@@ -186,18 +186,18 @@ class Settings:
 class Converter:
     """Converts materials on one conversion scene (compiled once, reused for every batch).
 
-    Each material's conversion is written as steps (:mod:`strauss_fit.engine`): the
+    Each material's conversion is written as steps (`strauss_fit.engine`): the
     numeric work — the starts, the polish, the Jacobian, the renders — is yielded as
-    kernel calls, and the batch driver (:func:`strauss_fit.convert._batches.stream`)
-    drives the steps of :attr:`Settings.chunk` materials together with
-    :func:`strauss_fit.engine.run_batched`, which runs the calls of the same kernel as one
+    kernel calls, and the batch driver (`strauss_fit.convert._batches.stream`)
+    drives the steps of `Settings.chunk` materials together with
+    `strauss_fit.engine.run_batched`, which runs the calls of the same kernel as one
     compiled call over the materials (one after another on a CPU, side by side on an
     accelerator), while the per-material decisions stay plain Python.
 
     The converter holds what both directions share — the scene, the settings, the fit
-    options, the Strauss problems (:attr:`problems`) and the Phong one — and the steps of
-    each direction are in their own module (:mod:`strauss_fit.convert._to_strauss`,
-    :mod:`strauss_fit.convert._to_phong`)."""
+    options, the Strauss problems (`problems`) and the Phong one — and the steps of
+    each direction are in their own module (`strauss_fit.convert._to_strauss`,
+    `strauss_fit.convert._to_phong`)."""
 
     @uses_float64
     def __init__(self, scene: Scene | None = None, settings: Settings = Settings(), scene_label: str | None = None):
@@ -285,7 +285,7 @@ class Converter:
         self, entries: list[Entry], progress: Progress | None = None, *, start: int = 0
     ) -> Iterator[tuple[int, dict[str, Any]]]:
         """``(index, result)`` for every entry from ``start`` on, in input order, as the
-        results complete (a chunk of :attr:`Settings.chunk` materials at a time)."""
+        results complete (a chunk of `Settings.chunk` materials at a time)."""
         return self._stream(entries, _to_strauss.direction(self), progress, start)
 
     @uses_float64
@@ -307,7 +307,7 @@ class Converter:
         self, entries: list[Entry], direction: Direction, progress: Progress | None, start: int
     ) -> Iterator[tuple[int, dict[str, Any]]]:
         """The entries converted in ``direction`` on the batch driver
-        (:func:`strauss_fit.convert._batches.stream`), :attr:`Settings.chunk` at a time."""
+        (`strauss_fit.convert._batches.stream`), `Settings.chunk` at a time."""
         return stream(entries, direction, progress, start, chunk=self.settings.chunk, batched=self.batched)
 
 
@@ -315,7 +315,7 @@ class Converter:
 
 
 def _entries(materials: Any, kind: type) -> list[Entry]:
-    """Materials (one, or a sequence of materials or :class:`Entry` objects) as entries."""
+    """Materials (one, or a sequence of materials or `Entry` objects) as entries."""
     items = [materials] if isinstance(materials, (kind, Entry)) else list(materials)
     entries = []
     for number, item in enumerate(items, start=1):
@@ -341,7 +341,7 @@ def phong_to_strauss(
     """Convert Phong materials to Strauss parameters by fitting sphere renders (see the
     module docstring): one result dict per material (``status``, ``strauss``,
     ``uncertainty``, ``residual``, ``notes``, ...), in input order. ``scene`` is the
-    conversion scene (a :class:`~strauss_fit.scene.loading.Scene`, a scene file, or None
+    conversion scene (a `Scene`, a scene file, or None
     for the default).
 
     Examples:
@@ -382,7 +382,7 @@ def progress_path(output: str | Path) -> Path:
 
 def _run_key(direction: str, entries: list[Entry], converter: Converter, settings: Settings, blinn: bool) -> str:
     """A digest of everything that decides a conversion's results (inputs, scene, settings,
-    and strauss-fit's version: :func:`~strauss_fit.io.journal.run_key`)."""
+    and strauss-fit's version: `run_key`)."""
     description = {
         "direction": direction,
         "blinn": bool(blinn),
@@ -416,7 +416,7 @@ def convert_files(
     warn: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Read the materials of ``inputs`` (inline ``KEY=VALUE`` tokens, JSON, or ``.json``,
-    ``.csv`` or ``.mtl`` files: :mod:`strauss_fit.io.material_tables`), convert them in
+    ``.csv`` or ``.mtl`` files: `strauss_fit.io.material_tables`), convert them in
     ``direction`` (``phong2strauss`` or ``strauss2phong``) on the conversion scene
     (``scene``, at ``size`` pixels), write the results to ``output`` (``.json``, ``.csv``,
     or ``.mtl`` for Strauss → Phong) and return the document written (for JSON; the
@@ -425,7 +425,7 @@ def convert_files(
     in a ``.mtl`` output).
 
     Results are appended to the progress file ``OUTPUT.partial``
-    (:func:`progress_path`, :class:`strauss_fit.io.journal.Journal`) as they complete; the
+    (`progress_path`, `strauss_fit.io.journal.Journal`) as they complete; the
     output is written atomically at the end and the progress file removed. After an
     interruption (Ctrl-C, a killed process, a full disk) ``resume`` continues from the
     progress file, with the same inputs and options, to the same output an
@@ -478,7 +478,7 @@ def convert_files(
 
 
 def _check_paths(direction: str, inputs: list[str], output: str | Path, *, force: bool, resume: bool) -> Path:
-    """Refuse a conversion :func:`convert_files` cannot run before any work: an unknown
+    """Refuse a conversion `convert_files` cannot run before any work: an unknown
     ``direction``, both ``resume`` and ``force``, an output format the direction cannot
     write, an output that is an input or not writable, an interrupted conversion neither
     resumed nor forced, or nothing to resume. Returns the progress file."""

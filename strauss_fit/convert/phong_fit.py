@@ -1,24 +1,24 @@
 r"""Least-squares fitting of Phong parameters to sphere images (the Strauss → Phong direction).
 
 Only products of Phong's coefficients and colours reach the image: the diffuse term is
-:math:`k_d C_d` and the highlight :math:`k_s C_{sp}`, so :math:`k_d` and :math:`C_d` (and
-:math:`k_s`, :math:`C_{sp}`) cannot be told apart. The fit therefore works on the
+`k_d C_d` and the highlight `k_s C_{sp}`, so `k_d` and `C_d` (and
+`k_s`, `C_{sp}`) cannot be told apart. The fit therefore works on the
 identifiable set
 
-- :math:`D = k_d C_d` (RGB, each in [0, 1]),
-- :math:`S = k_s C_{sp}` (RGB, each in [0, 1]),
-- :math:`u = \log n / \log 10000` in [0, 1], i.e. the exponent :math:`n = 10000^u \in [1, 10000]`
+- `D = k_d C_d` (RGB, each in [0, 1]),
+- `S = k_s C_{sp}` (RGB, each in [0, 1]),
+- `u = \log n / \log 10000` in [0, 1], i.e. the exponent `n = 10000^u \in [1, 10000]`
   on a log scale (a step in u changes the highlight's width by the same factor anywhere),
 
 each through the same smooth sine transform as the Strauss fit
-(:class:`strauss_fit.fitting.parameters.Layout`, :math:`x = (1 + \sin\theta)/2`), and reports
-:math:`k_d = \max_c D_c`, :math:`C_d = D / k_d` (white when D = 0), likewise for
-:math:`k_s`, :math:`C_{sp}`. The ambient coefficient is not fitted: it is given
-(``ambient_ka``, a scalar), and the ambient term is :math:`k_a I_a C_d`.
+(`strauss_fit.fitting.parameters.Layout`, `x = (1 + \sin\theta)/2`), and reports
+`k_d = \max_c D_c`, `C_d = D / k_d` (white when D = 0), likewise for
+`k_s`, `C_{sp}`. The ambient coefficient is not fitted: it is given
+(``ambient_ka``, a scalar), and the ambient term is `k_a I_a C_d`.
 
-:data:`solve_phong_starts` solves one material from several starts (Levenberg–Marquardt,
-optimistix) as a :class:`strauss_fit.engine.Kernel`, so that the conversions run it over
-many materials at once (:mod:`strauss_fit.convert.converter`).
+`solve_phong_starts` solves one material from several starts (Levenberg–Marquardt,
+optimistix) as a `strauss_fit.engine.Kernel`, so that the conversions run it over
+many materials at once (`strauss_fit.convert.converter`).
 """
 
 from __future__ import annotations
@@ -48,12 +48,12 @@ LOG_MAX_EXPONENT = math.log(MAX_EXPONENT)
 
 
 def exponent_from_unit(u: Any) -> Any:
-    """:math:`n = 10000^u`."""
+    """`n = 10000^u`."""
     return jnp.exp(LOG_MAX_EXPONENT * jnp.asarray(u))
 
 
 def unit_from_exponent(n: float) -> float:
-    """:math:`u = \\log n / \\log 10000`, with n clipped to [1, 10000]."""
+    """`u = \\log n / \\log 10000`, with n clipped to [1, 10000]."""
     return float(np.log(np.clip(n, 1.0, MAX_EXPONENT)) / LOG_MAX_EXPONENT)
 
 
@@ -75,7 +75,7 @@ class PhongGeometry(eqx.Module):
 
 
 def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
-    """:class:`PhongGeometry` of ``scene`` (float64) at the flat pixel ``index``."""
+    """`PhongGeometry` of ``scene`` (float64) at the flat pixel ``index``."""
     scene = scene.astype(jnp.float64)
     rays = primary_rays(scene.camera, jnp.float64)
     hits = intersect_unit_sphere(rays)
@@ -111,8 +111,8 @@ def phong_geometry(scene: Scene, index: np.ndarray) -> PhongGeometry:
 
 def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
     r"""Phong radiance (N, 3) at the pixels of ``geometry``, as
-    :func:`strauss_fit.rendering.phong.render_phong` renders it:
-    :math:`\sum_k E_k C_{L,k} (k_d C_d \cos\alpha_k + k_s C_{sp} \cos^n\beta_k)` plus the
+    `strauss_fit.rendering.phong.render_phong` renders it:
+    `\sum_k E_k C_{L,k} (k_d C_d \cos\alpha_k + k_s C_{sp} \cos^n\beta_k)` plus the
     ambient term (summed in another order: equal to rounding)."""
     radiance = jnp.zeros(geometry.normal.shape, dtype=geometry.normal.dtype)
     if geometry.diffuse_light is not None:
@@ -131,7 +131,7 @@ def shade_geometry(geometry: PhongGeometry, material: PhongMaterial) -> Array:
 
 
 def material_from_vector(x: Array, ambient_ka: Any = 0.0, blinn: bool = False) -> PhongMaterial:
-    """The Phong material of a physical vector in :data:`PHONG_LAYOUT` order (traceable):
+    """The Phong material of a physical vector in `PHONG_LAYOUT` order (traceable):
     kd = max D, Cd = D / kd; ks = max S, Cs = S / ks (white where the maximum is 0)."""
     x = jnp.asarray(x)
     d, s, u = x[..., 0:3], x[..., 3:6], x[..., 6]
@@ -164,7 +164,7 @@ def vector_from_material(material: PhongMaterial) -> np.ndarray:
 
 class PhongProblem(eqx.Module):
     """A Phong fit: geometry and target at the used pixels, the ambient coefficient, and
-    the scale residuals are divided by (reference noise × √N, as in :mod:`strauss_fit.fitting.problem`)."""
+    the scale residuals are divided by (reference noise × √N, as in `strauss_fit.fitting.problem`)."""
 
     geometry: PhongGeometry
     target: Array
@@ -188,7 +188,7 @@ class PhongProblem(eqx.Module):
 
 
 def phong_problem(scene: Scene, index: np.ndarray, *, blinn: bool = False) -> PhongProblem:
-    """A :class:`PhongProblem` template (target zero) for the pixels ``index`` of ``scene``."""
+    """A `PhongProblem` template (target zero) for the pixels ``index`` of ``scene``."""
     geometry = phong_geometry(scene, index)
     return PhongProblem(
         geometry=geometry,
@@ -200,7 +200,7 @@ def phong_problem(scene: Scene, index: np.ndarray, *, blinn: bool = False) -> Ph
 
 
 def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, max_steps: int, batched: bool):
-    """Levenberg–Marquardt (:func:`strauss_fit.fitting.solvers.levenberg_marquardt`, the fits'
+    """Levenberg–Marquardt (`strauss_fit.fitting.solvers.levenberg_marquardt`, the fits'
     own) from every row of ``thetas`` of one problem, each
     start to its own convergence: one after the other (``lax.map``) on a CPU, vectorised
     (``vmap``) when ``batched``. Returns θ (S, P), the normalised cost Σr² (S,), the step
@@ -220,8 +220,8 @@ def _solve_phong_starts(problem: Any, thetas: Array, rtol: float, atol: float, m
     return jax.vmap(one)(thetas) if batched else jax.lax.map(one, thetas)
 
 
-#: :func:`_solve_phong_starts` as a :class:`~strauss_fit.engine.Kernel`: the conversions run
-#: it over many materials at once (:func:`strauss_fit.engine.run_batched`).
+#: `_solve_phong_starts` as a `Kernel`: the conversions run
+#: it over many materials at once (`strauss_fit.engine.run_batched`).
 solve_phong_starts = Kernel(_solve_phong_starts, "phong_solve_starts")
 
 
@@ -229,8 +229,8 @@ def laplace_deviations_from(
     jacobian: np.ndarray, rss: float, free: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Standard deviations and correlation matrix of the physical parameters from the
-    Gauss–Newton (Laplace) approximation :math:`\\Sigma = \\sigma^2 (J^\top J)^{-1}`,
-    :math:`\\sigma^2 = \\mathrm{RSS}/(N - P)` (:mod:`strauss_fit.stats.laplace`), as for a
+    Gauss–Newton (Laplace) approximation `\\Sigma = \\sigma^2 (J^\top J)^{-1}`,
+    `\\sigma^2 = \\mathrm{RSS}/(N - P)` (`strauss_fit.stats.laplace`), as for a
     Strauss fit, from the Jacobian ``jacobian`` already computed; the entries not ``free``
     (held) are left out of the inverse (deviation 0, the others conditional on them)."""
     j = np.asarray(jacobian)

@@ -1,26 +1,26 @@
-r"""Least-squares recovery of the Strauss parameters from a reference image: :func:`fit`.
+r"""Least-squares recovery of the Strauss parameters from a reference image: `fit`.
 
-The fit minimises :math:`\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
+The fit minimises `\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
 over the usable sphere pixels p (linear RGB), in float64, with θ the unconstrained
-parameters of :mod:`strauss_fit.fitting.parameters`. Solvers: Levenberg–Marquardt (default),
+parameters of `strauss_fit.fitting.parameters`. Solvers: Levenberg–Marquardt (default),
 Gauss–Newton, or the quasi-Newton minimiser BFGS, all from optimistix
-(:mod:`strauss_fit.fitting.solvers`).
+(`strauss_fit.fitting.solvers`).
 
-The pieces, in the order a fit uses them: the problem (:mod:`strauss_fit.fitting.problem`:
+The pieces, in the order a fit uses them: the problem (`strauss_fit.fitting.problem`:
 the material-independent part of the rendering is prepared once), the closed-form guess
-(:mod:`strauss_fit.fitting.guess`), which parameters the image constrains
-(:mod:`strauss_fit.fitting.identifiability`), the starts and the scan over n
-(:mod:`strauss_fit.fitting.starts`), the solves and the bound-aware polish
-(:mod:`strauss_fit.fitting.solvers`), the verdict on whether the model reproduces the target
-(:mod:`strauss_fit.fitting.diagnosis`, against the target's noise from
-:mod:`strauss_fit.stats.noise`), the uncertainties (:mod:`strauss_fit.stats.laplace`:
+(`strauss_fit.fitting.guess`), which parameters the image constrains
+(`strauss_fit.fitting.identifiability`), the starts and the scan over n
+(`strauss_fit.fitting.starts`), the solves and the bound-aware polish
+(`strauss_fit.fitting.solvers`), the verdict on whether the model reproduces the target
+(`strauss_fit.fitting.diagnosis`, against the target's noise from
+`strauss_fit.stats.noise`), the uncertainties (`strauss_fit.stats.laplace`:
 the noise sandwich when the noise is known, else the Laplace approximation) and the result
-(:mod:`strauss_fit.fitting.result`).
+(`strauss_fit.fitting.result`).
 
 Only what the scene constrains is fitted; held parameters keep the scene file's
 ``[material]`` values and the result says why. The decision is taken at the first guess
 and again at each optimum, and the fit repeated while the answer is new (at most
-:data:`~strauss_fit.fitting.identifiability.MAX_DECISIONS` times).
+`MAX_DECISIONS` times).
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ def parse_fixed(options: FitOptions, allowed: list[str]) -> dict[str, Any]:
 
 def reference_noise(target: Target, options: FitOptions) -> float:
     """The noise level the identifiability analysis and the cost's scale use: the given
-    one, else :func:`~strauss_fit.fitting.identifiability.reference_noise_level` of the
+    one, else `reference_noise_level` of the
     target's usable pixels."""
     if options.reference_noise is not None:
         return options.reference_noise
@@ -152,11 +152,11 @@ def fit(
     to ``target``.
 
     ``scene`` must already match the target's size
-    (:func:`strauss_fit.io.targets.match_scene`). ``options`` defaults to the ``balanced``
-    preset (:meth:`FitOptions.preset`). ``progress``, if given, is called with short
+    (`strauss_fit.io.targets.match_scene`). ``options`` defaults to the ``balanced``
+    preset (`FitOptions.preset`). ``progress``, if given, is called with short
     status strings. Runs in float64 whatever ``jax_enable_x64`` says
-    (:mod:`strauss_fit.precision`). Many targets: :func:`strauss_fit.fit_many`, which runs
-    the same steps (:func:`fit_steps`) batched.
+    (`strauss_fit.precision`). Many targets: `strauss_fit.fit_many`, which runs
+    the same steps (`fit_steps`) batched.
 
     Examples:
         A render of a known material, fitted back (noise-free, so recovered exactly):
@@ -182,8 +182,8 @@ def fit_steps(
     progress: Callable[[str], None] | None = None,
     cache: dict | None = None,
 ) -> Steps:
-    """:func:`fit` as steps (:mod:`strauss_fit.engine`): the one definition of a fit,
-    run directly by :func:`fit` and batched by :func:`strauss_fit.fit_many`. ``cache``
+    """`fit` as steps (`strauss_fit.engine`): the one definition of a fit,
+    run directly by `fit` and batched by `strauss_fit.fit_many`. ``cache``
     (a dict) may be shared by the fits of one scene, which then prepare it once."""
     say = progress or (lambda message: None)
     started = time.perf_counter()
@@ -230,13 +230,13 @@ class _SetUp:
     """A fit's inputs checked and made ready: the scene with the user's fixed values in it."""
 
     scene: Scene
-    #: the target as fitted (:func:`~strauss_fit.io.targets.reduce_target`: its size may be reduced)
+    #: the target as fitted (`reduce_target`: its size may be reduced)
     target: Target
     #: the scene's material with the fixed material values
     material: Material
-    #: the parameters the fit may free (:func:`candidate_names`)
+    #: the parameters the fit may free (`candidate_names`)
     candidates: list[str]
-    #: the user's fixed values (:func:`parse_fixed`)
+    #: the user's fixed values (`parse_fixed`)
     fixed: dict[str, Any]
     exposure: float
     #: what the reduction of the target did, if anything (a note for the result)
@@ -280,14 +280,14 @@ class _FirstGuess:
     options: FitOptions
     #: why the edge pixels were included or left out, if that was decided (a note)
     edge_note: str | None
-    #: a value for every candidate parameter (:func:`~strauss_fit.fitting.guess.initial_guess`)
+    #: a value for every candidate parameter (`initial_guess`)
     guess: dict[str, Any]
-    #: the target's noise at the pixels used (:func:`~strauss_fit.stats.noise.describe_noise`)
+    #: the target's noise at the pixels used (`describe_noise`)
     noise: NoiseModel
 
 
 def _first_guess_steps(setup: _SetUp, options: FitOptions, prepared_cache: dict, say: Callable[[str], None]) -> Steps:
-    """Steps giving the :class:`_FirstGuess`: the edge pixels resolved, the pixels to fit
+    """Steps giving the `_FirstGuess`: the edge pixels resolved, the pixels to fit
     chosen, the closed-form guess from them, and the target's noise there."""
     scene, target, material, exposure = setup.scene, setup.target, setup.material, setup.exposure
     probe_plan = plan_render(scene, material, transparent=False)
@@ -311,7 +311,7 @@ def _first_guess_steps(setup: _SetUp, options: FitOptions, prepared_cache: dict,
 def _initial_guess(
     guess_problem: Problem, index: np.ndarray, scene: Scene, material: Material, exposure: float
 ) -> dict[str, Any]:
-    """The closed-form first guess (:func:`~strauss_fit.fitting.guess.initial_guess`) of every
+    """The closed-form first guess (`initial_guess`) of every
     candidate parameter from the pixels of ``guess_problem``, the exposure included."""
     direct = guess_problem.prepared.direct
     real = guess_problem.real  # host arrays, NumPy only: nothing here compiles per pixel count
@@ -341,11 +341,11 @@ class _Context:
     options: FitOptions
     candidates: list[str]
     fixed: dict[str, Any]
-    #: the reference noise level (:func:`reference_noise`)
+    #: the reference noise level (`reference_noise`)
     sigma_ref: float
     prepared_cache: dict
     loss: str
-    #: every value's noise σ for a robust loss, else None (:func:`_image_noise`)
+    #: every value's noise σ for a robust loss, else None (`_image_noise`)
     noise_sigma: np.ndarray | None
     say: Callable[[str], None]
 
@@ -353,9 +353,9 @@ class _Context:
 def _rounds_steps(
     context: _Context, decision: Decision, guess: dict[str, Any], material: Material, scene: Scene, exposure: float
 ) -> Steps:
-    """Steps giving the :class:`Round` that stands and the number of fits run: the fit
+    """Steps giving the `Round` that stands and the number of fits run: the fit
     under ``decision``, then, while the decision taken again at its optimum is new, the
-    fit under that one (at most :data:`~strauss_fit.fitting.identifiability.MAX_DECISIONS`)."""
+    fit under that one (at most `MAX_DECISIONS`)."""
     options, sigma_ref, say = context.options, context.sigma_ref, context.say
     kept: Round | None = None  # the fit that stands
     tried = [decision_key(decision, material, scene.lights, exposure)]
@@ -408,7 +408,7 @@ def _round_steps(
     exposure: float,
     exact_first: bool,
 ) -> Steps:
-    """Steps giving the :class:`Round` of one decision: its problem built and solved from
+    """Steps giving the `Round` of one decision: its problem built and solved from
     ``guess`` (``exact_first``: a refit, which starts with the exact solve)."""
     transparent = "transparency" in decision.free or float(np.asarray(material.transparency)) > 0
     plan = plan_render(scene, material, transparent=transparent)
@@ -502,9 +502,9 @@ def _with_held(
 
 
 def _verdict_steps(context: _Context, kept: Round, noise: NoiseModel) -> Steps:
-    """Steps giving the round that stands and its :class:`_Outcome`: the verdict on
+    """Steps giving the round that stands and its `_Outcome`: the verdict on
     ``kept``, and with the ``auto`` loss, when the model visibly cannot reproduce the
-    target, the fit again under :data:`~strauss_fit.fitting.options.MISMATCH_LOSS` instead."""
+    target, the fit again under `MISMATCH_LOSS` instead."""
     target, options, loss, say = context.target, context.options, context.loss, context.say
     outcome = yield from _conclude(kept, target, options, noise, loss, say)
     visible = float(np.mean(outcome.delta_e)) >= VISIBLE_DELTA_E
@@ -575,7 +575,7 @@ def _image_noise(noise: NoiseModel, target: Target) -> np.ndarray | None:
 def _conclude(
     kept: Round, target: Target, options: FitOptions, noise: NoiseModel, loss: str, say: Callable[[str], None]
 ) -> Steps:
-    """The fitted image of ``kept`` and the verdict on it (:func:`diagnose`)."""
+    """The fitted image of ``kept`` and the verdict on it (`diagnose`)."""
     solved, scene, plan = kept.solved, kept.scene, kept.plan
     problem, layout = solved.problem, solved.problem.layout
     fitted_values = layout.split(solved.x)
@@ -617,7 +617,7 @@ def _conclude(
 def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, sigma: np.ndarray | None) -> bool:
     """Whether the out-of-reach check needs the reachable maximum (88 renders of the used
     pixels: a fifth of a warm fit): only where the target exceeds, by the check's margin
-    (:func:`~strauss_fit.fitting.diagnosis.diagnose`'s: 2 % and 3 σ of the noise at the fitted
+    (`diagnose`'s: 2 % and 3 σ of the noise at the fitted
     model, ``sigma``, when it is known, 2 % alone otherwise), a ``floor`` of values that Strauss
     materials reach: the fit itself and a white matte plastic. A pixel within the margin of
     a reachable value is not out of reach (were the envelope's sampling of s ever below the
@@ -638,8 +638,8 @@ def _result(
     started: float,
     solve_time: float,
 ) -> Steps:
-    """Steps giving the :class:`FitResult` of the round that stands: its uncertainties
-    (:func:`_uncertainty_steps`), notes, equivalence ranges and warnings, and what the fit
+    """Steps giving the `FitResult` of the round that stands: its uncertainties
+    (`_uncertainty_steps`), notes, equivalence ranges and warnings, and what the fit
     records of its residual, solver and settings."""
     solved, scene, material = kept.solved, kept.scene, kept.material
     problem, x_best = solved.problem, solved.x
@@ -722,13 +722,13 @@ class _Uncertainty:
     #: what the ± is (the result's ``uncertainty_method``)
     method: dict[str, Any]
     laplace_deviations: dict[str, Any]
-    #: the noise sandwich's parts (:func:`~strauss_fit.stats.laplace.sandwich_parts_kernel`),
+    #: the noise sandwich's parts (`sandwich_parts_kernel`),
     #: None when the noise is unknown
     parts: Any
 
 
 def _uncertainty_steps(solved: Solved, outcome: _Outcome, noise: NoiseModel, rss: float) -> Steps:
-    """Steps giving the :class:`_Uncertainty` of the fit: the noise sandwich when the noise
+    """Steps giving the `_Uncertainty` of the fit: the noise sandwich when the noise
     is known, else the Laplace approximation (which is computed either way)."""
     problem, x_best = solved.problem, solved.x
     # JᵀJ of the physical residuals: the polish's (least squares), else one kernel's (with

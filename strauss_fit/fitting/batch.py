@@ -1,18 +1,18 @@
-r"""Fitting many targets in one call: :func:`fit_many`.
+r"""Fitting many targets in one call: `fit_many`.
 
-Every target is fitted exactly as :func:`strauss_fit.fit` fits it — the same steps
-(:func:`strauss_fit.fitting.api.fit_steps`), the same decisions, the same result — but the
-targets of a chunk advance together (:func:`strauss_fit.engine.run_batched`): their calls
+Every target is fitted exactly as `strauss_fit.fit` fits it — the same steps
+(`strauss_fit.fitting.api.fit_steps`), the same decisions, the same result — but the
+targets of a chunk advance together (`strauss_fit.engine.run_batched`): their calls
 of the same compiled kernel with arguments of the same structure (the targets of one
 scene and image size) run as one compiled call over the chunk, and the scene is prepared
 once for all of them. Compilation therefore depends on the scenes and the settings, not on
 the number of targets.
 
 Failures stay with their target: a target that cannot be read, does not match its scene,
-or breaks the fit is returned as a :class:`FitFailure` (with the one-line message the
+or breaks the fit is returned as a `FitFailure` (with the one-line message the
 single fit would print) and the others go on.
 
-Where the work runs is the ``executor``'s business (:mod:`strauss_fit.fitting.executors`): in
+Where the work runs is the ``executor``'s business (`strauss_fit.fitting.executors`): in
 this process (the default), or on a Dask cluster, in chunks of targets.
 """
 
@@ -40,9 +40,9 @@ DEFAULT_CHUNK = 64
 
 @dataclass(frozen=True)
 class FitJob:
-    """One target of :func:`fit_many`: the image (a path or a loaded
-    :class:`~strauss_fit.io.targets.Target`), its scene (a path or a
-    :class:`~strauss_fit.scene.loading.Scene`), an optional mask and encoding for a path,
+    """One target of `fit_many`: the image (a path or a loaded
+    `Target`), its scene (a path or a
+    `Scene`), an optional mask and encoding for a path,
     and its fit options."""
 
     target: Target | str | Path
@@ -58,7 +58,7 @@ class FitJob:
 
 @dataclass
 class FitFailure:
-    """A target :func:`fit_many` could not fit: its name and the reason (one line)."""
+    """A target `fit_many` could not fit: its name and the reason (one line)."""
 
     target: str
     message: str
@@ -92,8 +92,8 @@ def jobs_for(
     scenes: Scene | str | Path | Sequence[Scene | str | Path],
     options: FitOptions | Sequence[FitOptions] = FitOptions(),
 ) -> list[FitJob]:
-    """:class:`FitJob` s from targets and one scene (or one per target) and one set of
-    options (or one per target); a :class:`FitJob` given as a target is kept as it is."""
+    """`FitJob` s from targets and one scene (or one per target) and one set of
+    options (or one per target); a `FitJob` given as a target is kept as it is."""
     targets = list(targets)
     scene_list = list(scenes) if isinstance(scenes, (list, tuple)) else [scenes] * len(targets)
     option_list = list(options) if isinstance(options, (list, tuple)) else [options] * len(targets)
@@ -133,7 +133,7 @@ def fit_chunk(
     max_batch: int | None = None,
 ) -> list[FitResult | FitFailure]:
     """Fit ``jobs`` in this process, advancing together (see the module docstring); in
-    order, each a :class:`~strauss_fit.fitting.result.FitResult` or a :class:`FitFailure`.
+    order, each a `FitResult` or a `FitFailure`.
     ``on_result(index, result)`` is called as each finishes."""
     release_compiled_code_if_needed()
     scenes: dict[str, Scene] = {}
@@ -162,9 +162,9 @@ def fit_chunk(
 
 
 class InProcessExecutor:
-    """Fit the chunks here, one after the other (:func:`fit_chunk`): :func:`fit_many`'s
+    """Fit the chunks here, one after the other (`fit_chunk`): `fit_many`'s
     default executor. It lives beside the work it runs; the executors that send chunks
-    elsewhere (:mod:`strauss_fit.fitting.executors`) sit above this module."""
+    elsewhere (`strauss_fit.fitting.executors`) sit above this module."""
 
     def __init__(self, max_batch: int | None = None):
         self.max_batch = max_batch
@@ -189,20 +189,20 @@ def fit_many(
     on_result: Callable[[int, FitResult | FitFailure], None] | None = None,
 ) -> list[FitResult | FitFailure]:
     """Fit many targets: the results in the order of ``targets``, each a
-    :class:`~strauss_fit.fitting.result.FitResult` (the same as :func:`strauss_fit.fit` gives
-    for that target alone) or a :class:`FitFailure`.
+    `FitResult` (the same as `strauss_fit.fit` gives
+    for that target alone) or a `FitFailure`.
 
-    ``targets``: images (paths or loaded targets) or :class:`FitJob` s; ``scenes``: one
+    ``targets``: images (paths or loaded targets) or `FitJob` s; ``scenes``: one
     scene for all (a path or a loaded scene) or one per target; ``options``: one
-    :class:`~strauss_fit.fitting.options.FitOptions` for all or one per target. The targets
+    `FitOptions` for all or one per target. The targets
     run ``chunk_size`` at a time on the ``executor``: ``None`` (this process), or an
-    executor of :mod:`strauss_fit.fitting.executors` (e.g. ``DaskExecutor(workers=2)``).
-    ``progress`` is called with a :class:`BatchProgress` after each target,
+    executor of `strauss_fit.fitting.executors` (e.g. ``DaskExecutor(workers=2)``).
+    ``progress`` is called with a `BatchProgress` after each target,
     ``on_result(index, result)`` with each result as it arrives (to write it at once:
     a killed run then loses only the targets in flight).
 
     In a process whose JAX has run nothing yet, the first batch asks JAX for a CPU device
-    per core (:func:`strauss_fit.runtime.use_cpu_cores`) before loading anything."""
+    per core (`strauss_fit.runtime.use_cpu_cores`) before loading anything."""
     use_cpu_cores()
     jobs = jobs_for(targets, scenes, options)
     if chunk_size < 1:

@@ -2,18 +2,18 @@ r"""Fitting one material to a whole capture: joint least squares over every imag
 
 For image l, sphere pixel p and channel c the model predicts
 
-.. math::
+```text
+\hat I_{lpc} = e_l\, W_c \Big[\sum_k I_{lkc}\, f_c(n_p, \omega_{lk}, v_p; \theta)
+               + A_c\, a_c(\theta)\Big]
+```
 
-    \hat I_{lpc} = e_l\, W_c \Big[\sum_k I_{lkc}\, f_c(n_p, \omega_{lk}, v_p; \theta)
-                   + A_c\, a_c(\theta)\Big]
-
-with :math:`I_{lkc}` the k-th light's intensity in channel c, f the reflectance model's
-radiance per unit white light (:data:`MODELS`), :math:`e_l` the exposure (one global value
+with `I_{lkc}` the k-th light's intensity in channel c, f the reflectance model's
+radiance per unit white light (`MODELS`), `e_l` the exposure (one global value
 for Strauss, whose C ≤ 1 cannot absorb the scale of the photographs; per image with
-``exposure="per-image"``, the first image's fixed at the global one), :math:`W_c` an optional
-white balance (:math:`W_g = 1`) and :math:`A_c` an optional ambient (room) light reaching
-every point (its reflectance :math:`a_c`: :math:`r_d C_c` for Strauss, the diffuse albedo
-otherwise). The fit minimises :math:`\tfrac12 \sum (\hat I - I)^2` over the usable values
+``exposure="per-image"``, the first image's fixed at the global one), `W_c` an optional
+white balance (`W_g = 1`) and `A_c` an optional ambient (room) light reaching
+every point (its reflectance `a_c`: `r_d C_c` for Strauss, the diffuse albedo
+otherwise). The fit minimises `\tfrac12 \sum (\hat I - I)^2` over the usable values
 (saturated and under-exposed channels left out), first from a global search (the linear
 parameters solved exactly on a grid of the non-linear ones, on a subsample), then by
 Levenberg–Marquardt on every value.
@@ -64,8 +64,8 @@ TILE_PX = 8
 
 #: Levenberg–Marquardt steps per start on the subsample, before the projected steps.
 START_STEPS = 40
-#: :func:`projected_lm` stops once this many accepted steps in a row have together lowered
-#: the cost by less than :data:`STALL_FRACTION` of it: the steps are then creeping along a
+#: `projected_lm` stops once this many accepted steps in a row have together lowered
+#: the cost by less than `STALL_FRACTION` of it: the steps are then creeping along a
 #: valley the data hardly constrain (Cook–Torrance's kd·E and F0·E with a free exposure,
 #: anchored only by the Fresnel rise at grazing angles), where hundreds of damped steps would
 #: move the values along the valley without changing the fit. A converging fit ends earlier,
@@ -104,8 +104,8 @@ class _Param:
 
 
 def _parameters(options: CaptureFitOptions, images: int) -> tuple[_Param, ...]:
-    """The model's parameters (:mod:`strauss_fit.models.reflectance`) less those a capture
-    holds (:data:`HELD`), an exposure when the model's coefficients are bounded (C ≤ 1
+    """The model's parameters (`strauss_fit.models.reflectance`) less those a capture
+    holds (`HELD`), an exposure when the model's coefficients are bounded (C ≤ 1
     cannot absorb the photographs' scale), and the capture's own: per-image exposures, white
     balance, ambient light."""
     model = reflectance_model(options.model)
@@ -154,7 +154,7 @@ def _split(params: Sequence[_Param], vector: jax.Array) -> dict[str, jax.Array]:
 
 def _terms(samples: CaptureSamples, model: str = "strauss") -> dict[str, jax.Array]:
     """The material-independent terms of every (image, light, pixel) for ``model``
-    (:meth:`strauss_fit.models.reflectance.ReflectanceModel.terms`), shapes (L, K, P), with
+    (`strauss_fit.models.reflectance.ReflectanceModel.terms`), shapes (L, K, P), with
     the lights' intensities and any known ambient light."""
     normal = jnp.asarray(samples.normals)[None, None]
     view = jnp.asarray(samples.views)[None, None]
@@ -166,7 +166,7 @@ def _terms(samples: CaptureSamples, model: str = "strauss") -> dict[str, jax.Arr
 
 
 def _with_held(x: dict[str, jax.Array]) -> dict[str, jax.Array]:
-    """``x`` with the held parameters (:data:`HELD`) at their values."""
+    """``x`` with the held parameters (`HELD`) at their values."""
     like = next(iter(x.values()))
     return {name: jnp.full((1,), value, dtype=like.dtype) for name, value in HELD.items()} | x
 
@@ -268,8 +268,8 @@ def _subsample(samples: CaptureSamples, values: int, seed: int) -> CaptureSample
 
 def _model_starts(problem: _Problem, keep: int = 3) -> list[dict[str, np.ndarray]]:
     """For each point of the model's grid of non-linear values
-    (:meth:`~strauss_fit.models.reflectance.ReflectanceModel.start_grid`), the linear unknowns
-    (a per-channel one and a shared one, :meth:`~strauss_fit.models.reflectance.ReflectanceModel.linear_parts`)
+    (`start_grid`), the linear unknowns
+    (a per-channel one and a shared one, `linear_parts`)
     solved exactly by linear least squares over the subsample; the ``keep`` best (the
     earlier grid point first among equal costs)."""
     model = reflectance_model(problem.model)
@@ -291,7 +291,7 @@ def _grid_starts(
     observed: jax.Array,
     weight: jax.Array,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Every start of :func:`_model_starts` in one compiled call (vmapped over the ``points``
+    """Every start of `_model_starts` in one compiled call (vmapped over the ``points``
     grid points; an eager loop spent more time dispatching than computing): per point the
     cost and the values (for a model whose scale is an exposure, the exposure re-solved for
     the clipped values: one linear unknown)."""
@@ -372,7 +372,7 @@ def _by_name(params: Sequence[_Param], vector: np.ndarray) -> dict[str, Any]:
 
 
 def relative_rms(predicted: np.ndarray, observed: np.ndarray, usable: np.ndarray) -> float:
-    """:math:`\\sqrt{\\sum (\\hat I - I)^2 / \\sum I^2}` over the usable values."""
+    """`\\sqrt{\\sum (\\hat I - I)^2 / \\sum I^2}` over the usable values."""
     num = float(np.sum(((predicted - observed) * usable) ** 2))
     den = float(np.sum((observed * usable) ** 2))
     return math.sqrt(num / den) if den > 0 else float("nan")
@@ -380,7 +380,7 @@ def relative_rms(predicted: np.ndarray, observed: np.ndarray, usable: np.ndarray
 
 def delta_e_mean(predicted: np.ndarray, observed: np.ndarray, usable: np.ndarray) -> float:
     """Mean CIEDE2000 over the pixels whose three channels are usable, image by image (each
-    image scaled by its own 99th percentile, see :func:`strauss_fit.color.delta_e_2000`)."""
+    image scaled by its own 99th percentile, see `strauss_fit.color.delta_e_2000`)."""
     values = []
     for pred, obs, ok in zip(predicted, observed, usable):
         keep = ok.all(axis=-1)
@@ -407,7 +407,7 @@ class CaptureFit:
     #: Per value, the standard deviation the circle's uncertainty alone adds (included in
     #: both covariances); None when not computed.
     circle_sd: np.ndarray | None = None
-    #: What the cluster sandwich summed over: "image" or "tile" (see :func:`_clusters`).
+    #: What the cluster sandwich summed over: "image" or "tile" (see `_clusters`).
     cluster_kind: str = "image"
 
     def values(self) -> dict[str, Any]:
@@ -495,7 +495,7 @@ def projected_lm(
     fixed: np.ndarray | None = None,
     max_steps: int = 8,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Projected Levenberg–Marquardt steps (:func:`_projected_step`) on ``residual_fn(x,
+    """Projected Levenberg–Marquardt steps (`_projected_step`) on ``residual_fn(x,
     data)`` within [low, high], the ``fixed`` values held where they are.
 
     Why not optimistix's solver here: on every value each step is dominated by the
@@ -504,8 +504,8 @@ def projected_lm(
     physical values a value can sit exactly on its bound (an active set), where the θ
     transform only creeps toward it. A step that does not lower the cost is retried with
     10× the damping. The steps stop at ``max_steps``, when a step lowers the cost by less than
-    1e-9 of it, or when :data:`STALL_STEPS` steps together lowered it by less than
-    :data:`STALL_FRACTION` of it (a flat valley). Returns the values, the Jacobian and the residual at them, and
+    1e-9 of it, or when `STALL_STEPS` steps together lowered it by less than
+    `STALL_FRACTION` of it (a flat valley). Returns the values, the Jacobian and the residual at them, and
     the steps taken."""
     x = np.clip(physical, low, high)
     r = np.asarray(residual_fn(jnp.asarray(x), data))
@@ -544,7 +544,7 @@ def projected_lm(
 def _polish(
     problem: _Problem, physical: np.ndarray, max_steps: int = 8
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """:func:`projected_lm` on a capture's residual, within the parameters' bounds."""
+    """`projected_lm` on a capture's residual, within the parameters' bounds."""
     residual_fn, jacobian_fn = _compiled(problem.model, problem.params)
     low, high = _bounds(problem.params)
     return projected_lm(residual_fn, jacobian_fn, problem.data, physical, low, high, max_steps=max_steps)
@@ -552,8 +552,8 @@ def _polish(
 
 def _clusters(samples: CaptureSamples) -> tuple[np.ndarray, str]:
     """Per residual value (image, pixel, channel, raveled), its cluster: its image when the
-    capture has at least :data:`MIN_IMAGE_CLUSTERS` images, else its image's tile of
-    :data:`TILE_PX` × :data:`TILE_PX` pixels."""
+    capture has at least `MIN_IMAGE_CLUSTERS` images, else its image's tile of
+    `TILE_PX` × `TILE_PX` pixels."""
     images, pixels = samples.count, len(samples.rows)
     if images >= MIN_IMAGE_CLUSTERS:
         return np.repeat(np.arange(images), pixels * 3), "image"
@@ -568,10 +568,10 @@ def _circle_covariance(coarse: _Problem, samples: CaptureSamples, physical: np.n
     r"""The covariance the circle's uncertainty adds to the fitted values.
 
     Each of the circle's uncertain parameters k moved by ± one standard deviation
-    (:func:`strauss_fit.capture._sphere.circle_perturbations`) changes every pixel's normal
-    and so the residual by :math:`\Delta r_k`; to first order the optimum moves by
-    :math:`\Delta\theta_k = -(J^\top J)^{-1} J^\top \Delta r_k`, and independent parameters
-    add :math:`\sum_k \Delta\theta_k \Delta\theta_k^\top`. Computed on the search's
+    (`strauss_fit.capture._sphere.circle_perturbations`) changes every pixel's normal
+    and so the residual by `\Delta r_k`; to first order the optimum moves by
+    `\Delta\theta_k = -(J^\top J)^{-1} J^\top \Delta r_k`, and independent parameters
+    add `\sum_k \Delta\theta_k \Delta\theta_k^\top`. Computed on the search's
     subsample (a ratio of sums over the pixels: the subsample estimates it closely). Values on
     a bound (not ``free``) get none."""
     from ..capture._sphere import circle_perturbations, surface_at

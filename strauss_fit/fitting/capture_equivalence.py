@@ -1,21 +1,23 @@
 r"""Perceptual equivalence ranges of a capture's fit: which materials look the same under
 every light of the capture?
 
-The same question as for one image (:mod:`strauss_fit.fitting.equivalence`), asked of the
+The same question as for one image (`strauss_fit.fitting.equivalence`), asked of the
 whole capture. For a material parameter p (each channel of a colour separately) with best
-value p̂, and the best fit's prediction :math:`\hat I_l` of every image l,
+value p̂, and the best fit's prediction `\hat I_l` of every image l,
 
-.. math:: D(v) = \min_{\theta_{-p}} \frac1L \sum_l
+```text
+D(v) = \min_{\theta_{-p}} \frac1L \sum_l
           \overline{\Delta E_{2000}}\big(I_l(p = v, \theta_{-p}), \hat I_l\big),
+```
 
 the mean CIEDE2000 difference over the capture's pixels after re-fitting every other value
 (the other material parameters, the exposures, the white balance, the ambient light) with p
-held at v. The range is the set of v around p̂ where :math:`D(v) \le \Delta E^*`. Each side
-is found by doubling a step away from p̂ until D exceeds :math:`\Delta E^*` (or the bound is
+held at v. The range is the set of v around p̂ where `D(v) \le \Delta E^*`. Each side
+is found by doubling a step away from p̂ until D exceeds `\Delta E^*` (or the bound is
 reached: the range then ends at the bound), then by bisection. The inner fit is least
 squares in the cube-root (perceptual) space, a smooth stand-in for CIEDE2000, by projected
-Levenberg–Marquardt (:func:`strauss_fit.fitting.capture.projected_lm`) warm-started at the
-previous point, on a fixed subsample of the pixels (:data:`EQUIVALENCE_VALUES` values).
+Levenberg–Marquardt (`strauss_fit.fitting.capture.projected_lm`) warm-started at the
+previous point, on a fixed subsample of the pixels (`EQUIVALENCE_VALUES` values).
 
 Only the material's parameters get a range: the exposures and the white balance describe the
 camera, not the material, and are re-fitted at every point.
@@ -58,12 +60,12 @@ BISECTIONS = 8
 #: Upper end for a positive parameter without one, as a multiple of its fitted value.
 SCALE_MAX = 10.0
 #: The material's parameters the capture fitter fits, per model: the model's own less those
-#: it holds (:data:`~strauss_fit.fitting.capture.HELD`); the others describe the camera and the room.
+#: it holds (`HELD`); the others describe the camera and the room.
 MATERIAL = {
     name: tuple(p.name for p in model.parameters if p.name not in HELD) for name, model in REFLECTANCE_MODELS.items()
 }
 #: Offset of the cube root, as a fraction of the best prediction's 98th percentile (as for
-#: single images, :data:`strauss_fit.fitting.problem.PERCEPTUAL_OFFSET`).
+#: single images, `strauss_fit.fitting.problem.PERCEPTUAL_OFFSET`).
 PERCEPTUAL_OFFSET = 1e-3
 
 

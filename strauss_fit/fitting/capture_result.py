@@ -9,10 +9,10 @@ both sides:
   stored values;
 - from above, by the images' five-point Laplacian on the sphere, binned by level: noise of
   level σ gives it a spread of √20 σ, and the picture's own curvature only adds to it
-  (:func:`strauss_fit.stats.noise.binned_laplacian_bound`).
+  (`strauss_fit.stats.noise.binned_laplacian_bound`).
 
 ``consistent`` when the residual is within even the lower bound; ``mismatch`` when its RMS
-exceeds :data:`strauss_fit.fitting.capture.BOUND_FACTOR` times the upper bound (whatever the
+exceeds `strauss_fit.fitting.capture.BOUND_FACTOR` times the upper bound (whatever the
 noise, the model does not reproduce the photographs); ``undetermined`` in between.
 """
 
@@ -99,7 +99,7 @@ def holdout_indices(spec: str | int | Sequence[int], count: int) -> list[int]:
 
 def noise_bound(samples: CaptureSamples, residual_levels: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """Per value (L, P, 3): an upper bound on the noise σ at the observed level, from the
-    images' five-point Laplacians (:func:`strauss_fit.stats.noise.binned_laplacian_bound`);
+    images' five-point Laplacians (`strauss_fit.stats.noise.binned_laplacian_bound`);
     and its level bins (for the result)."""
     return binned_laplacian_bound(samples.laplacian, samples.values, samples.usable, residual_levels)
 
@@ -343,14 +343,14 @@ def fit_capture(
     """Fit one material to a whole capture and describe the fit (the result of
     ``strauss-fit fit --capture``, see docs/formats.md).
 
-    ``inputs`` (:func:`strauss_fit.capture.capture_inputs`) are recorded in the result, so
-    that :func:`reload_capture_fit` (``sample``, ``report``) can read the capture again.
+    ``inputs`` (`strauss_fit.capture.capture_inputs`) are recorded in the result, so
+    that `reload_capture_fit` (``sample``, ``report``) can read the capture again.
 
     ``equivalence`` adds each material parameter's perceptual equivalence range (within
     ``equivalence_de``, default one JND of mean CIEDE2000;
-    :mod:`strauss_fit.fitting.capture_equivalence`); ``stability`` fits two disjoint halves of
+    `strauss_fit.fitting.capture_equivalence`); ``stability`` fits two disjoint halves of
     the images and each image alone and says where and why they disagree
-    (:mod:`strauss_fit.fitting.capture_stability`).
+    (`strauss_fit.fitting.capture_stability`).
 
     With ``holdout``, the images it names are left out of the fit and predicted by it; the
     models in ``compare`` (default: Lambert, Phong and Blinn–Phong) are fitted to the same
@@ -518,7 +518,7 @@ def _stability(
     train: CaptureSamples, fit: CaptureFit, options: CaptureFitOptions, delta_e: float, log: Callable[[str], Any]
 ) -> dict[str, Any]:
     """The result's ``stability``: two disjoint halves of the images fitted and compared
-    within ``delta_e``, and each image fitted alone (:mod:`strauss_fit.fitting.capture_stability`)."""
+    within ``delta_e``, and each image fitted alone (`strauss_fit.fitting.capture_stability`)."""
     return {
         **capture_stability.halves(train, options, delta_e=delta_e, progress=log),
         "single_images": capture_stability.single_images(
@@ -547,7 +547,7 @@ def _validation_by_model(
     log: Callable[[str], Any],
 ) -> dict[str, Any]:
     """The result's ``holdout``: the held-out images (indices ``held`` of ``samples``)
-    predicted by ``fit`` and by each model of ``compare`` (default :data:`COMPARED`) fitted
+    predicted by ``fit`` and by each model of ``compare`` (default `COMPARED`) fitted
     to the same images ``train``."""
     test = samples.select(held)
     log(f"predicting {test.count} held-out images")
@@ -611,7 +611,7 @@ _FIELD_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
-#: How :func:`check_capture_result` names the JSON types.
+#: How `check_capture_result` names the JSON types.
 _JSON_NAMES = {
     dict: "an object",
     list: "a list",
@@ -623,7 +623,7 @@ _JSON_NAMES = {
 
 
 def check_capture_result(result: dict[str, Any], source: str = "the capture's result") -> None:
-    """A one-line :class:`~strauss_fit.errors.CaptureError` when a field of a capture's
+    """A one-line `CaptureError` when a field of a capture's
     result (``source`` names it) has the wrong JSON type: a damaged or hand-edited file."""
     for name, types in _FIELD_TYPES.items():
         value = result.get(name)
@@ -649,7 +649,7 @@ def reload_capture_fit(
     result: dict[str, Any], *, base: str | Path | None = None, capture: Capture | None = None
 ) -> tuple[CaptureSamples, CaptureFit]:
     """A capture's fit again from its result: the images it was fitted to (the held-out ones
-    left out again) and a :class:`strauss_fit.fitting.capture.CaptureFit` with its values, its
+    left out again) and a `strauss_fit.fitting.capture.CaptureFit` with its values, its
     prediction of them and the covariances the result states (the image-cluster sandwich
     from the ± and correlations, the Laplace one diagonal).
 
@@ -732,7 +732,7 @@ def _fitted_samples(result: dict[str, Any], folder: Path | None, capture: Captur
 
 def _finite_numbers(value: Any, what: str) -> np.ndarray:
     """``value`` (a number or nested lists of them) as a float64 array; a one-line
-    :class:`~strauss_fit.errors.CaptureError` naming ``what`` when it holds anything but
+    `CaptureError` naming ``what`` when it holds anything but
     finite numbers (a damaged result)."""
     try:
         out = np.asarray(value, dtype=np.float64)
@@ -825,9 +825,9 @@ def reload_held_out(
     result: dict[str, Any], fit: CaptureFit, capture: Capture
 ) -> tuple[CaptureSamples, np.ndarray] | None:
     """The images a capture's result held out (``settings.holdout``) read again from
-    ``capture``, and the fit's prediction of them (:func:`predict`, as the result's
+    ``capture``, and the fit's prediction of them (`predict`, as the result's
     ``holdout`` was computed); None when the result holds none out. ``fit`` is the fit
-    :func:`reload_capture_fit` gives back."""
+    `reload_capture_fit` gives back."""
     holdout = (result.get("settings") or {}).get("holdout")
     if holdout is None:
         return None

@@ -2,8 +2,8 @@
 
 - **Halves.** The images are split into two disjoint halves (odd and even), each fitted
   alone, each fit's perceptual equivalence ranges computed
-  (:mod:`strauss_fit.fitting.capture_equivalence`). The material is *stable* when each half's
-  value of every compared parameter (:func:`compared`) lies within the other half's range: the two halves
+  (`strauss_fit.fitting.capture_equivalence`). The material is *stable* when each half's
+  value of every compared parameter (`compared`) lies within the other half's range: the two halves
   then describe materials that look the same.
 - **Single images.** Each image is fitted alone and compared with the joint fit. Where
   they differ by more than twice their combined standard deviation (the single image's

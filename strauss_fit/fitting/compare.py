@@ -1,29 +1,29 @@
 r"""Several reflectance models fitted to the same data, and whether Strauss is distinguishable
 from the best of them (``strauss-fit compare``, docs/commands/compare.md).
 
-Every model of :data:`strauss_fit.fitting.capture.MODELS` (read when called: the registry may
-grow) is fitted by the one capture fitter, :func:`strauss_fit.fitting.capture.fit_capture_samples`,
+Every model of `strauss_fit.fitting.capture.MODELS` (read when called: the registry may
+grow) is fitted by the one capture fitter, `strauss_fit.fitting.capture.fit_capture_samples`,
 to the same usable values — one target and its scene
-(:func:`strauss_fit.fitting.scene_samples.samples_from_scene`) or a capture — and compared by:
+(`strauss_fit.fitting.scene_samples.samples_from_scene`) or a capture — and compared by:
 
 - the residual: its sum of squares (RSS), relative RMS and mean CIEDE2000
-  (:func:`~strauss_fit.fitting.capture.relative_rms`, :func:`~strauss_fit.fitting.capture.delta_e_mean`);
-- :math:`\chi^2/\mathrm{dof}` with :math:`\chi^2 = \sum (r/\sigma)^2` and dof = n − k, when
+  (`relative_rms`, `delta_e_mean`);
+- `\chi^2/\mathrm{dof}` with `\chi^2 = \sum (r/\sigma)^2` and dof = n − k, when
   the noise σ is known (one value, one per channel, or one per value);
-- AIC and BIC from the Gaussian likelihood: with σ known, :math:`-2\ln L = \chi^2` (+ a
+- AIC and BIC from the Gaussian likelihood: with σ known, `-2\ln L = \chi^2` (+ a
   constant shared by every model), so AIC = χ² + 2k and BIC = χ² + k ln n; with σ unknown
-  it is profiled out (one σ for every value, its maximum-likelihood :math:`\hat\sigma^2 =
+  it is profiled out (one σ for every value, its maximum-likelihood `\hat\sigma^2 =
   \mathrm{RSS}/n`), so AIC = n ln(RSS/n) + 2k and BIC = n ln(RSS/n) + k ln n. n is the
   number of usable values (pixels × channels × images fitted), k the number of fitted
   parameters (a value that ended on its bound still counts);
 - with a ``holdout``, each model fitted to the other images predicts the held-out ones
-  (:func:`strauss_fit.fitting.capture_result.predict`): their relative RMS and mean CIEDE2000.
+  (`strauss_fit.fitting.capture_result.predict`): their relative RMS and mean CIEDE2000.
 
 The best model has the lowest BIC, or with a holdout the lowest held-out relative RMS. The
 verdict says whether Strauss's fit is distinguishable from the best's: ΔBIC = BIC(Strauss) −
-BIC(best) above :data:`DELTA_BIC_STRONG` (10, "very strong" on Kass and Raftery's scale) and,
+BIC(best) above `DELTA_BIC_STRONG` (10, "very strong" on Kass and Raftery's scale) and,
 with a holdout, a higher held-out error; and, separately, whether the difference is visible:
-the mean CIEDE2000 between the two fits' predictions against :data:`JND` (1). BIC assumes
+the mean CIEDE2000 between the two fits' predictions against `JND` (1). BIC assumes
 independent noise: a misfit correlated over the sphere is counted as many independent pieces
 of evidence, and ΔBIC is then overconfident (the result says so).
 """
@@ -62,13 +62,13 @@ PROFILED_CAVEAT = (
 
 
 def known_models() -> tuple[str, ...]:
-    """The reflectance models the capture fitter knows now (:data:`strauss_fit.fitting.capture.MODELS`)."""
+    """The reflectance models the capture fitter knows now (`strauss_fit.fitting.capture.MODELS`)."""
     return tuple(_capture.MODELS)
 
 
 def check_models(models: Sequence[str] | str | None) -> list[str]:
     """The models to compare: ``None`` for all, else names (a list or ``"a,b,c"``), each
-    known and given once; a one-line :class:`~strauss_fit.errors.CaptureError` otherwise."""
+    known and given once; a one-line `CaptureError` otherwise."""
     known = known_models()
     if models is None:
         return list(known)
@@ -124,7 +124,7 @@ def information_criteria(rss: float, n: int, k: int, chi2: float | None = None) 
 
 @dataclass
 class ModelComparison:
-    """What :func:`fit_models` gives back: ``result`` (JSON-able, see :func:`compare_models`),
+    """What `fit_models` gives back: ``result`` (JSON-able, see `compare_models`),
     and per model that fitted its prediction of every image of the samples (L, P, 3): the
     fitted images from the fit, the held-out ones predicted."""
 
@@ -144,7 +144,7 @@ def compare_models(
     """Fit each of ``models`` (default: every known one) to ``samples`` and compare them
     (module docstring); a JSON-able result. ``noise``: the noise σ when known (one value,
     R, G, B, or one per value); ``holdout``: images held out and predicted (as
-    :func:`strauss_fit.fitting.capture_result.holdout_indices` reads it). A model whose fit
+    `strauss_fit.fitting.capture_result.holdout_indices` reads it). A model whose fit
     raises is recorded with its error; the others go on."""
     return fit_models(samples, models, exposure=exposure, holdout=holdout, noise=noise, progress=progress).result
 
@@ -158,7 +158,7 @@ def fit_models(
     noise: Any = None,
     progress: Callable[[str], Any] | None = None,
 ) -> ModelComparison:
-    """:func:`compare_models`, with each model's prediction of every image kept (for figures)."""
+    """`compare_models`, with each model's prediction of every image kept (for figures)."""
     log = progress or (lambda message: None)
     t0 = time.perf_counter()
     names = check_models(models)
@@ -258,7 +258,7 @@ def _model_entry(
     t_model: float,
 ) -> dict[str, Any]:
     """The comparison's entry of a model that fitted: its values, residual, χ², AIC and BIC
-    (:func:`information_criteria`) and ``held_out`` prediction errors."""
+    (`information_criteria`) and ``held_out`` prediction errors."""
     usable = np.asarray(train.usable)
     n = int(usable.sum())
     residual = (fit.predicted - train.values)[usable]
@@ -409,7 +409,7 @@ def _gap(
     fitted: dict[str, np.ndarray],
     held_predictions: dict[str, np.ndarray],
 ) -> _Gap:
-    """The :class:`_Gap` between Strauss's fit and ``other``'s."""
+    """The `_Gap` between Strauss's fit and ``other``'s."""
 
     def held_error(m: str) -> float | None:
         return (entries[m]["held_out"] or {}).get("relative_rms")
@@ -452,7 +452,7 @@ def _strauss_best(other: str, best_by: str, gap: _Gap) -> dict[str, Any]:
 
 def _strauss_not_best(other: str, gap: _Gap) -> dict[str, Any]:
     """The verdict's outcome and statement when ``other`` is the best model: Strauss is
-    distinguishable from it when ΔBIC exceeds :data:`DELTA_BIC_STRONG` and, with a holdout,
+    distinguishable from it when ΔBIC exceeds `DELTA_BIC_STRONG` and, with a holdout,
     its held-out error is higher too."""
     strong = gap.delta_bic > DELTA_BIC_STRONG
     distinguishable = strong and (gap.delta_held is None or gap.delta_held > 0)

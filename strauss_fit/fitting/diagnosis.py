@@ -2,31 +2,33 @@ r"""Can the model reproduce the target? The verdict of a fit, where it fails and
 
 A fit always finds *some* best Strauss material; whether that material reproduces the
 target is a separate question, answered against the target's noise
-(:class:`strauss_fit.stats.noise.NoiseModel`, which does not come from the fit's own
+(`strauss_fit.stats.noise.NoiseModel`, which does not come from the fit's own
 residual): with σ each value's noise at the fitted radiance,
 
-.. math:: \chi^2/\mathrm{dof} = \frac{1}{N - P}\sum_i \left(\frac{I_i - T_i}{\sigma_i}\right)^2,
+```text
+\chi^2/\mathrm{dof} = \frac{1}{N - P}\sum_i \left(\frac{I_i - T_i}{\sigma_i}\right)^2,
+```
 
-whose expected value is 1 with a spread of :math:`\sqrt{2/\mathrm{dof}}` when the model is
-right, widened by the noise level's own relative uncertainty ε (:math:`2ε` on χ²/dof). The
-verdict is *consistent* when :math:`z = (\chi^2/\mathrm{dof} - 1)/\mathrm{spread} \le 3`,
+whose expected value is 1 with a spread of `\sqrt{2/\mathrm{dof}}` when the model is
+right, widened by the noise level's own relative uncertainty ε (`2ε` on χ²/dof). The
+verdict is *consistent* when `z = (\chi^2/\mathrm{dof} - 1)/\mathrm{spread} \le 3`,
 otherwise *mismatch*.
 
-When the noise is unknown (no sidecar, and :func:`~strauss_fit.stats.noise.estimate_noise`
+When the noise is unknown (no sidecar, and `estimate_noise`
 cannot separate it from the image's content), the image still bounds it from above: the
 local mean square of a second-difference high-pass residual is the noise variance plus the
-signal's own curvature (:func:`~strauss_fit.stats.noise.noise_bound`). The verdict is
-then one-sided (:func:`~strauss_fit.stats.noise.one_sided_verdict`): *mismatch* when the
+signal's own curvature (`noise_bound`). The verdict is
+then one-sided (`one_sided_verdict`): *mismatch* when the
 residual is too large (χ²/dof at the bound above
-:data:`~strauss_fit.stats.noise.BOUND_CHI2`) or too structured (its smooth part alone
-above :data:`~strauss_fit.stats.noise.STRUCTURE_POWER` times the bound's variance, by
-:data:`~strauss_fit.stats.noise.STRUCTURE_Z` standard errors) for any noise up to that
+`BOUND_CHI2`) or too structured (its smooth part alone
+above `STRUCTURE_POWER` times the bound's variance, by
+`STRUCTURE_Z` standard errors) for any noise up to that
 bound, else *undetermined*: a residual within the bound may or may not be noise.
 
 Where: the used pixels fall into regions — the *highlight* of a light (within
-:data:`HIGHLIGHT_CORE_DEG` of its mirror direction, and its *wings* out to
-:data:`HIGHLIGHT_WING_DEG`), the *rim* (the view grazing the surface, N·V below
-:data:`RIM_COS`) and the *body* (the rest) — each with its own χ²/dof and mean signed
+`HIGHLIGHT_CORE_DEG` of its mirror direction, and its *wings* out to
+`HIGHLIGHT_WING_DEG`), the *rim* (the view grazing the surface, N·V below
+`RIM_COS`) and the *body* (the rest) — each with its own χ²/dof and mean signed
 residual in noise units (positive: the target is brighter than the fit).
 
 Why, as warnings with stable codes (``docs/formats.md``):
@@ -36,7 +38,7 @@ Why, as warnings with stable codes (``docs/formats.md``):
   verdict is one-sided); the message says where, and how visible (CIEDE2000) the
   difference is;
 - ``highlight-out-of-reach`` — somewhere the target is brighter than any Strauss material
-  can be under the scene's lights (:func:`reachable_maximum`): the lights (or the exposure)
+  can be under the scene's lights (`reachable_maximum`): the lights (or the exposure)
   are stronger than the scene says, or the surface is a physically based metal whose
   highlight concentrates more light than r_s ≤ 1 allows;
 - ``color-at-bound`` — a channel of C is pinned at 1: the diffuse term would need more;
@@ -163,7 +165,7 @@ brightest = Kernel(_brightest, "brightest")
 
 
 def reachable_maximum(problem: Any) -> np.ndarray:
-    """:func:`reachable_maximum_steps`, run directly."""
+    """`reachable_maximum_steps`, run directly."""
     return run(reachable_maximum_steps(problem))
 
 
@@ -186,7 +188,7 @@ def reachable_maximum_steps(problem: Any) -> Steps:
 
 def reachable_floor_steps(problem: Any) -> Steps:
     """(N, 3): what a white matte plastic (C = 1, s = m = t = 0) reflects at each used pixel:
-    a value some Strauss material reaches, so a floor of :func:`reachable_maximum_steps`'s
+    a value some Strauss material reaches, so a floor of `reachable_maximum_steps`'s
     maximum, for one render instead of its 88."""
     row = np.asarray([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]])
     return np.asarray((yield brightest.call(_white_probe(problem), row)))
@@ -234,10 +236,10 @@ def diagnose(
     """The verdict for the fitted radiance ``model`` (N, 3) at the used pixels of
     ``problem`` (whose ``target`` it is compared with), ``parameters`` fitted values,
     the fit's mean CIEDE2000, the labels the fit pinned on a bound, and ``reach`` (N, 3),
-    the :func:`reachable_maximum` (None when lights or exposure were fitted: then any
+    the `reachable_maximum` (None when lights or exposure were fitted: then any
     brightness is reachable). ``image`` (H, W, 3), the whole target, and ``index`` (N,),
     the flat indices of the used pixels in it (the rows of ``model``), let an unknown
-    noise be bounded from the image for a one-sided verdict (:func:`_one_sided`);
+    noise be bounded from the image for a one-sided verdict (`_one_sided`);
     without them the verdict on such a target stays undetermined. ``sigma`` (N, 3): the
     noise's σ at ``model`` when already computed (``noise.sigma_at(model)``)."""
     target = problem.real(problem.target)
@@ -314,8 +316,8 @@ def _one_sided(
     delta_e_mean: float,
 ) -> np.ndarray | None:
     """The one-sided verdict of a target whose noise is unknown: the residual against the
-    largest noise the image can hold (:func:`~strauss_fit.stats.noise.noise_bound`,
-    :func:`~strauss_fit.stats.noise.one_sided_verdict`). Sets ``diagnosis``'s bound
+    largest noise the image can hold (`noise_bound`,
+    `one_sided_verdict`). Sets ``diagnosis``'s bound
     and test, and on a mismatch its verdict and a ``model-mismatch`` warning that says the
     verdict is one-sided. Returns the bound σ_b (N, 3) at the used pixels; None, with
     nothing set, when the used pixels are too few to bound the noise (the verdict stays
@@ -491,15 +493,15 @@ def uncertainty_warnings(
 ) -> list[dict[str, str]]:
     """What the ± alone would hide, as warnings for the table and the report:
 
-    - ``strong-correlation``: two free entries correlate beyond :data:`STRONG_CORRELATION`
+    - ``strong-correlation``: two free entries correlate beyond `STRONG_CORRELATION`
       (the image pins their combination, not each);
-    - ``weakly-constrained``: a free entry's deviation exceeds :data:`WEAK_FRACTION` of its
-      scale (:func:`~strauss_fit.fitting.identifiability.deviation_scale`);
+    - ``weakly-constrained``: a free entry's deviation exceeds `WEAK_FRACTION` of its
+      scale (`deviation_scale`);
     - ``flat-at-bound``: an entry pinned at a bound (deviation 0 there) whose deviation,
       were it free (``free_covariance``: the same covariance with nothing pinned), would
       exceed that fraction: the cost is nearly flat, and the bound, not the image, sets it.
 
-    ``equivalence`` (:func:`strauss_fit.fitting.equivalence.equivalence_ranges`), when
+    ``equivalence`` (`strauss_fit.fitting.equivalence.equivalence_ranges`), when
     computed, is quoted."""
     from .identifiability import deviation_scale
 

@@ -1,22 +1,24 @@
 r"""Which values look the same? Perceptual equivalence ranges of a fit.
 
-The statistical ± of a fit (:mod:`strauss_fit.stats.laplace`) answers "how well do the
+The statistical ± of a fit (`strauss_fit.stats.laplace`) answers "how well do the
 data pin the best Strauss approximation"; it shrinks with every extra pixel and says
 nothing about what a person sees. The *equivalence range* of a parameter answers the
 artist's question instead: how far can its slider move, the other parameters re-adjusted,
 before anyone can see a difference from the best fit?
 
 For a free parameter p (each channel of the colour separately) with best value p̂, and
-the best fit's image :math:`\hat I` at the pixels the fit used,
+the best fit's image `\hat I` at the pixels the fit used,
 
-.. math:: D(v) = \min_{\theta_{-p}} \overline{\Delta E_{2000}}\big(I(p = v, \theta_{-p}), \hat I\big),
+```text
+D(v) = \min_{\theta_{-p}} \overline{\Delta E_{2000}}\big(I(p = v, \theta_{-p}), \hat I\big),
+```
 
 the mean CIEDE2000 difference after re-fitting the others with p held at v; the range is
-the set of v around p̂ where :math:`D(v) \le \Delta E^*` (default 1, one just-noticeable
+the set of v around p̂ where `D(v) \le \Delta E^*` (default 1, one just-noticeable
 difference). Each side is found by doubling a step away from p̂ until D exceeds
-:math:`\Delta E^*` (or the bound is reached: then the range ends at the bound), then by
-bisection. The inner minimisation is a least-squares fit to :math:`\hat I` in the
-perceptual (cube-root, see :func:`strauss_fit.fitting.problem.loss_residual`) space, a close
+`\Delta E^*` (or the bound is reached: then the range ends at the bound), then by
+bisection. The inner minimisation is a least-squares fit to `\hat I` in the
+perceptual (cube-root, see `strauss_fit.fitting.problem.loss_residual`) space, a close
 and smooth stand-in for the CIEDE2000 it is judged by, warm-started at the previous point.
 
 It says nothing about the target: a parameter with a wide range is one the image of this
@@ -46,7 +48,7 @@ SCALE_MAX = 10.0
 
 
 def _real(problem: Any, per_pixel: Any) -> np.ndarray:
-    """``per_pixel`` without a padded problem's padding (:meth:`strauss_fit.fitting.problem.Problem.real`)."""
+    """``per_pixel`` without a padded problem's padding (`strauss_fit.fitting.problem.Problem.real`)."""
     real = getattr(problem, "real", None)
     return real(per_pixel) if real is not None else np.asarray(per_pixel)
 
@@ -69,9 +71,9 @@ def _perceptual_copy(problem: Any, image: np.ndarray) -> Any:
 @uses_float64
 def equivalence_ranges(problem: Any, x: np.ndarray, **settings: Any) -> dict[str, Any]:
     """The perceptual equivalence range of every free parameter of a fit
-    (``problem``, ``x`` as in :attr:`strauss_fit.FitResult.problem` and ``.x``): a map
+    (``problem``, ``x`` as in `strauss_fit.FitResult.problem` and ``.x``): a map
     from parameter name to ``[low, high]`` (colour: three pairs, R, G, B). See the module
-    docstring; ``settings`` as for :func:`equivalence_ranges_steps`."""
+    docstring; ``settings`` as for `equivalence_ranges_steps`."""
     return run(equivalence_ranges_steps(problem, x, **settings))
 
 
@@ -84,7 +86,7 @@ def equivalence_ranges_steps(
     atol: float = 1e-8,
     max_steps: int = 100,
 ) -> Steps:
-    """:func:`equivalence_ranges` as steps: ``delta_e`` the threshold (mean CIEDE2000), the
+    """`equivalence_ranges` as steps: ``delta_e`` the threshold (mean CIEDE2000), the
     inner fits' tolerances and step limit."""
     from .problem import physical_values, render_at
     from .solvers import solve_starts

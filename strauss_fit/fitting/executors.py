@@ -1,16 +1,16 @@
-r"""Where :func:`strauss_fit.fit_many` runs its chunks of targets.
+r"""Where `strauss_fit.fit_many` runs its chunks of targets.
 
 An executor has one method, ``run(jobs, chunks, arrived)``: fit the
-:class:`~strauss_fit.fitting.batch.FitJob` s of every chunk (a list of indices into
+`FitJob` s of every chunk (a list of indices into
 ``jobs``) and call ``arrived(index, result)`` in this process for each result as it comes.
 
-- :class:`InProcessExecutor` — here, chunk after chunk (:func:`~strauss_fit.fitting.batch.fit_chunk`);
-  defined in :mod:`strauss_fit.fitting.batch`, beside that work, and re-exported here.
-- :class:`DaskExecutor` — on a ``dask.distributed`` cluster: a local one of ``workers``
+- `InProcessExecutor` — here, chunk after chunk (`fit_chunk`);
+  defined in `strauss_fit.fitting.batch`, beside that work, and re-exported here.
+- `DaskExecutor` — on a ``dask.distributed`` cluster: a local one of ``workers``
   processes (one JAX runtime each), or an existing one at ``scheduler``. Each chunk is one
   task; a worker fits its chunk exactly as this process would and sends back the results
   as JSON documents plus the fitted images, which are rebuilt here into
-  :class:`~strauss_fit.fitting.result.FitResult` s (without the solved problem, which does not
+  `FitResult` s (without the solved problem, which does not
   cross processes). Results are handed on as their chunk completes; a task whose worker
   dies is run again on another (``retries``), so a dead worker loses only its chunk's
   time. Targets and scenes given as paths are read by the workers: on a cluster of several
@@ -59,7 +59,7 @@ def _rebuilt(data: dict[str, Any]) -> FitResult | FitFailure:
 
 
 def fit_chunk_portable(jobs: Sequence[FitJob]) -> list[dict[str, Any]]:
-    """:func:`~strauss_fit.fitting.batch.fit_chunk` on a worker, results as plain data (the
+    """`fit_chunk` on a worker, results as plain data (the
     worker uses the persistent compilation cache: a new worker loads what others compiled)."""
     from ..runtime import enable_compilation_cache
 

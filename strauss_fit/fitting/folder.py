@@ -3,7 +3,7 @@ r"""Many targets into one folder of results: what ``strauss-fit fit T1 T2 … -o
 For each target, ``OUTDIR/<target's file stem>.json`` (the fit result, as the single fit
 writes it) and, on request, ``OUTDIR/<stem>.compare.png`` are written together as soon as
 the target is fitted; at the end ``OUTDIR/summary.csv`` (one row per target, in input
-order, :data:`~strauss_fit.fitting.summary.SUMMARY_COLUMNS`) is rewritten. So a run that is
+order, `SUMMARY_COLUMNS`) is rewritten. So a run that is
 killed loses only the targets in flight, and ``resume`` skips every target whose result is
 already there (a complete JSON result of the same target) and fits the rest, the failed
 ones included. A target that fails is a row with ``status`` "failed" and its one-line
@@ -17,13 +17,13 @@ The rules that keep a folder's results honest, all checked before any work:
   is refused whatever ``--force`` or ``--resume`` say: fit into another folder.
 - **A result is kept only for the run that made it.** Every result records its
   ``provenance``: digests of the target's bytes, the scene, the mask and the settings, and
-  the key made of them with strauss-fit's version (:func:`~strauss_fit.io.journal.run_key`).
+  the key made of them with strauss-fit's version (`run_key`).
   ``resume`` keeps a result whose key is this run's; a result of another configuration (or
   one without a key) is refused with what differs, never silently kept; a result missing its
-  core keys (:data:`CORE_KEYS`: hand-edited, say) is incomplete and fitted again, as is a
+  core keys (`CORE_KEYS`: hand-edited, say) is incomplete and fitted again, as is a
   kept result without the comparison image ``compare`` asks for.
 - **Outputs go where files may go.** A folder, a device or a FIFO at an output's path is
-  refused (:func:`~strauss_fit.io.files.check_replaceable`), ``force`` or not.
+  refused (`check_replaceable`), ``force`` or not.
 - **Each target once.** The same target given twice, and two targets whose results would
   share a name, are refused.
 - The folder itself is created only once the work has started (the cluster reached, the
@@ -34,17 +34,17 @@ Targets can be files, folders (their images: every file OpenImageIO reads, sorte
 each target with its own scene, mask and encoding.
 
 What every target shares — the ``--scene`` and ``--mask`` of the command line — is read
-before any work (:func:`jobs_from_arguments`): a missing or broken one would fail every
+before any work (`jobs_from_arguments`): a missing or broken one would fail every
 target, so it is bad input (one line, exit status 2), as with a single target. What
 belongs to one target — the image, a manifest row's own scene or mask — fails that target
 alone.
 
 **Another reflectance model** than Strauss (``fit … --model NAME -o OUTDIR``): ``model``
-(a :class:`ModelFit`) fits each target as ``fit TARGET --scene S --model NAME`` fits one
+(a `ModelFit`) fits each target as ``fit TARGET --scene S --model NAME`` fits one
 (the target and its scene as a capture of one image, then the capture fitter), one target
 after the other in this process, and writes its result JSON unchanged but for its
 ``provenance``. Everything above holds as it is; ``summary.csv`` then has the model's
-columns (:attr:`ModelFit.columns`), and there is no comparison image (no fitted image) and
+columns (`ModelFit.columns`), and there is no comparison image (no fitted image) and
 no executor.
 """
 
@@ -124,7 +124,7 @@ def expand_targets(arguments: Sequence[str]) -> list[Path]:
 
 
 def read_manifest(path: str | Path, default_scene: str | Path | None) -> list[dict[str, str]]:
-    """The rows of a CSV or JSON manifest (columns :data:`MANIFEST_COLUMNS`; paths relative
+    """The rows of a CSV or JSON manifest (columns `MANIFEST_COLUMNS`; paths relative
     to the manifest's folder); a row without a scene takes ``default_scene``."""
     path = check_input_file(path, "manifest")
     try:
@@ -214,8 +214,8 @@ def sidecar_of(target: str | Path) -> Path | None:
 
 def is_result(data: Any) -> bool:
     """Whether ``data`` (a parsed JSON file) is a fit result: a Strauss fit's
-    (:class:`~strauss_fit.fitting.result.FitResult`) or another model's (a capture's result,
-    :func:`~strauss_fit.fitting.capture_result.is_capture_result`, as ``fit --model`` writes it)."""
+    (`FitResult`) or another model's (a capture's result,
+    `is_capture_result`, as ``fit --model`` writes it)."""
     if is_capture_result(data):
         try:
             check_capture_result(data)
@@ -233,7 +233,7 @@ def check_outputs_are_not_inputs(
     outputs: Sequence[Path], jobs: Sequence[FitJob], inputs: Sequence[str | Path] = ()
 ) -> None:
     """Refuse, before any work, an output that is one of the run's inputs: a target, its
-    sidecar (:func:`sidecar_of`), a scene, a mask, or one of ``inputs`` (the manifest,
+    sidecar (`sidecar_of`), a scene, a mask, or one of ``inputs`` (the manifest,
     target lists). ``--force`` does not change this: fit into another folder."""
     named: dict[tuple, str] = {}
     for path in inputs:
@@ -271,7 +271,7 @@ def provenance(job: FitJob, model: ModelFit | None = None) -> dict[str, Any] | N
     ``scene_sha256``, ``mask_sha256``, ``settings_sha256`` of the options and encoding),
     strauss-fit's version, and ``key``, the run key of them all. None when an input cannot
     be read (the fit then fails on it and says why). With ``model`` (another reflectance
-    model) the options are the model's (:meth:`ModelFit.as_dict`), not the job's."""
+    model) the options are the model's (`ModelFit.as_dict`), not the job's."""
 
     def digest(value: Any) -> str | None:
         if value is None:
@@ -310,7 +310,7 @@ _PROVENANCE_NAMES = {
 
 @dataclass
 class FolderRun:
-    """What :func:`fit_to_folder` did: per target (input order) its summary row; counts."""
+    """What `fit_to_folder` did: per target (input order) its summary row; counts."""
 
     rows: list[dict[str, Any]]
     fitted: int
@@ -328,8 +328,8 @@ MODEL_SUMMARY_TAIL = ("free", "rms", "relative_rms", "delta_e2000_mean", "solver
 class ModelFit:
     """Another reflectance model than Strauss fitted to every target of a folder, each as
     ``fit TARGET --scene S --model NAME`` fits one: the target and its scene as a capture of
-    one image (:func:`~strauss_fit.fitting.scene_samples.samples_from_scene`), then
-    :func:`~strauss_fit.fitting.capture_result.fit_capture` with ``options`` and the equivalence
+    one image (`samples_from_scene`), then
+    `fit_capture` with ``options`` and the equivalence
     ranges asked for."""
 
     options: CaptureFitOptions
@@ -426,8 +426,8 @@ class ModelFit:
         on_result: Callable[[int, dict[str, Any] | FitFailure], None] | None = None,
     ) -> None:
         """Fit ``jobs`` one after the other in this process; ``on_result(index, result)``
-        with each result (a result JSON, or a :class:`~strauss_fit.fitting.batch.FitFailure`),
-        then ``progress``, as :func:`~strauss_fit.fitting.batch.fit_many` calls them. The
+        with each result (a result JSON, or a `FitFailure`),
+        then ``progress``, as `fit_many` calls them. The
         capture fitter compiles its program once per data shape: the targets of one scene,
         size and mask reuse it."""
         scenes: dict[str, Scene] = {}
@@ -451,7 +451,7 @@ def _is_number(value: Any) -> bool:
 
 
 def _complete(data: dict[str, Any]) -> bool:
-    """Whether a result holds every core key (:data:`CORE_KEYS`) with numbers where numbers
+    """Whether a result holds every core key (`CORE_KEYS`) with numbers where numbers
     belong, and a deviation for every free parameter."""
     for key, fields in CORE_KEYS.items():
         part = data.get(key)
@@ -566,7 +566,7 @@ class _FolderLayout:
     ``compare``, its comparison image; and ``summary.csv``."""
 
     folder: Path
-    #: every target's result file stem (:func:`result_names`)
+    #: every target's result file stem (`result_names`)
     names: list[str]
     compare: bool
     #: every target's result JSON
@@ -642,7 +642,7 @@ def _kept_results(
     log: Callable[[str], None] | None,
 ) -> tuple[list[dict[str, Any] | None], list[int]]:
     """The summary rows of the results ``resume`` keeps (None for the others) and the
-    indices of the targets to fit; a result of another run refuses the run (:func:`_kept`).
+    indices of the targets to fit; a result of another run refuses the run (`_kept`).
     A killed run's half-written temporaries of these results are removed."""
     folder, paths = layout.folder, layout.paths
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
@@ -724,8 +724,8 @@ def _create(folder: Path) -> None:
 
 
 def write_summary(path: Path, rows: list[dict[str, Any]], columns: Sequence[str] = SUMMARY_COLUMNS) -> None:
-    """``summary.csv``: the rows under ``columns`` (:data:`SUMMARY_COLUMNS`, or another
-    model's :attr:`ModelFit.columns`; written atomically)."""
+    """``summary.csv``: the rows under ``columns`` (`SUMMARY_COLUMNS`, or another
+    model's `ModelFit.columns`; written atomically)."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()

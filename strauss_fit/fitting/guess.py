@@ -1,14 +1,14 @@
 r"""A closed-form first guess of the material from the image, used as one of the fit's starts.
 
-With :math:`D(p) = \sum_i I_i \cos\alpha_i(p) + I_a` the diffuse irradiance of pixel p (light
+With `D(p) = \sum_i I_i \cos\alpha_i(p) + I_a` the diffuse irradiance of pixel p (light
 colours ignored):
 
-- colour: away from highlights (:math:`\max_i \cos\beta_i < 0.5`) and where D is large,
-  the image is about :math:`(1 - ms)\,r_d\,C\,D`; the per-channel median of image / D gives
-  :math:`(1 - ms)\,r_d\,C`, taken as C (divided by its largest channel if that exceeds 1);
+- colour: away from highlights (`\max_i \cos\beta_i < 0.5`) and where D is large,
+  the image is about `(1 - ms)\,r_d\,C\,D`; the per-channel median of image / D gives
+  `(1 - ms)\,r_d\,C`, taken as C (divided by its largest channel if that exceeds 1);
 - smoothness: the excess over that diffuse prediction near the highlight falls off as
-  :math:`\cos^h\beta`; a straight-line fit of log(excess) against log(cos β) gives h and
-  :math:`s = 1 - 3/h`;
+  `\cos^h\beta`; a straight-line fit of log(excess) against log(cos β) gives h and
+  `s = 1 - 3/h`;
 - metalness: a highlight tinted like C means metal, a white one plastic; m is the ratio of
   the highlight's chroma to the colour's chroma.
 

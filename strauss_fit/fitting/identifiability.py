@@ -11,9 +11,9 @@ Two kinds of reasons, checked in this order:
    alike over a uniform backdrop).
 2. *Numerical*: at a probe point (the first guess, kept away from the bounds, or the
    optimum of a fit, exactly), the Fisher information of the image,
-   :math:`\mathcal{I} = J^\top J/\sigma^2` with J the Jacobian of the rendered pixels
+   `\mathcal{I} = J^\top J/\sigma^2` with J the Jacobian of the rendered pixels
    with respect to the physical parameters and σ a reference noise level, predicts each
-   parameter's standard deviation :math:`\sqrt{((\mathcal{I} + \epsilon)^{-1})_{ii}}`,
+   parameter's standard deviation `\sqrt{((\mathcal{I} + \epsilon)^{-1})_{ii}}`,
    with a ridge ε of 1e-12 of the mean information (in units of each parameter's scale)
    so that an exact degeneracy reads as an enormous deviation, not as none. While the worst
    parameter's predicted deviation exceeds ``threshold`` times its scale (1 for values in
@@ -22,13 +22,13 @@ Two kinds of reasons, checked in this order:
    repeats. The reason names the parameter it trades off with (the largest correlation) or
    says that the image barely changes with it.
 
-:func:`decide_free` applies both at a probe point. A fit decides first at its guess and
-then again at each optimum (:func:`strauss_fit.fitting.api.fit`); the rules that turn the
+`decide_free` applies both at a probe point. A fit decides first at its guess and
+then again at each optimum (`strauss_fit.fitting.api.fit`); the rules that turn the
 decision at an optimum into held values — a mirror's metalness held at 1
-(:func:`held_at_optimum`), n held without a transparency distinguishable from 0
-(:func:`hold_ior_without_significant_transparency`), parameters invisible only jointly held
-at the fit (:func:`hold_jointly_dead_at_fit`) — and when a refit stands
-(:func:`chi2_95`) are here too. These functions are internal API of the fit.
+(`held_at_optimum`), n held without a transparency distinguishable from 0
+(`hold_ior_without_significant_transparency`), parameters invisible only jointly held
+at the fit (`hold_jointly_dead_at_fit`) — and when a refit stands
+(`chi2_95`) are here too. These functions are internal API of the fit.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ DEFAULT_REFERENCE_NOISE = 0.01
 
 
 def reference_noise_level(values: np.ndarray) -> float:
-    """The reference noise of an image's values: :data:`DEFAULT_REFERENCE_NOISE` times
+    """The reference noise of an image's values: `DEFAULT_REFERENCE_NOISE` times
     their 98th percentile (at least 1e-6; 1 for no values)."""
     level = float(np.percentile(values, 98)) if values.size else 1.0
     return DEFAULT_REFERENCE_NOISE * max(level, 1e-6)
@@ -117,7 +117,7 @@ def structural_reasons(
 def deviation_scale(name: str, value: np.ndarray | float) -> np.ndarray:
     """The scale a deviation of parameter ``name`` at ``value`` is judged against: 0.5 for
     n, the value itself (at least 1e-3) for a light intensity or the exposure, 1 for values
-    in [0, 1] (also used by :mod:`strauss_fit.inference.summaries`)."""
+    in [0, 1] (also used by `strauss_fit.inference.summaries`)."""
     value = np.asarray(value, dtype=float)
     if name == "ior":
         return np.full(value.shape, 0.5)
@@ -204,7 +204,7 @@ def numerical_decision(
 
 
 def decide_free(*args: Any, **kwargs: Any) -> Decision:
-    """:func:`decide_free_steps`, run directly."""
+    """`decide_free_steps`, run directly."""
     return run(decide_free_steps(*args, **kwargs))
 
 
@@ -263,7 +263,7 @@ def decide_free_steps(
 #: How many times the free set is decided and fitted at most: at the first guess, then at
 #: each optimum while the answer is new.
 MAX_DECISIONS = 3
-#: A fitted smoothness at least this is a mirror (see :func:`held_at_optimum`): above it the
+#: A fitted smoothness at least this is a mirror (see `held_at_optimum`): above it the
 #: diffuse term (1 − s³) and the highlight (exponent 3/(1 − s) ≥ 300) are nearly invisible,
 #: and the rule applies only where the analysis found metalness trading off with colour.
 MIRROR_SMOOTHNESS = 0.99
@@ -276,7 +276,7 @@ def chi2_95(dof: int) -> float:
 
     A refit under a new decision stands unless it costs more than this (times σ²) above
     the best fit before, with as many degrees of freedom as values it newly holds
-    (:func:`newly_held`)."""
+    (`newly_held`)."""
     dof = max(int(dof), 1)
     if dof <= len(_CHI2_95):
         return _CHI2_95[dof - 1]
@@ -338,7 +338,7 @@ def _mirror_holds_metalness(again: Decision, before: Decision, fitted: dict[str,
     """The mirror's canonical choice, whichever of the pair the analysis held: when the fit
     pinned metalness on its upper bound, the analysis (which does not hold a pinned parameter that
     the data push against) holds the colour instead; for a mirror the degeneracy is the same
-    m·(C − 1), so hold metalness and free the colour, as :func:`held_at_optimum` expects.
+    m·(C − 1), so hold metalness and free the colour, as `held_at_optimum` expects.
     Updates ``again`` in place."""
     if not (
         again.partner.get("color") == "metalness"
@@ -360,7 +360,7 @@ def _mirror_holds_metalness(again: Decision, before: Decision, fitted: dict[str,
 
 
 def hold_ior_without_significant_transparency(again: Decision, solved: Solved) -> None:
-    """:func:`hold_ior_without_significant_transparency_steps`, run directly."""
+    """`hold_ior_without_significant_transparency_steps`, run directly."""
     run(hold_ior_without_significant_transparency_steps(again, solved))
 
 
@@ -396,7 +396,7 @@ def hold_ior_without_significant_transparency_steps(again: Decision, solved: Sol
 
 
 def hold_jointly_dead_at_fit(*args: Any, **kwargs: Any) -> None:
-    """:func:`hold_jointly_dead_at_fit_steps`, run directly."""
+    """`hold_jointly_dead_at_fit_steps`, run directly."""
     run(hold_jointly_dead_at_fit_steps(*args, **kwargs))
 
 

@@ -1,17 +1,17 @@
-"""The losses a fit can minimise, as plain data: one registry (:data:`LOSS_REGISTRY`) that
+"""The losses a fit can minimise, as plain data: one registry (`LOSS_REGISTRY`) that
 every place choosing or describing a loss reads, instead of lists of names spelled out
 in each.
 
-A :class:`Loss` holds what the code branches on: whether the loss is robust (it scales
+A `Loss` holds what the code branches on: whether the loss is robust (it scales
 each residual by its value's own noise), whether it folds into the compiled kernel (and
-its code there, see :meth:`strauss_fit.fitting.problem.Problem.kernel_form`), and a one-line
+its code there, see `strauss_fit.fitting.problem.Problem.kernel_form`), and a one-line
 description for help texts. The numerical side — how each loss transforms the residuals —
-is :data:`strauss_fit.fitting.problem.LOSS_RESIDUALS`, keyed by the same names (a test checks
+is `strauss_fit.fitting.problem.LOSS_RESIDUALS`, keyed by the same names (a test checks
 that the two agree).
 
 Why two modules: this one imports the standard library only, so that the command line
 builds its ``--loss`` choices and help without importing NumPy or JAX (``strauss-fit
---help`` stays fast); :mod:`strauss_fit.fitting.problem` needs JAX for the residuals.
+--help`` stays fast); `strauss_fit.fitting.problem` needs JAX for the residuals.
 """
 
 from __future__ import annotations
@@ -39,19 +39,19 @@ class Loss:
     @property
     def folded(self) -> bool:
         """Whether problems of this loss share their compiled programs
-        (:meth:`strauss_fit.fitting.problem.Problem.kernel_form`)."""
+        (`strauss_fit.fitting.problem.Problem.kernel_form`)."""
         return self.code is not None
 
 
 #: Plain least squares on linear RGB: residuals as they are, the loss every statistic of a
 #: fit assumes (the Laplace covariance, the sampler's likelihood).
 LEAST_SQUARES = "linear"
-#: ``FitOptions.loss``'s automatic choice: :data:`LEAST_SQUARES`, then
-#: :data:`strauss_fit.fitting.options.MISMATCH_LOSS` when the model visibly cannot reproduce the target.
+#: ``FitOptions.loss``'s automatic choice: `LEAST_SQUARES`, then
+#: `strauss_fit.fitting.options.MISMATCH_LOSS` when the model visibly cannot reproduce the target.
 AUTO = "auto"
 
 #: Every loss a fit can minimise, by name, in the order help texts list them. The codes of
-#: the folded losses are their indices into :data:`FOLDED_LOSSES` (0, 1, 2, ...).
+#: the folded losses are their indices into `FOLDED_LOSSES` (0, 1, 2, ...).
 LOSS_REGISTRY: dict[str, Loss] = {
     loss.name: loss
     for loss in (
@@ -76,24 +76,24 @@ LOSS_REGISTRY: dict[str, Loss] = {
     )
 }
 
-#: The losses a fit can minimise (names of :data:`LOSS_REGISTRY`).
+#: The losses a fit can minimise (names of `LOSS_REGISTRY`).
 LOSSES: tuple[str, ...] = tuple(LOSS_REGISTRY)
 #: The losses that scale each residual by its value's own noise (``weights``).
 ROBUST_LOSSES: tuple[str, ...] = tuple(name for name, loss in LOSS_REGISTRY.items() if loss.robust)
 #: The losses whose problems share their compiled programs
-#: (:meth:`strauss_fit.fitting.problem.Problem.kernel_form`), in the order of their codes.
+#: (`strauss_fit.fitting.problem.Problem.kernel_form`), in the order of their codes.
 FOLDED_LOSSES: tuple[str, ...] = tuple(
     sorted((name for name, loss in LOSS_REGISTRY.items() if loss.folded), key=lambda name: LOSS_REGISTRY[name].code)
 )
-#: What ``FitOptions.loss`` (and ``--loss``) accepts: :data:`AUTO` and every loss.
+#: What ``FitOptions.loss`` (and ``--loss``) accepts: `AUTO` and every loss.
 LOSS_CHOICES: tuple[str, ...] = (AUTO, *LOSSES)
 
 
 def loss_named(name: str) -> Loss:
-    """The :class:`Loss` called ``name``.
+    """The `Loss` called ``name``.
 
     Raises:
-        StraussFitError: ``name`` is no loss of :data:`LOSS_REGISTRY` (the message lists them).
+        StraussFitError: ``name`` is no loss of `LOSS_REGISTRY` (the message lists them).
     """
     try:
         return LOSS_REGISTRY[name]

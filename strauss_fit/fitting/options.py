@@ -1,9 +1,9 @@
-"""Settings of a fit (:class:`FitOptions`) and the quality presets.
+"""Settings of a fit (`FitOptions`) and the quality presets.
 
-:data:`QUALITY_PRESETS` is the one table of the ``fast``, ``balanced`` and ``accurate``
-presets, read by fits (:meth:`FitOptions.preset`), sampling
-(:meth:`strauss_fit.inference.sampler.SampleSettings.preset`) and conversions
-(:meth:`strauss_fit.convert.converter.Settings.preset`); the command line's ``--quality``
+`QUALITY_PRESETS` is the one table of the ``fast``, ``balanced`` and ``accurate``
+presets, read by fits (`FitOptions.preset`), sampling
+(`strauss_fit.inference.sampler.SampleSettings.preset`) and conversions
+(`strauss_fit.convert.converter.Settings.preset`); the command line's ``--quality``
 option only names one. ``FitOptions()`` *is* the ``balanced`` preset, the command line's
 default, so that the library and the command line give the same results for the same
 preset.
@@ -20,7 +20,7 @@ from ..models.modes import DEFAULT_TABLE_SIZE
 from .losses import LOSS_CHOICES, LOSSES
 
 #: A parameter is fitted when its predicted standard deviation at the reference noise is
-#: at most this fraction of its scale (:mod:`strauss_fit.fitting.identifiability`).
+#: at most this fraction of its scale (`strauss_fit.fitting.identifiability`).
 DEFAULT_THRESHOLD = 0.05
 
 #: Settings of each ``--quality`` preset: for fits (``starts``, ``max_steps``, ``rtol``,
@@ -70,11 +70,11 @@ MISMATCH_LOSS = "huber"
 VISIBLE_DELTA_E = 1.0
 #: What ``FitOptions.edge_pixels`` accepts.
 EDGE_PIXELS = ("auto", "exclude", "include")
-#: What ``FitOptions.solver`` accepts (:func:`strauss_fit.fitting.solvers.solver`): plain names
+#: What ``FitOptions.solver`` accepts (`strauss_fit.fitting.solvers.solver`): plain names
 #: here, so that the command line lists them without importing JAX.
 SOLVERS = ("lm", "gauss-newton", "bfgs")
 #: What ``FitOptions.search`` accepts: ``"grid"`` (the global search of
-#: :mod:`strauss_fit.fitting.search` where :func:`~strauss_fit.fitting.search.grid_applies`, the
+#: `strauss_fit.fitting.search` where `grid_applies`, the
 #: multi-start elsewhere), ``"starts"`` (the multi-start always) and ``"auto"``, which is
 #: ``"grid"``: the grid wherever it applies, as measured by ``benchmarks/search.py``
 #: (2026-12-03, preset balanced, both fits of every target interleaved in one process,
@@ -96,14 +96,14 @@ SOLVERS = ("lm", "gauss-newton", "bfgs")
 #:
 #: So the grid wins on the optimum reached and the steps everywhere it applies and costs
 #: time only on short fits; it is the default for its robustness (no start in a basin the
-#: fixed points miss). Captures keep their own projected grid (:mod:`strauss_fit.fitting.capture`).
+#: fixed points miss). Captures keep their own projected grid (`strauss_fit.fitting.capture`).
 SEARCHES = ("auto", "grid", "starts")
 #: The preset settings that are fit settings (the others are sampling settings).
 FIT_PRESET_FIELDS = ("starts", "max_steps", "rtol", "atol", "equivalence")
 
 
 def quality_preset(name: str) -> dict[str, Any]:
-    """A copy of the settings of preset ``name`` (one of :data:`QUALITY_PRESETS`)."""
+    """A copy of the settings of preset ``name`` (one of `QUALITY_PRESETS`)."""
     if name not in QUALITY_PRESETS:
         raise StraussFitError(f"unknown quality preset {name!r}; expected one of {', '.join(QUALITY_PRESETS)}")
     return dict(QUALITY_PRESETS[name])
@@ -117,7 +117,7 @@ class FitOptions:
     """Settings of a fit; every field is recorded in the result.
 
     The defaults of ``starts``, ``max_steps``, ``rtol`` and ``atol`` are the ``balanced``
-    preset (:data:`QUALITY_PRESETS`); :meth:`preset` gives the others.
+    preset (`QUALITY_PRESETS`); `preset` gives the others.
     """
 
     solver: str = "lm"
@@ -137,35 +137,35 @@ class FitOptions:
     #: background together), the usual unknown of a photograph or a foreign render.
     fit_exposure: bool = False
     #: The target's noise standard deviation (linear units; one value or R, G, B, each
-    #: within :data:`~strauss_fit.stats.noise.NOISE_RANGE`) when known; None: from the
+    #: within `NOISE_RANGE`) when known; None: from the
     #: target's sidecar, else estimated from the image
-    #: (:func:`strauss_fit.stats.noise.describe_noise`).
+    #: (`strauss_fit.stats.noise.describe_noise`).
     noise: float | tuple[float, float, float] | None = None
-    #: What the solver minimises (:data:`~strauss_fit.fitting.losses.LOSS_REGISTRY`): ``"linear"``
+    #: What the solver minimises (`LOSS_REGISTRY`): ``"linear"``
     #: least squares, ``"perceptual"`` (cube-root), ``"huber"``, ``"cauchy"``; ``"auto"``:
     #: linear, then, if the model cannot reproduce the target visibly, refitted with
-    #: :data:`MISMATCH_LOSS` (chosen by ``benchmarks/external.py``, see docs/fitting.md).
+    #: `MISMATCH_LOSS` (chosen by ``benchmarks/external.py``, see docs/fitting.md).
     loss: str = "auto"
     #: ``"exclude"``: fit only pixels whose whole footprint shows the sphere (a partly
     #: covered silhouette pixel of an anti-aliased image or a photograph mixes in the
     #: background); ``"include"``: every pixel whose centre shows it; ``"auto"``: include
     #: them when the target's silhouette shows it is point-sampled, else exclude
-    #: (:func:`strauss_fit.rendering.coverage.silhouette_blend`; measured by
+    #: (`strauss_fit.rendering.coverage.silhouette_blend`; measured by
     #: ``benchmarks/silhouette.py`` and ``benchmarks/recovery.py``, see docs/fitting.md).
     #: A result records what was used.
     edge_pixels: str = "auto"
     #: Also compute each free parameter's perceptual equivalence range
-    #: (:func:`strauss_fit.fitting.equivalence.equivalence_ranges`): on in the
+    #: (`strauss_fit.fitting.equivalence.equivalence_ranges`): on in the
     #: ``accurate`` preset.
     equivalence: bool = bool(_BALANCED["equivalence"])
     #: Its threshold, a mean CIEDE2000 (1: one just-noticeable difference).
     equivalence_de: float = 1.0
-    #: Where the solves start (:data:`SEARCHES`): ``"grid"``, a global search over
+    #: Where the solves start (`SEARCHES`): ``"grid"``, a global search over
     #: smoothness and metalness with the colour solved in closed form, its best distinct
     #: minima the starts, where that projection holds (an opaque material fitted by least
     #: squares, no light or exposure free), the multi-start elsewhere; ``"starts"``, the
     #: multi-start (the closed-form guess and fixed points) always; ``"auto"``: the grid
-    #: wherever it applies, as measured (:data:`SEARCHES`).
+    #: wherever it applies, as measured (`SEARCHES`).
     search: str = "auto"
 
     @classmethod
@@ -202,7 +202,7 @@ class FitOptions:
         }
 
     def validate(self) -> None:
-        """Raise :class:`~strauss_fit.errors.StraussFitError` naming the first bad setting."""
+        """Raise `StraussFitError` naming the first bad setting."""
         from ..stats.noise import check_noise_level
 
         if self.loss not in LOSS_CHOICES:

@@ -5,10 +5,10 @@ through a smooth transform that keeps it in range without clipping (the transfor
 MINUIT, which reach the bounds at finite θ):
 
 - a value in [0, 1] (colour channels, smoothness, metalness, transparency):
-  :math:`x = (1 + \sin\theta)/2`;
+  `x = (1 + \sin\theta)/2`;
 - a value with only a lower bound ``low`` (index of refraction ≥ 1, light intensity and
   the global exposure ≥ 0):
-  :math:`x = \mathrm{low} - 1 + \sqrt{\theta^2 + 1}`.
+  `x = \mathrm{low} - 1 + \sqrt{\theta^2 + 1}`.
 
 Uncertainties are always computed for the physical values, never for θ.
 """
@@ -85,7 +85,7 @@ class Layout:
         return out
 
     def join(self, values: dict[str, Any]) -> np.ndarray:
-        """The inverse of :meth:`split`, for concrete values."""
+        """The inverse of `split`, for concrete values."""
         return (
             np.concatenate([np.atleast_1d(np.asarray(values[n], dtype=np.float64)) for n in self.names])
             if self.names
@@ -102,7 +102,7 @@ class Layout:
         return jnp.concatenate(parts, axis=-1) if parts else theta
 
     def to_physical_numpy(self, theta: np.ndarray) -> np.ndarray:
-        """:meth:`to_physical` in NumPy, for concrete values outside a compiled function."""
+        """`to_physical` in NumPy, for concrete values outside a compiled function."""
         theta = np.asarray(theta, dtype=np.float64)
         parts = []
         for name, size, offset in zip(self.names, self.sizes, self.offsets):
@@ -158,7 +158,7 @@ def material_with(base: Material, values: dict[str, Array]) -> Material:
 
 
 def lights_with(base: Lights, values: dict[str, Array]) -> Lights:
-    """``base`` with the intensities named as in :func:`light_parameter_names` replaced."""
+    """``base`` with the intensities named as in `light_parameter_names` replaced."""
     intensities = {}
     for kind in ("directional", "point"):
         group = getattr(base, kind)
@@ -182,7 +182,7 @@ def intensity_vector(lights: Lights) -> Any:
 
 
 def all_intensities(lights: Lights) -> list[float]:
-    """Every intensity as a float, in :func:`light_parameter_names` order."""
+    """Every intensity as a float, in `light_parameter_names` order."""
     values = []
     vector = intensity_vector(lights)
     if vector is not None:
@@ -203,7 +203,7 @@ def value_of(name: str, material: Material, lights: Lights, exposure: float = 1.
 
 
 def jsonable(values: dict[str, Any]) -> dict[str, Any]:
-    """Concrete parameter values (as from :meth:`Layout.split`) as floats and lists of floats."""
+    """Concrete parameter values (as from `Layout.split`) as floats and lists of floats."""
     out = {}
     for k, v in values.items():
         arr = np.asarray(v)

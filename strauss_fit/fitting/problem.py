@@ -1,27 +1,27 @@
 r"""A fit's problem: the prepared scene at the usable pixels, the target, and the residual.
 
-The fit minimises :math:`\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
+The fit minimises `\tfrac12\sum_p \lVert I_\text{model}(p;\theta) - I_\text{target}(p)\rVert^2`
 over the usable sphere pixels p (linear RGB), with θ the unconstrained parameters of
-:mod:`strauss_fit.fitting.parameters`.
+`strauss_fit.fitting.parameters`.
 
 Speed: everything that does not depend on the material (pixel geometry, the angular terms
 F, G and j of every light, backgrounds seen along mirror directions) is computed once
-(:func:`strauss_fit.rendering.strauss.prepare`, with every light at unit intensity) and
-restricted to the usable pixels (:func:`build_problem`); the solver then evaluates only
-the material-dependent part, with the intensities applied (:func:`scaled`). On a large
-image the starts run on an evenly strided subsample (:func:`coarse_problem`).
+(`strauss_fit.rendering.strauss.prepare`, with every light at unit intensity) and
+restricted to the usable pixels (`build_problem`); the solver then evaluates only
+the material-dependent part, with the intensities applied (`scaled`). On a large
+image the starts run on an evenly strided subsample (`coarse_problem`).
 
 Compiled once for many images: a fit's pixel set is padded (``pad=True``, what
-:func:`strauss_fit.fit` does) to one of a few bucketed sizes (:func:`pixel_bucket`, at
-most about 19 % more pixels), the padding weighted 0 (:attr:`Problem.valid`). Targets of one
+`strauss_fit.fit` does) to one of a few bucketed sizes (`pixel_bucket`, at
+most about 19 % more pixels), the padding weighted 0 (`Problem.valid`). Targets of one
 scene whose usable pixels differ in number — clipped highlights in 8-bit images, masks,
 silhouettes — then share the compiled solvers instead of compiling them for every count;
 the padding changes no residual, cost, Jacobian row or statistic
-(:meth:`Problem.value_count` and :meth:`Problem.real` give the real ones).
+(`Problem.value_count` and `Problem.real` give the real ones).
 
-The jitted helpers here (:func:`costs`, :func:`render_at`, :func:`to_physical`, ...) are
+The jitted helpers here (`costs`, `render_at`, `to_physical`, ...) are
 internal API shared by the fit's modules, the conversions and the study: compiled once per
-problem structure, called inside :func:`strauss_fit.precision.float64`.
+problem structure, called inside `strauss_fit.precision.float64`.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ if TYPE_CHECKING:
 
 #: Above twice this many usable pixels, the starts run on an evenly strided subsample of
 #: about this size and only the best start is continued on every pixel
-#: (:func:`strauss_fit.fitting.solvers.solve`).
+#: (`strauss_fit.fitting.solvers.solve`).
 COARSE_PIXELS = 8192
 
 
@@ -75,38 +75,38 @@ class Problem(eqx.Module):
     residual_scale: Array
     layout: Layout = eqx.field(static=True)
     plan: RenderPlan = eqx.field(static=True)
-    #: How residuals enter the cost (:data:`LOSSES`); "linear" is plain least squares. In
-    #: a kernel (:meth:`kernel_form`) one of :data:`FOLDED_LOSSES` is :data:`LOSS_BY_CODE`.
+    #: How residuals enter the cost (`LOSSES`); "linear" is plain least squares. In
+    #: a kernel (`kernel_form`) one of `FOLDED_LOSSES` is `LOSS_BY_CODE`.
     loss: str = eqx.field(static=True, default="linear")
     #: Per value (N, 3): the reference noise over each value's own noise level, for the
     #: robust losses (which act on noise-scaled residuals); None = the reference noise.
     weights: Array | None = None
-    #: The perceptual loss's offset ε and slope normalisation (see :func:`loss_residual`).
+    #: The perceptual loss's offset ε and slope normalisation (see `loss_residual`).
     loss_offset: Array | None = None
     loss_norm: Array | None = None
     #: The global exposure (one scale on all rendered radiance) when it is held; None = 1.
     exposure: Array | None = None
-    #: A padded pixel set (:func:`pixel_bucket`): (N,) 1 for the real pixels, which come
+    #: A padded pixel set (`pixel_bucket`): (N,) 1 for the real pixels, which come
     #: first, 0 for the padding; None = every pixel is real.
     valid: Array | None = None
     #: The number of real pixels when padded (a 0-d array, so that it stays dynamic under
     #: ``jit`` and every count shares one compilation); None = every pixel is real.
     count: Array | None = None
-    #: In a kernel form (:meth:`kernel_form`): which of :data:`FOLDED_LOSSES` (its index, a
+    #: In a kernel form (`kernel_form`): which of `FOLDED_LOSSES` (its index, a
     #: 0-d array, dynamic); None otherwise.
     loss_code: Array | None = None
 
     def kernel_form(self) -> Problem:
-        """This problem as a compiled kernel takes it (:mod:`strauss_fit.engine` asks every
+        """This problem as a compiled kernel takes it (`strauss_fit.engine` asks every
         argument for it): the same residuals, with the loss as data rather than structure
-        when it is one of :data:`FOLDED_LOSSES` — ``loss`` :data:`LOSS_BY_CODE`, the loss's
+        when it is one of `FOLDED_LOSSES` — ``loss`` `LOSS_BY_CODE`, the loss's
         index in ``loss_code`` and ``weights`` always an array (ones for the linear loss,
         whose residuals do not read them). Why: a static loss is part of the program, so
         each loss compiled every solver, Jacobian and render of a problem anew (a
         mismatched batch, linear then Huber, compiled 17 programs where a consistent one
         compiled 11: 13 s of a 46 s cold batch); as data, least squares, Huber and Cauchy
         share one program per problem shape, whose residuals are those of each loss's own
-        (:func:`loss_residual` computes every candidate and selects one) up to the
+        (`loss_residual` computes every candidate and selects one) up to the
         compiler's rounding in another program: fits moved by at most 8e-16 in their
         parameters, with the same steps, verdicts and losses (measured on 16 fits)."""
         if self.loss not in FOLDED_LOSSES:
@@ -152,7 +152,7 @@ class Problem(eqx.Module):
 
     def physical(self, theta: Array) -> Array:
         """Physical values of θ, with pinned entries (at a bound, see
-        :func:`strauss_fit.fitting.solvers.polish`) replaced."""
+        `strauss_fit.fitting.solvers.polish`) replaced."""
         return jnp.where(self.pinned, self.pinned_values, self.layout.to_physical(theta))
 
     def pin(self, mask: np.ndarray, values: np.ndarray) -> Problem:
@@ -178,23 +178,23 @@ class Problem(eqx.Module):
 
     def objective_residual(self, x: Array) -> Array:
         """The residuals the solver minimises the squares of, at physical ``x``: the
-        :attr:`loss` applied to model minus target, divided by ``residual_scale`` (the
+        `loss` applied to model minus target, divided by ``residual_scale`` (the
         reference noise times sqrt(N)), so that tolerances do not depend on image size or
-        brightness. For the linear loss, :meth:`residual_physical` / ``residual_scale``."""
+        brightness. For the linear loss, `residual_physical` / ``residual_scale``."""
         return self.objective_of_model(self.render_physical(x), self.target)
 
     def objective_of_model(self, model: Array, target: Array) -> Array:
-        """The residuals of :meth:`objective_residual` as a function of the model radiance
+        """The residuals of `objective_residual` as a function of the model radiance
         ``model`` (N, 3) and the ``target`` (N, 3), flattened (N·3,). Each residual depends on
         its own model value and target value alone (the loss, the padding's weight and the
         scale act value by value), which lets the noise sandwich take their derivatives
-        value by value (:func:`strauss_fit.stats.laplace.objective_terms`)."""
+        value by value (`strauss_fit.stats.laplace.objective_terms`)."""
         if self.loss == LEAST_SQUARES:
             return self._masked(model - target).ravel() / self.residual_scale
         return self._masked(loss_residual(self, model, target)).ravel() / self.residual_scale
 
     def residual(self, theta: Array, _args: Any = None) -> Array:
-        """:meth:`objective_residual` at the unconstrained θ (what optimistix calls)."""
+        """`objective_residual` at the unconstrained θ (what optimistix calls)."""
         return self.objective_residual(self.physical(theta))
 
 
@@ -203,15 +203,15 @@ class Problem(eqx.Module):
 EXPOSURE = "exposure"
 
 # The losses themselves (their names, which are robust, which fold into the kernel) are plain
-# data in :mod:`strauss_fit.fitting.losses`, whose LOSSES, ROBUST_LOSSES and FOLDED_LOSSES are
+# data in `strauss_fit.fitting.losses`, whose LOSSES, ROBUST_LOSSES and FOLDED_LOSSES are
 # imported above and stay importable from here; how each loss computes is LOSS_RESIDUALS below.
 
-#: A kernel form's ``loss``: one of :data:`FOLDED_LOSSES`, the one ``loss_code`` names
+#: A kernel form's ``loss``: one of `FOLDED_LOSSES`, the one ``loss_code`` names
 #: ("linear, huber or cauchy, by loss_code"). A static field, so part of the compiled
 #: program's key: one string for every folded loss.
 LOSS_BY_CODE = f"{', '.join(FOLDED_LOSSES[:-1])} or {FOLDED_LOSSES[-1]}, by loss_code"
 #: Each folded loss's code, one array each (the same object for every problem: a batch of
-#: them passes it once, see :func:`strauss_fit.engine._stack_items`).
+#: them passes it once, see `strauss_fit.engine._stack_items`).
 _LOSS_CODES = {name: np.asarray(LOSS_REGISTRY[name].code, dtype=np.int32) for name in FOLDED_LOSSES}
 
 
@@ -238,19 +238,19 @@ def loss_residual(problem: Problem, model: Array, target: Array | None = None) -
     squares sum to the cost (times ``residual_scale``², as for the linear loss).
 
     - ``linear``: model minus target.
-    - ``perceptual``: :math:`(f(I) - f(T))/f'(L)` with :math:`f(x) = \sqrt[3]{x + ε}`,
+    - ``perceptual``: `(f(I) - f(T))/f'(L)` with `f(x) = \sqrt[3]{x + ε}`,
       the cube root of CIELAB's lightness, so that differences in dark regions count as
       the eye sees them rather than by their linear size; ε = ``loss_offset`` (a
       thousandth of the target's 98th percentile L, which keeps the slope finite at 0)
       and f'(L) = ``loss_norm``, so that a bright pixel's residual is about its linear one.
-    - ``huber`` / ``cauchy``: on the noise-scaled residual :math:`z = (I - T)/σ` (σ each
-      value's own noise: ``weights`` = σ_ref/σ), the value :math:`ψ(z)σ_{ref}` with
-      :math:`ψ(z)^2/2 = ρ(z)`: Huber's ρ (quadratic up to |z| = 1.345, then linear) or
-      Cauchy's :math:`ρ = (c^2/2)\log(1 + (z/c)^2)`, c = 2.385. The few values the model
+    - ``huber`` / ``cauchy``: on the noise-scaled residual `z = (I - T)/σ` (σ each
+      value's own noise: ``weights`` = σ_ref/σ), the value `ψ(z)σ_{ref}` with
+      `ψ(z)^2/2 = ρ(z)`: Huber's ρ (quadratic up to |z| = 1.345, then linear) or
+      Cauchy's `ρ = (c^2/2)\log(1 + (z/c)^2)`, c = 2.385. The few values the model
       cannot reproduce (a highlight's core, an edge) then weigh less than their squares,
       while values within the noise weigh as in least squares.
 
-    A kernel form's problem (:meth:`Problem.kernel_form`) computes the linear, Huber and
+    A kernel form's problem (`Problem.kernel_form`) computes the linear, Huber and
     Cauchy values and returns the one its ``loss_code`` names. ``target``: the values
     compared with (default the problem's own).
     """
@@ -266,14 +266,14 @@ def _least_squares_residual(problem: Problem, model: Array, target: Array) -> Ar
 
 
 def _perceptual_residual(problem: Problem, model: Array, target: Array) -> Array:
-    """The perceptual loss's residual: cube roots' difference over f'(L) (:func:`loss_residual`)."""
+    """The perceptual loss's residual: cube roots' difference over f'(L) (`loss_residual`)."""
     offset, norm = problem.loss_offset, problem.loss_norm
     return (jnp.cbrt(model + offset) - jnp.cbrt(target + offset)) / norm
 
 
 def _noise_scaled(problem: Problem, difference: Array) -> tuple[Array, Array]:
     """The noise-scaled residual z = (I − T)/σ of a robust loss and σ_ref, the unit its ψ(z)
-    is returned in (:func:`loss_residual`)."""
+    is returned in (`loss_residual`)."""
     weights = 1.0 if problem.weights is None else problem.weights
     values = problem.target.size if problem.count is None else 3 * problem.count
     reference = problem.residual_scale / jnp.sqrt(values)  # σ_ref
@@ -291,7 +291,7 @@ def _robust_residual(psi: Callable[[Array], Array]) -> Callable[[Problem, Array,
 
 
 def _folded_residual(problem: Problem, model: Array, target: Array) -> Array:
-    """A kernel form's residual (:data:`LOSS_BY_CODE`): every folded loss's candidate, the one
+    """A kernel form's residual (`LOSS_BY_CODE`): every folded loss's candidate, the one
     ``loss_code`` names selected. A select copies: the value is the one the loss's own
     residual function computes, the same operations on the same z. The folded losses are
     least squares and robust ones (``tests/test_registries.py`` holds it): least squares
@@ -308,14 +308,14 @@ def _folded_residual(problem: Problem, model: Array, target: Array) -> Array:
 
 
 def _huber_psi(z: Array) -> Array:
-    """Huber's ψ(z) with ψ²/2 = ρ (see :func:`loss_residual`)."""
+    """Huber's ψ(z) with ψ²/2 = ρ (see `loss_residual`)."""
     large = jnp.abs(z) > HUBER_K
     safe = jnp.where(large, jnp.abs(z), HUBER_K)
     return jnp.where(large, jnp.sign(z) * jnp.sqrt(2 * HUBER_K * safe - HUBER_K**2), z)
 
 
 def _cauchy_psi(z: Array) -> Array:
-    """Cauchy's ψ(z) with ψ²/2 = ρ (see :func:`loss_residual`)."""
+    """Cauchy's ψ(z) with ψ²/2 = ρ (see `loss_residual`)."""
     small = jnp.abs(z) < _CAUCHY_SMALL
     safe = jnp.where(small, 1.0, z)
     return jnp.where(small, z, jnp.sign(safe) * CAUCHY_C * jnp.sqrt(jnp.log1p((safe / CAUCHY_C) ** 2)))
@@ -324,10 +324,10 @@ def _cauchy_psi(z: Array) -> Array:
 #: The robust losses' ψ on the noise-scaled residual z (ψ²/2 = ρ), by name.
 ROBUST_PSI: dict[str, Callable[[Array], Array]] = {"huber": _huber_psi, "cauchy": _cauchy_psi}
 
-#: How each loss of :data:`strauss_fit.fitting.losses.LOSS_REGISTRY` transforms the residuals,
+#: How each loss of `strauss_fit.fitting.losses.LOSS_REGISTRY` transforms the residuals,
 #: keyed by the same names (``tests/test_registries.py`` checks that the two agree): a
 #: function of the problem, the model radiance and the target, (N, 3) each, returning the
-#: residuals in units of the reference noise (:func:`loss_residual`).
+#: residuals in units of the reference noise (`loss_residual`).
 LOSS_RESIDUALS: dict[str, Callable[[Problem, Array, Array], Array]] = {
     LEAST_SQUARES: _least_squares_residual,
     "perceptual": _perceptual_residual,
@@ -336,15 +336,15 @@ LOSS_RESIDUALS: dict[str, Callable[[Problem, Array, Array], Array]] = {
 
 
 def _perceptual_fields(pixels: np.ndarray) -> dict[str, np.ndarray]:
-    """The perceptual loss's :class:`Problem` fields for a target's usable ``pixels``: its
-    offset ε and slope normalisation f'(L) (:func:`loss_residual`)."""
+    """The perceptual loss's `Problem` fields for a target's usable ``pixels``: its
+    offset ε and slope normalisation f'(L) (`loss_residual`)."""
     level = max(float(np.percentile(pixels, 98)), 1e-12)
     offset = PERCEPTUAL_OFFSET * level
     return {"loss_offset": np.asarray(offset), "loss_norm": np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0)}
 
 
 def scaled(prepared: Prepared, lights: Lights) -> Prepared:
-    """A unit-intensity :class:`~strauss_fit.rendering.strauss.Prepared` with the lights'
+    """A unit-intensity `Prepared` with the lights'
     intensities applied."""
     changes = {}
     if prepared.irradiance is not None:
@@ -362,14 +362,14 @@ def unit_intensity_scene(scene: Scene) -> Scene:
 
 
 # Compiled once per structure (run eagerly, these would dispatch dozens of small XLA
-# programs); :class:`~strauss_fit.engine.Kernel` also runs them over a batch of targets.
+# programs); `Kernel` also runs them over a batch of targets.
 def _prepare_float64(scene: Scene, plan: RenderPlan, mode: str, table_size: int) -> Prepared:
     return prepare(scene, plan, mode, table_size, jnp.float64)
 
 
-#: :func:`strauss_fit.rendering.strauss.prepare` in float64.
+#: `strauss_fit.rendering.strauss.prepare` in float64.
 prepare_float64 = Kernel(_prepare_float64, "prepare")
-#: :func:`strauss_fit.rendering.strauss.take_pixels`.
+#: `strauss_fit.rendering.strauss.take_pixels`.
 take_pixels_jit = Kernel(take_pixels, "take_pixels")
 
 
@@ -407,7 +407,7 @@ costs = Kernel(_costs, "costs")
 
 
 def physical_values(problem: Problem, theta: np.ndarray) -> np.ndarray:
-    """:meth:`Problem.physical` in NumPy (no JAX dispatch): the physical values of θ with the
+    """`Problem.physical` in NumPy (no JAX dispatch): the physical values of θ with the
     pinned entries replaced."""
     return np.where(
         np.asarray(problem.pinned), np.asarray(problem.pinned_values), problem.layout.to_physical_numpy(theta)
@@ -418,7 +418,7 @@ def geometry_key(scene: Scene, plan: RenderPlan, options: FitOptions) -> tuple:
     """What a prepared scene depends on, as a hashable key: the camera, the background,
     the lights and depth (values, not object identity: every fit builds its own scene
     object), the render plan and the evaluator — so that the targets of one scene share
-    one preparation (:func:`build_problem_steps`)."""
+    one preparation (`build_problem_steps`)."""
     leaves, treedef = jax.tree.flatten((scene.camera, scene.background, scene.lights, scene.depth))
     return (
         "geometry",
@@ -446,8 +446,8 @@ def build_problem(
     exposure: float | None = None,
     pad: bool = False,
 ) -> tuple[Problem, Prepared, np.ndarray]:
-    """The :class:`Problem` for the free ``names``, the full prepared image and the
-    flat indices of the pixels used (:func:`build_problem_steps`, run directly)."""
+    """The `Problem` for the free ``names``, the full prepared image and the
+    flat indices of the pixels used (`build_problem_steps`, run directly)."""
     return run(
         build_problem_steps(
             scene,
@@ -481,17 +481,17 @@ def build_problem_steps(
     exposure: float | None = None,
     pad: bool = False,
 ) -> Steps:
-    """:func:`build_problem` as steps (:mod:`strauss_fit.engine`).
+    """`build_problem` as steps (`strauss_fit.engine`).
 
     Of ``options`` only ``mode``, ``table_size`` and ``edge_pixels`` matter. ``cache`` (a
-    dict) keeps the prepared scene per :func:`geometry_key` — preparing depends only on the
+    dict) keeps the prepared scene per `geometry_key` — preparing depends only on the
     camera, the background, where the lights are and the plan, not on the material or the
     lights' intensities, so every problem of a fit, and every target of a scene in
-    :func:`strauss_fit.fit_many`, shares it — and the target's pixels per render plan.
-    ``loss`` (:data:`LOSSES`), ``noise_sigma`` (the noise level of every value of the
+    `strauss_fit.fit_many`, shares it — and the target's pixels per render plan.
+    ``loss`` (`LOSSES`), ``noise_sigma`` (the noise level of every value of the
     image, (H, W, 3), for the robust losses) and ``exposure`` (a held global exposure
     other than 1) shape the residual. ``pad``: the pixel set padded to its
-    :func:`pixel_bucket` (see the module docstring); the returned indices are the real ones."""
+    `pixel_bucket` (see the module docstring); the returned indices are the real ones."""
     cache = {} if cache is None else cache
     if options.edge_pixels == "auto":  # a fit resolves it once, first; here for direct callers
         edge_pixels, _ = yield from resolve_edge_pixels_steps(
@@ -556,7 +556,7 @@ def build_problem_steps(
 
 def prepared_full_steps(scene: Scene, plan: RenderPlan, options: FitOptions, cache: dict) -> Steps:
     """The scene prepared at every pixel (lights at unit intensity), once per
-    :func:`geometry_key` in ``cache``."""
+    `geometry_key` in ``cache``."""
     geometry = geometry_key(scene, plan, options)
     if geometry not in cache:
         cache[geometry] = yield prepare_float64.call(
@@ -569,7 +569,7 @@ def resolve_edge_pixels_steps(
     scene: Scene, target: Target, plan: RenderPlan, options: FitOptions, cache: dict, exposure: float = 1.0
 ) -> Steps:
     """``options.edge_pixels`` as a fit uses it — ``"include"`` or ``"exclude"`` — and a
-    note saying why when it was ``"auto"`` (:func:`strauss_fit.rendering.coverage.silhouette_blend`:
+    note saying why when it was ``"auto"`` (`strauss_fit.rendering.coverage.silhouette_blend`:
     included for a point-sampled silhouette; excluded for a blended one or when it cannot
     be told)."""
     if options.edge_pixels != "auto":
@@ -593,7 +593,7 @@ def used_pixels(
     """(H, W) bool: the pixels a fit uses — on the sphere (``hit``: the ray through the
     centre hits it), usable in ``target`` (not masked out or clipped) and, with
     ``edge_pixels="exclude"``, wholly covered by the sphere
-    (:func:`strauss_fit.rendering.coverage.fully_covered`; ``covered``, when already known)."""
+    (`strauss_fit.rendering.coverage.fully_covered`; ``covered``, when already known)."""
     used = np.asarray(hit) & target.usable
     if edge_pixels == "exclude":
         used &= fully_covered(scene.camera) if covered is None else covered
@@ -605,17 +605,17 @@ def used_pixels(
 #: enough that the cube root's slope stays finite at black.
 PERCEPTUAL_OFFSET = 1e-3
 #: The losses whose residuals need fields computed from the target's usable pixels
-#: (:func:`build_problem_steps`): a function of those pixels (M, 3) giving the fields.
+#: (`build_problem_steps`): a function of those pixels (M, 3) giving the fields.
 LOSS_FIELDS: dict[str, Callable[[np.ndarray], dict[str, np.ndarray]]] = {"perceptual": _perceptual_fields}
 
 
 def coarse_problem(problem: Problem, prepared_full: Prepared, index: np.ndarray) -> Problem | None:
-    """:func:`coarse_problem_steps`, run directly."""
+    """`coarse_problem_steps`, run directly."""
     return run(coarse_problem_steps(problem, prepared_full, index))
 
 
 def coarse_problem_steps(problem: Problem, prepared_full: Prepared, index: np.ndarray) -> Steps:
-    """``problem`` restricted to every k-th of its pixels (k = N // :data:`COARSE_PIXELS`),
+    """``problem`` restricted to every k-th of its pixels (k = N // `COARSE_PIXELS`),
     or None when it is small enough. The residual scale shrinks with the pixel count, so
     costs (χ² per value at the reference noise) stay comparable."""
     stride = index.size // COARSE_PIXELS
@@ -639,7 +639,7 @@ def coarse_problem_steps(problem: Problem, prepared_full: Prepared, index: np.nd
     )
 
 
-#: The smallest padded pixel set (:func:`pixel_bucket`).
+#: The smallest padded pixel set (`pixel_bucket`).
 _SMALLEST_BUCKET = 64
 
 
@@ -657,7 +657,7 @@ def pixel_bucket(count: int) -> int:
 
 def padded_rows(count: int) -> np.ndarray:
     """Row indices of a padded set of ``count`` rows: 0 … count−1, then row 0 repeated up
-    to :func:`pixel_bucket` (a real pixel, so that the padding renders finite values; its
+    to `pixel_bucket` (a real pixel, so that the padding renders finite values; its
     weight is 0)."""
     rows = np.arange(pixel_bucket(count))
     rows[count:] = 0

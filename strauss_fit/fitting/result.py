@@ -1,8 +1,8 @@
-"""What a fit found (:class:`FitResult`), and its JSON form.
+"""What a fit found (`FitResult`), and its JSON form.
 
-:meth:`FitResult.to_json` writes the result as ``strauss-fit fit`` saves it (the contract
+`FitResult.to_json` writes the result as ``strauss-fit fit`` saves it (the contract
 of docs/formats.md, "Fit result (JSON)": the material's values at the top level, then ``free``, ``held``,
-``uncertainty``, ``correlation``, ``residual``, ``solver``, ...); :meth:`FitResult.from_json`
+``uncertainty``, ``correlation``, ``residual``, ``solver``, ...); `FitResult.from_json`
 is the one reader of that format, used wherever a fit result is read back (the sampler,
 the posterior, the Laplace summary, the report).
 """
@@ -71,8 +71,8 @@ def nonfinite_entry(data: Any, where: str = "") -> tuple[str, float] | None:
 
 
 def check_finite(data: Any, what: str = "the fit result") -> None:
-    """Raise a one-line :class:`FitResultError` naming the first NaN or infinite number in
-    ``data`` (see :func:`nonfinite_entry`): JSON holds neither (docs/formats.md), and a
+    """Raise a one-line `FitResultError` naming the first NaN or infinite number in
+    ``data`` (see `nonfinite_entry`): JSON holds neither (docs/formats.md), and a
     figure that is not a number is not passed on as one."""
     found = nonfinite_entry(data)
     if found is not None:
@@ -99,7 +99,7 @@ def finite_or_none(data: Any) -> Any:
 
 @dataclass
 class FitResult:
-    """What a fit found; :meth:`to_json` follows docs/formats.md."""
+    """What a fit found; `to_json` follows docs/formats.md."""
 
     material: Material
     free: list[str]
@@ -120,22 +120,22 @@ class FitResult:
     mask: np.ndarray | None = None
     #: The solved problem (entries pinned at bounds included) and the optimum ``x``
     #: (physical values in ``problem.layout`` order), for sampling and reports. None for a
-    #: result read back with :meth:`from_json`. Its pixel set is padded (see
-    #: :func:`strauss_fit.fitting.problem.pixel_bucket`): ``problem.real(array)`` drops the
+    #: result read back with `from_json`. Its pixel set is padded (see
+    #: `strauss_fit.fitting.problem.pixel_bucket`): ``problem.real(array)`` drops the
     #: padding from a per-pixel array, ``problem.unpadded()`` gives the problem without it.
     problem: Problem | None = None
     x: np.ndarray | None = None
     #: Other top-level keys of the JSON (``target``, ``scene``, ``mask``, ``encoding``
-    #: recorded by the command line), written back by :meth:`to_json` after the rest.
+    #: recorded by the command line), written back by `to_json` after the rest.
     extra: dict[str, Any] = field(default_factory=dict)
-    #: What the verdict found (``{"code", "message"}``, see :mod:`strauss_fit.fitting.diagnosis`).
+    #: What the verdict found (``{"code", "message"}``, see `strauss_fit.fitting.diagnosis`).
     warnings: list[dict[str, str]] = field(default_factory=list)
     #: The global exposure: fitted with ``fit_exposure``, else the held value (1 unless fixed).
     exposure: float | None = None
-    #: How :attr:`uncertainty` was computed and what it means (``name``: "noise sandwich" or
+    #: How `uncertainty` was computed and what it means (``name``: "noise sandwich" or
     #: "laplace"; ``conditional_on_model``: true when it is valid only if the model is right).
     uncertainty_method: dict[str, Any] = field(default_factory=dict)
-    #: The Laplace deviations from RSS/(N − P), kept for comparison when :attr:`uncertainty`
+    #: The Laplace deviations from RSS/(N − P), kept for comparison when `uncertainty`
     #: is the noise sandwich.
     uncertainty_laplace: dict[str, Any] = field(default_factory=dict)
     #: Perceptual equivalence ranges per free parameter (``fit(..., equivalence=True)``).
@@ -163,13 +163,13 @@ class FitResult:
 
     @property
     def verdict(self) -> str | None:
-        """``"consistent"``, ``"mismatch"`` or ``"undetermined"`` (see :mod:`strauss_fit.fitting.diagnosis`)."""
+        """``"consistent"``, ``"mismatch"`` or ``"undetermined"`` (see `strauss_fit.fitting.diagnosis`)."""
         return self.residual.get("verdict")
 
     def to_json(self) -> dict[str, Any]:
         """The result as ``strauss-fit fit`` writes it (docs/formats.md). Every number is
-        finite: a NaN or infinite one raises a one-line :class:`FitResultError` naming it
-        (:func:`check_finite`) rather than reaching a JSON writer."""
+        finite: a NaN or infinite one raises a one-line `FitResultError` naming it
+        (`check_finite`) rather than reaching a JSON writer."""
         out: dict[str, Any] = self.material.to_dict()
         out.update(
             {
@@ -202,12 +202,12 @@ class FitResult:
 
     @classmethod
     def from_json(cls, data: Any) -> FitResult:
-        """Read back a result written by :meth:`to_json` (``strauss-fit fit``'s JSON).
+        """Read back a result written by `to_json` (``strauss-fit fit``'s JSON).
 
         ``free`` and the material's values are required; the other fields default to
-        empty. Keys that are not fields are kept in :attr:`extra`. Raises
-        :class:`FitResultError` (missing or malformed keys) or
-        :class:`~strauss_fit.errors.MaterialError` (values out of range)."""
+        empty. Keys that are not fields are kept in `extra`. Raises
+        `FitResultError` (missing or malformed keys) or
+        `MaterialError` (values out of range)."""
         if isinstance(data, FitResult):
             return data
         if not isinstance(data, dict):

@@ -1,9 +1,9 @@
 """One image and its scene as a capture of one image: how any reflectance model is fitted
 to a single target.
 
-The Strauss fit of a single target (:mod:`strauss_fit.fitting.api`) is built around the Strauss
+The Strauss fit of a single target (`strauss_fit.fitting.api`) is built around the Strauss
 material (transparency, refraction, a global model). The other reflectance models are opaque
-and local, and the capture fitter (:mod:`strauss_fit.fitting.capture`) already fits them: one
+and local, and the capture fitter (`strauss_fit.fitting.capture`) already fits them: one
 image is a capture of one image. This module turns a scene and a target into the capture's
 pixels: the pixels whose whole footprint shows the sphere (silhouette blends left out),
 their normals and view vectors from the scene's camera, every directional and point light as

@@ -2,37 +2,37 @@ r"""A global search over smoothness and metalness, the colour solved in closed f
 
 Variable projection. Where the renderer traces no transmission (an opaque material, t
 held at 0, or ``depth = 1``), the radiance of every pixel is *affine in each channel of
-the colour*: the diffuse term is :math:`d\,C_c C_{L,c}`, Strauss's specular tint
-:math:`1 + m(1 - F)(C_c - 1)` is affine in :math:`C_c`, the ambient term is
-:math:`a\,r_d\,C_c`, and the background reflected by the convex sphere is seen once,
-weighted by :math:`r_j` and that same tint. So, for fixed s and m,
+the colour*: the diffuse term is `d\,C_c C_{L,c}`, Strauss's specular tint
+`1 + m(1 - F)(C_c - 1)` is affine in `C_c`, the ambient term is
+`a\,r_d\,C_c`, and the background reflected by the convex sphere is seen once,
+weighted by `r_j` and that same tint. So, for fixed s and m,
 
-.. math::
-
-    I_c(p) = A_c(p; s, m)\,C_c + B_c(p; s, m),
+```text
+I_c(p) = A_c(p; s, m)\,C_c + B_c(p; s, m),
+```
 
 with B the render at C = 0 and A the render at C = 1 minus B (two renders; checked to
 1e-12 on scenes that reflect a studio and a checkerboard by ``tests/fit/test_search.py``).
-The best :math:`C_c \in [0, 1]` of a least-squares cost is then a one-dimensional convex
-problem per channel, solved exactly: :math:`C_c^* = \mathrm{clip}(\sum_p A (T - B) /
-\sum_p A^2, 0, 1)` (:func:`projected_costs`). Only (s, m) remain to search, and a grid
-of them (:data:`GRID_SMOOTHNESS` × :data:`GRID_METALNESS`, dense towards s = 1 where
+The best `C_c \in [0, 1]` of a least-squares cost is then a one-dimensional convex
+problem per channel, solved exactly: `C_c^* = \mathrm{clip}(\sum_p A (T - B) /
+\sum_p A^2, 0, 1)` (`projected_costs`). Only (s, m) remain to search, and a grid
+of them (`GRID_SMOOTHNESS` × `GRID_METALNESS`, dense towards s = 1 where
 the highlight narrows) costs a few hundred renders of the coarse subsample in one
 compiled call — the global search the issue asks for (the linear part convex, as in Yu,
 Seo & Lee's branch-and-bound estimation of BRDFs). The best distinct local minima of the
 grid become the starts of the usual Levenberg–Marquardt solves
-(:mod:`strauss_fit.fitting.solvers`), which polish all parameters together.
+(`strauss_fit.fitting.solvers`), which polish all parameters together.
 
 Where the projection does not hold the grid is not used and the fit keeps its multi-start
-(:mod:`strauss_fit.fitting.starts`): transmission traced (t free or held above 0, and then n
+(`strauss_fit.fitting.starts`): transmission traced (t free or held above 0, and then n
 too: the transmitted light is tinted by C once per passage and the inner reflections by
-:math:`C_s`, a polynomial in C), a light intensity or the exposure free (the image is then
+`C_s`, a polynomial in C), a light intensity or the exposure free (the image is then
 *bilinear* in them and C, not jointly linear), the colour held, or a loss other than plain
-least squares (the robust losses reweight residuals nonlinearly). :func:`grid_applies`
+least squares (the robust losses reweight residuals nonlinearly). `grid_applies`
 says which.
 
 ``FitOptions.search = "auto"`` (the default) uses the grid wherever it applies, as
-measured against the multi-start: see :data:`~strauss_fit.fitting.options.SEARCHES`.
+measured against the multi-start: see `SEARCHES`.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ GRID_METALNESS = np.linspace(0.0, 1.0, 51)
 GRID_CHUNK = 8
 #: A start from the grid is kept this far inside the bounds of s near 1 (the grid resolves
 #: 1 − s down to 1e-5, and the usual margin of 0.02 would erase that), and
-#: :data:`~strauss_fit.fitting.starts.START_MARGIN` elsewhere.
+#: `START_MARGIN` elsewhere.
 SMOOTH_EDGE = 1e-7
 
 
@@ -88,8 +88,8 @@ def grid_applies(problem: Problem) -> str | None:
 
 
 def grid_axes(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """The grid's smoothness and metalness values: :data:`GRID_SMOOTHNESS` and
-    :data:`GRID_METALNESS` where free, else the held value alone (the problem's material's)."""
+    """The grid's smoothness and metalness values: `GRID_SMOOTHNESS` and
+    `GRID_METALNESS` where free, else the held value alone (the problem's material's)."""
     names = problem.layout.names
     held = problem.material
     smoothness = GRID_SMOOTHNESS if "smoothness" in names else np.atleast_1d(np.asarray(held.smoothness, float))
@@ -106,12 +106,12 @@ def _projected_costs(problem: Problem, base: Array, smoothness: Array, metalness
     [0, 1] for each (s, m) — and those colours (S, M, 3).
 
     Per s, four renders at m ∈ {0, 1} and C ∈ {0, 1} (every channel) give the image's
-    coefficients :math:`I_c = \alpha_c + \beta_c C_c + \gamma_c m + \delta_c m C_c` (bilinear in
+    coefficients `I_c = \alpha_c + \beta_c C_c + \gamma_c m + \delta_c m C_c` (bilinear in
     m and C, see the module); with a held m, two renders at it and γ = δ = 0. For each m,
-    :math:`A = \beta + \delta m` and :math:`D = T - \alpha - \gamma m`, and the cost per
-    channel :math:`\sum_p w (A C - D)^2` is a quadratic in C whose coefficients are
+    `A = \beta + \delta m` and `D = T - \alpha - \gamma m`, and the cost per
+    channel `\sum_p w (A C - D)^2` is a quadratic in C whose coefficients are
     quadratics in m, from eight weighted sums over the pixels; the best C is
-    :math:`\mathrm{clip}(\sum w A D / \sum w A^2, 0, 1)`. ``base`` (P,) holds the other
+    `\mathrm{clip}(\sum w A D / \sum w A^2, 0, 1)`. ``base`` (P,) holds the other
     values of the layout (its colour is kept where the image shows none of it)."""
     layout = problem.layout
     colour = slice(_entry(layout, "color"), _entry(layout, "color") + 3)
@@ -121,9 +121,9 @@ def _projected_costs(problem: Problem, base: Array, smoothness: Array, metalness
 
     # The corners (m, C) rendered per s, vmapped over the corners only, s shared: what
     # depends on s alone (the highlight's fall-off, r_d, r_j: most of a render) is computed
-    # once per s, not per corner — :meth:`Problem.render_physical` takes s inside its vector,
+    # once per s, not per corner — `Problem.render_physical` takes s inside its vector,
     # which would batch it with the corners, so the render is spelt out here from the same
-    # public pieces (the lights and the exposure are held: :func:`grid_applies`).
+    # public pieces (the lights and the exposure are held: `grid_applies`).
     corners = ((0.0, 0.0), (0.0, 1.0)) + (((1.0, 0.0), (1.0, 1.0)) if m_entry is not None else ())
     held = layout.split(base)
     prepared = scaled(problem.prepared, problem.lights)
@@ -181,14 +181,14 @@ def _projected_costs(problem: Problem, base: Array, smoothness: Array, metalness
     return cost / problem.residual_scale**2, best
 
 
-#: The projected cost and colour over a grid of (s, m) (:func:`_projected_costs`); a
-#: :class:`~strauss_fit.engine.Kernel`, so that a batch of fits evaluates its grids together.
+#: The projected cost and colour over a grid of (s, m) (`_projected_costs`); a
+#: `Kernel`, so that a batch of fits evaluates its grids together.
 projected_costs = Kernel(_projected_costs, "projected_costs")
 
 
 @dataclass
 class GridSearch:
-    """What :func:`grid_search_steps` found: the chosen starts (physical rows, best first),
+    """What `grid_search_steps` found: the chosen starts (physical rows, best first),
     the grid's values of s and m, its costs (S, M) and colours (S, M, 3)."""
 
     starts: np.ndarray
@@ -200,14 +200,14 @@ class GridSearch:
 
 @uses_float64
 def grid_search(problem: Problem, guess: dict[str, Any], count: int) -> GridSearch:
-    """:func:`grid_search_steps`, run directly."""
+    """`grid_search_steps`, run directly."""
     return run(grid_search_steps(problem, guess, count))
 
 
 def grid_search_steps(problem: Problem, guess: dict[str, Any], count: int) -> Steps:
     """The projected cost over the grid (one compiled call) and ``count`` starts
-    (:func:`grid_choice`). ``problem``
-    must satisfy :func:`grid_applies`; ``guess`` gives the colour where the image shows none."""
+    (`grid_choice`). ``problem``
+    must satisfy `grid_applies`; ``guess`` gives the colour where the image shows none."""
     layout = problem.layout
     smoothness, metalness = grid_axes(problem)
     base = layout.join(guess)
@@ -230,11 +230,11 @@ FILL_SEPARATION = 3
 
 def grid_choice(values: np.ndarray, count: int) -> list[int]:
     """Flat indices of ``count`` starts on the grid ``values`` (fewer only on a grid of fewer
-    points): the lowest points of the best distinct basins (:func:`basin_minima`), then,
+    points): the lowest points of the best distinct basins (`basin_minima`), then,
     where the grid has fewer basins than that, its lowest points at least
-    :data:`FILL_SEPARATION` steps from every start before. Why always ``count``: the starts
+    `FILL_SEPARATION` steps from every start before. Why always ``count``: the starts
     are solved in one compiled call whose shape is their number, so that the fits of a batch
-    (:func:`strauss_fit.fit_many`) share it; and a second start away from the first still
+    (`strauss_fit.fit_many`) share it; and a second start away from the first still
     guards against a basin the grid is too coarse to resolve."""
     count = max(1, min(int(count), values.size))
     chosen = basin_minima(values)[:count]

@@ -3,21 +3,21 @@ r"""Solving a fit: the optimistix solvers, the starts, the active-set polish.
 Solvers. All are optimistix solvers.
 
 ``lm`` is Levenberg–Marquardt built from optimistix's own parts — the damped Newton
-descent :math:`(J^\top J + \lambda I)\,\delta = -J^\top r` with :math:`\lambda` the inverse
+descent `(J^\top J + \lambda I)\,\delta = -J^\top r` with `\lambda` the inverse
 of a classical trust-region step size — with two changes to the trust-region update of
-:class:`optimistix.LevenbergMarquardt`, both towards the textbook (Nocedal & Wright,
+`optimistix.LevenbergMarquardt`, both towards the textbook (Nocedal & Wright,
 *Numerical Optimization*, Algorithm 4.1), in the ratio ρ of the actual reduction of the
 cost to the reduction the linearisation predicted:
 
-- the step size grows (×3.5) after every step with ρ ≥ 0.75 (:data:`GROW_RATIO`), where
+- the step size grows (×3.5) after every step with ρ ≥ 0.75 (`GROW_RATIO`), where
   optimistix's default asks for 0.99. Why: on this model, after the first rejected steps
   have raised λ, ρ settles between 0.75 and 0.99 for many steps; with a 0.99 cutoff λ
   then never shrinks and the solver creeps towards the optimum (17 steps against 12 on
   the 256² benchmark fit of C, s, m, with the same optimum to 1e-14 in cost);
 - a step with ρ below a cutoff is rejected and shrinks the step size (×0.25). The cutoff
   depends on the use, each measured: a fit of an image rejects below 0.01
-  (:data:`REJECT_RATIO`, optimistix's default), a conversion between models and a capture
-  below 0.1 (:data:`STRICT_REJECT_RATIO`). Why the strict cutoff there: where the model
+  (`REJECT_RATIO`, optimistix's default), a conversion between models and a capture
+  below 0.1 (`STRICT_REJECT_RATIO`). Why the strict cutoff there: where the model
   cannot match the target by construction (a Phong lobe fitted by Strauss's), undamped
   Gauss–Newton steps overshoot along a valley; with ρ around 0.05 they were all accepted
   and the solver zig-zagged about the optimum, its amplitude shrinking by 11 % a step (49
@@ -27,14 +27,14 @@ cost to the reduction the linearisation predicted:
   387) and 0.01 once reached a 58 % lower cost; over the bundled Mitsuba renders 0.01 took
   501 steps against 569, and the README's example 17 against 41 (2026-12-02).
 
-Solving (:func:`solve`). Every start runs :attr:`~strauss_fit.fitting.options.FitOptions.start_steps`
-steps (:func:`solve_starts`: one after another with ``lax.map`` on a CPU, vectorised with
+Solving (`solve`). Every start runs `start_steps`
+steps (`solve_starts`: one after another with ``lax.map`` on a CPU, vectorised with
 ``vmap`` elsewhere), on a pixel subsample of a large image
-(:func:`strauss_fit.fitting.problem.coarse_problem`); the best one is then finished on every
-pixel by the bound-aware polish (:func:`polish`) unless it already converged away from the
+(`strauss_fit.fitting.problem.coarse_problem`); the best one is then finished on every
+pixel by the bound-aware polish (`polish`) unless it already converged away from the
 bounds on every pixel.
 
-These functions are internal API of the fit (the conversions reuse :func:`polish`).
+These functions are internal API of the fit (the conversions reuse `polish`).
 """
 
 from __future__ import annotations
@@ -78,8 +78,8 @@ STRICT_REJECT_RATIO = 0.1
 def levenberg_marquardt(
     rtol: float, atol: float, *, normal_equations: bool = False, reject_ratio: float = REJECT_RATIO
 ) -> optx.LevenbergMarquardt:
-    """:class:`optimistix.LevenbergMarquardt` with the textbook cutoff :data:`GROW_RATIO` and
-    ``reject_ratio`` (:data:`REJECT_RATIO` or :data:`STRICT_REJECT_RATIO`) in its trust
+    """`optimistix.LevenbergMarquardt` with the textbook cutoff `GROW_RATIO` and
+    ``reject_ratio`` (`REJECT_RATIO` or `STRICT_REJECT_RATIO`) in its trust
     region (see the module). The one Levenberg–Marquardt of the package: the fits, the
     captures, the Phong → Strauss conversions and the Phong fitter use it.
 
@@ -99,8 +99,8 @@ def levenberg_marquardt(
 def make_solver(
     name: str, rtol: float, atol: float, reject_ratio: float = REJECT_RATIO
 ) -> optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser:
-    """The solver called ``name`` (one of :data:`SOLVERS`) with the given tolerances (and,
-    for ``lm``, ``reject_ratio``: see :func:`levenberg_marquardt`)."""
+    """The solver called ``name`` (one of `SOLVERS`) with the given tolerances (and,
+    for ``lm``, ``reject_ratio``: see `levenberg_marquardt`)."""
     import optimistix as optx
 
     if name == "lm":
@@ -112,7 +112,7 @@ def make_solver(
     raise StraussFitError(f"unknown solver {name!r}; expected one of {', '.join(SOLVERS)}")
 
 
-#: optimistix's result codes, in the order :func:`status_name` numbers them.
+#: optimistix's result codes, in the order `status_name` numbers them.
 RESULT_NAMES = (
     "successful",
     "max_steps_reached",
@@ -126,7 +126,7 @@ RESULT_NAMES = (
 
 
 def status_name(code: int) -> str:
-    """The name of a result code returned by :func:`solve_starts` or :func:`polish_solve`."""
+    """The name of a result code returned by `solve_starts` or `polish_solve`."""
     return RESULT_NAMES[code]
 
 
@@ -152,8 +152,8 @@ def _solve_starts(
     pixels already fill the cores, costs about twice a sequential solve (measured:
     53 ms against 102 ms for one start at 256², 211 ms against 392 ms for four); on a
     GPU the batch fills the device instead. Returns θ, the normalised cost, the step count
-    and the result code (:func:`status_name`) per start. ``reject_ratio``: see
-    :func:`levenberg_marquardt`."""
+    and the result code (`status_name`) per start. ``reject_ratio``: see
+    `levenberg_marquardt`."""
     import optimistix as optx
 
     solver = make_solver(solver_name, rtol, atol, reject_ratio)
@@ -166,8 +166,8 @@ def _solve_starts(
     return jax.vmap(one)(thetas) if batched else jax.lax.map(one, thetas)
 
 
-#: Solve from every row of ``thetas`` (see :func:`_solve_starts`); a
-#: :class:`~strauss_fit.engine.Kernel`.
+#: Solve from every row of ``thetas`` (see `_solve_starts`); a
+#: `Kernel`.
 solve_starts = Kernel(_solve_starts, "solve_starts")
 
 
@@ -176,7 +176,7 @@ BOUND_SNAP = 0.02
 
 
 def near_bounds(layout: Layout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Which entries of the physical point ``x`` lie within :data:`BOUND_SNAP` of their
+    """Which entries of the physical point ``x`` lie within `BOUND_SNAP` of their
     lower and of their upper bound."""
     return x - layout.lower_bounds() < BOUND_SNAP, layout.upper_bounds() - x < BOUND_SNAP
 
@@ -203,16 +203,16 @@ def _polish_solve(
     return solution.value, jnp.sum(residual**2), solution.stats["num_steps"], code, jac.T @ residual, jac.T @ jac
 
 
-#: One solve of the polish (:func:`_polish_solve`); a :class:`~strauss_fit.engine.Kernel`.
+#: One solve of the polish (`_polish_solve`); a `Kernel`.
 polish_solve = Kernel(_polish_solve, "polish_solve")
 
 
 def release_gain(information: np.ndarray, gradient: np.ndarray, pinned: np.ndarray, count: int) -> np.ndarray:
     r"""For each pinned entry i, the Newton estimate of how much χ² (at the reference noise)
     would drop if i were released and the free entries F re-optimised with it:
-    :math:`N g_i^2 / S_i` with :math:`S_i = H_{ii} - H_{iF} H_{FF}^{-1} H_{Fi}` the Schur
+    `N g_i^2 / S_i` with `S_i = H_{ii} - H_{iF} H_{FF}^{-1} H_{Fi}` the Schur
     complement of the Gauss–Newton curvature (g, H of the normalised cost; the free
-    entries' slopes vanish at the pinned optimum). Why not :math:`H_{ii}` alone: a pinned
+    entries' slopes vanish at the pinned optimum). Why not `H_{ii}` alone: a pinned
     entry that trades off with a free one (metalness with colour) gains far more when the
     partner may follow — 200× more in a plastic fit where that correlation is 0.995."""
     gain = np.zeros_like(gradient)
@@ -229,7 +229,7 @@ def release_gain(information: np.ndarray, gradient: np.ndarray, pinned: np.ndarr
 
 @uses_float64
 def polish(problem: Problem, theta: np.ndarray, options: FitOptions, near: bool = False):
-    """:func:`polish_steps`, run directly."""
+    """`polish_steps`, run directly."""
     return run(polish_steps(problem, theta, options, near))
 
 
@@ -240,18 +240,18 @@ def polish_steps(
     near: bool = False,
     reject_ratio: float = REJECT_RATIO,
 ) -> Steps:
-    """Continue the best start with an active set. Entries within :data:`BOUND_SNAP` of a
+    """Continue the best start with an active set. Entries within `BOUND_SNAP` of a
     bound are pinned to it and the rest re-solved (Levenberg–Marquardt, whatever the
     solver of the starts; Gauss–Newton when ``near``, i.e. the start converged on the
     subsample, nothing is pinned and only the last few digits are left — it gets there in
     fewer steps, and a round where it raised the cost or did not converge is redone with
     Levenberg–Marquardt); a pinned entry is released if moving it inward would lower χ²
     (at the reference noise) by more than 1 — the Newton estimate of
-    :func:`release_gain`, the free entries following: a KKT check with a statistical
+    `release_gain`, the free entries following: a KKT check with a statistical
     tolerance — and entries that reach a bound are pinned, unless released before (an entry
     that a round released and the next pulled back towards its bound would otherwise
     alternate). At most three rounds; the cheapest round stands (ties go to the later).
-    ``reject_ratio``: Levenberg–Marquardt's (:func:`levenberg_marquardt`).
+    ``reject_ratio``: Levenberg–Marquardt's (`levenberg_marquardt`).
 
     Why: the smooth transforms reach a bound only with zero slope, so an optimum on a bound
     (m = 0, say, or a noisy fit pulling past it) is approached ever more slowly; pinning
@@ -350,7 +350,7 @@ def polish_steps(
 
 @dataclass
 class Solved:
-    """What :func:`solve` found for one decision of the free parameters."""
+    """What `solve` found for one decision of the free parameters."""
 
     problem: Problem
     x: np.ndarray
@@ -373,7 +373,7 @@ def solve(
     coarse: Problem | None = None,
     exact_first: bool = False,
 ) -> Solved:
-    """:func:`solve_steps`, run directly."""
+    """`solve_steps`, run directly."""
     return run(solve_steps(problem, guess, options, say, coarse, exact_first))
 
 
@@ -385,11 +385,11 @@ def solve_steps(
     coarse: Problem | None = None,
     exact_first: bool = False,
 ) -> Steps:
-    """Every start (:attr:`FitOptions.start_steps` steps each), then the best one
-    polished (:func:`polish`) on every pixel, unless it converged away from the bounds
+    """Every start (`FitOptions.start_steps` steps each), then the best one
+    polished (`polish`) on every pixel, unless it converged away from the bounds
     on every pixel already.
 
-    With ``coarse`` (:func:`strauss_fit.fitting.problem.coarse_problem`), the index scan and
+    With ``coarse`` (`strauss_fit.fitting.problem.coarse_problem`), the index scan and
     the starts run on that subsample: a 256² sphere has 51 000 pixels where every sixth
     (8 500) tells the starts apart as well, and each step there costs a sixth; the polish
     then finishes on the full image in a few steps, so the answer is the full image's

@@ -1,15 +1,15 @@
 """Where a fit's solves start: the closed-form guess, a fixed grid, and a scan over n.
 
-The guess (:mod:`strauss_fit.fitting.guess`) comes first, then points of :data:`START_GRID`
-(colour always from the guess), each kept :data:`START_MARGIN` inside the bounds, where the
-transforms of :mod:`strauss_fit.fitting.parameters` are flat. When the index of refraction is
+The guess (`strauss_fit.fitting.guess`) comes first, then points of `START_GRID`
+(colour always from the guess), each kept `START_MARGIN` inside the bounds, where the
+transforms of `strauss_fit.fitting.parameters` are flat. When the index of refraction is
 fitted, a patterned background seen through the sphere makes the cost oscillate in n, so
-the best local minima of a scan over :data:`IOR_SCAN` (:func:`scan_ior`) each get their
+the best local minima of a scan over `IOR_SCAN` (`scan_ior`) each get their
 own copy of the starts.
 
 Where the colour can be projected out (an opaque material fitted by least squares), the
 starts come instead from a global search over smoothness and metalness
-(:mod:`strauss_fit.fitting.search`), per ``FitOptions.search`` (:func:`start_points_steps`).
+(`strauss_fit.fitting.search`), per ``FitOptions.search`` (`start_points_steps`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from .problem import Problem, costs
 from .search import SMOOTH_EDGE, grid_applies, grid_search_steps
 
 #: Fixed starting points tried besides the guess: values of the fractions s, m, t
-#: (:data:`~strauss_fit.models.material.FRACTION_NAMES`, in that order).
+#: (`FRACTION_NAMES`, in that order).
 START_GRID = ((0.3, 0.1, 0.2), (0.8, 0.1, 0.6), (0.6, 0.9, 0.4), (0.2, 0.6, 0.8), (0.9, 0.5, 0.1), (0.5, 0.3, 0.5))
 #: Unit-interval starts are kept this far inside the bounds (the transform is flat there).
 START_MARGIN = 0.02
@@ -43,9 +43,9 @@ def starts(
     exact_first: bool = False,
 ) -> np.ndarray:
     """The unconstrained starting points (rows): the guess first, then points of
-    :data:`START_GRID` (colour always from the guess), ``count`` in all. With
-    ``ior_candidates`` (from :func:`scan_ior`), each candidate index gets its own copy of
-    those starts. Starts are kept :data:`START_MARGIN` inside the bounds, except the first
+    `START_GRID` (colour always from the guess), ``count`` in all. With
+    ``ior_candidates`` (from `scan_ior`), each candidate index gets its own copy of
+    those starts. Starts are kept `START_MARGIN` inside the bounds, except the first
     with ``exact_first``: a refit starts from the optimum before it, where the held values
     were taken, and must be able to stay there (a mirror at s = 0.99995 is not one at
     s = 0.98)."""
@@ -62,13 +62,13 @@ def starts(
 
 
 def scan_ior(problem: Problem, guess: dict[str, Any], keep: int = 3) -> list[float]:
-    """The ``keep`` best local minima of the cost over :data:`IOR_SCAN`, the other
-    parameters at the guess (:func:`scan_ior_steps`, run directly)."""
+    """The ``keep`` best local minima of the cost over `IOR_SCAN`, the other
+    parameters at the guess (`scan_ior_steps`, run directly)."""
     return run(scan_ior_steps(problem, guess, keep))
 
 
 def scan_ior_steps(problem: Problem, guess: dict[str, Any], keep: int = 3) -> Steps:
-    """:func:`scan_ior` as steps. Why scan: a patterned background seen through the sphere
+    """`scan_ior` as steps. Why scan: a patterned background seen through the sphere
     makes the cost oscillate in n, so a local solver must start near the right basin."""
     layout = problem.layout
     # n only shows through transmitted light: scan it at several transparencies (when t is
@@ -84,8 +84,8 @@ def scan_ior_steps(problem: Problem, guess: dict[str, Any], keep: int = 3) -> St
 
 def uses_grid(problem: Problem, options: FitOptions) -> bool:
     """Whether ``problem``'s starts come from the grid search: ``options.search`` is
-    ``"grid"`` or ``"auto"`` (:data:`~strauss_fit.fitting.options.SEARCHES`) and the colour
-    can be projected out (:func:`strauss_fit.fitting.search.grid_applies`)."""
+    ``"grid"`` or ``"auto"`` (`SEARCHES`) and the colour
+    can be projected out (`strauss_fit.fitting.search.grid_applies`)."""
     return options.search in ("auto", "grid") and grid_applies(problem) is None
 
 
@@ -99,8 +99,8 @@ def start_points_steps(
 ) -> Steps:
     """The unconstrained starts of a fit on ``problem`` (the coarse one, where there is one)
     and where each came from (``"guess"``, ``"fixed"`` or ``"grid"``): the grid search's
-    best distinct minima (:func:`strauss_fit.fitting.search.grid_search_steps`, up to
-    ``options.starts``) where :func:`uses_grid`, else :func:`starts`. With ``exact_first``
+    best distinct minima (`strauss_fit.fitting.search.grid_search_steps`, up to
+    ``options.starts``) where `uses_grid`, else `starts`. With ``exact_first``
     the guess, exactly, comes first in either case (a refit from the optimum before it).
     ``say``, if given, is told when the grid is searched."""
     layout = problem.layout
@@ -123,9 +123,9 @@ def start_points_steps(
 
 
 def grid_thetas(layout: Layout, points: np.ndarray) -> np.ndarray:
-    """θ of the grid's physical ``points`` (rows): kept :data:`START_MARGIN` inside the
+    """θ of the grid's physical ``points`` (rows): kept `START_MARGIN` inside the
     bounds, where the transforms are flat, except the upper bound of s, kept only
-    :data:`~strauss_fit.fitting.search.SMOOTH_EDGE` below 1 — the grid resolves 1 − s down to
+    `SMOOTH_EDGE` below 1 — the grid resolves 1 − s down to
     1e-5 (a highlight a few pixels wide), and a margin of 0.02 would put every start near a
     mirror at s = 0.98. Near 1 the transform's flatness is no obstacle: the image's
     sensitivity to s grows as 1/(1 − s)² there, faster than the slope of the transform

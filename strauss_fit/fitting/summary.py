@@ -1,7 +1,7 @@
 """What a person reads about a fit: the verdict and table printed after it, the comparison
 image, and one row of a batch's ``summary.csv``.
 
-All three read a fit result's JSON (:meth:`strauss_fit.FitResult.to_json`), so that the
+All three read a fit result's JSON (`strauss_fit.FitResult.to_json`), so that the
 command line, a notebook and a batch print the same thing.
 """
 

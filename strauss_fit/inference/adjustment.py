@@ -1,39 +1,39 @@
 r"""Adjusting a posterior chain to the fit's noise sandwich, for targets the model cannot
 reproduce.
 
-Why. :func:`strauss_fit.inference.sampler.sample` samples the Gaussian likelihood
-:math:`\log p = -\mathrm{RSS}(\theta)/(2\sigma^2)` + a flat box prior. Near its optimum that
-posterior has the covariance :math:`\Sigma_\text{post} \approx \sigma^2 H^{-1}` (H the
+Why. `strauss_fit.inference.sampler.sample` samples the Gaussian likelihood
+`\log p = -\mathrm{RSS}(\theta)/(2\sigma^2)` + a flat box prior. Near its optimum that
+posterior has the covariance `\Sigma_\text{post} \approx \sigma^2 H^{-1}` (H the
 Hessian of ½RSS). When the model cannot reproduce the target, the fitted values do not
 scatter like that over fresh noise: their covariance about the *pseudo-true* values (the
 best Strauss approximation of the noise-free image) is the noise sandwich
-:math:`V = H^{-1} J^\top \Sigma_\varepsilon J H^{-1}` of the fit
-(:func:`strauss_fit.stats.laplace.problem_sandwich`), which weighs the noise by where
+`V = H^{-1} J^\top \Sigma_\varepsilon J H^{-1}` of the fit
+(`strauss_fit.stats.laplace.problem_sandwich`), which weighs the noise by where
 the Jacobian looks, and the misfit's curvature enters H. On Phong and Mitsuba targets the
-variance inflation needed, the generalised eigenvalues of :math:`(\Sigma_\text{post}, V)`,
+variance inflation needed, the generalised eigenvalues of `(\Sigma_\text{post}, V)`,
 differed by up to 7× between directions, so one scalar cannot fix it everywhere.
 
 Two adjustments (``sample --adjust``):
 
 - **affine** (the default under mismatch; Chandler & Bate 2007, Ribatet et al. 2012):
   the chain is sampled as usual and mapped on read,
-  :math:`\theta' = \hat\theta + A(\theta - \hat\theta)` with
-  :math:`A = L_V L_\text{post}^{-1}` (Cholesky factors, :func:`adjustment_matrix`), so that
-  :math:`A\Sigma_\text{post}A^\top = V` exactly, :math:`\Sigma_\text{post}` the chain's own
+  `\theta' = \hat\theta + A(\theta - \hat\theta)` with
+  `A = L_V L_\text{post}^{-1}` (Cholesky factors, `adjustment_matrix`), so that
+  `A\Sigma_\text{post}A^\top = V` exactly, `\Sigma_\text{post}` the chain's own
   covariance after burn-in. The chain's shape (skew, curvature) is kept, the raw chain is
   left untouched in the file (resuming is unaffected) and A is stored beside it. Adjusted
   draws that leave the prior box are dropped (a truncated prior) and counted
-  (:func:`adjust_samples`). Entries the fit pinned at a bound (V = 0 there) are not
+  (`adjust_samples`). Entries the fit pinned at a bound (V = 0 there) are not
   adjusted.
-- **temperature**: one scalar, the likelihood tempered as :math:`L^{1/T}`, i.e. σ → √T σ,
-  with :math:`T = \max(1, \lambda_\max)`, :math:`\lambda_\max` the largest generalised
-  eigenvalue of (:math:`\Sigma_\text{post}` predicted as :math:`\sigma^2 H^{-1}`, V)
-  (:func:`temperature`), both matrices over the same entries — those the fit did not pin
+- **temperature**: one scalar, the likelihood tempered as `L^{1/T}`, i.e. σ → √T σ,
+  with `T = \max(1, \lambda_\max)`, `\lambda_\max` the largest generalised
+  eigenvalue of (`\Sigma_\text{post}` predicted as `\sigma^2 H^{-1}`, V)
+  (`temperature`), both matrices over the same entries — those the fit did not pin
   at a bound, the others held where the fit put them, as the sandwich holds them
-  (:func:`strauss_fit.stats.laplace.posterior_covariance`). Every interval is then at
+  (`strauss_fit.stats.laplace.posterior_covariance`). Every interval is then at
   least as wide as the sandwich's — conservative, and wider than needed in the other
   directions. Tempering only ever widens: where the chain is already at least as wide as V
-  in every direction (:math:`\lambda_\max < 1`), T = 1 and the likelihood is left as it
+  in every direction (`\lambda_\max < 1`), T = 1 and the likelihood is left as it
   is, since T < 1 would narrow the chain below the sandwich.
 """
 
@@ -61,7 +61,7 @@ def _cholesky(matrix: np.ndarray, what: str) -> np.ndarray:
 
 
 def generalized_eigenvalues(cov_post: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
-    r"""The eigenvalues λ of :math:`V v = λ\,\Sigma_\text{post} v`, ascending: the factor by
+    r"""The eigenvalues λ of `V v = λ\,\Sigma_\text{post} v`, ascending: the factor by
     which the posterior's variance must grow along each canonical direction to match V."""
     lower = _cholesky(cov_post, "chain's covariance")
     inverse = np.linalg.inv(lower)
@@ -80,7 +80,7 @@ def temperature(cov_post: np.ndarray, cov_target: np.ndarray) -> float:
 
 
 def adjustment_matrix(cov_post: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
-    r"""A with :math:`A\Sigma_\text{post}A^\top = V`: :math:`A = L_V L_\text{post}^{-1}`."""
+    r"""A with `A\Sigma_\text{post}A^\top = V`: `A = L_V L_\text{post}^{-1}`."""
     return _cholesky(cov_target, "target covariance") @ np.linalg.inv(_cholesky(cov_post, "chain's covariance"))
 
 
@@ -92,7 +92,7 @@ def adjusted_entries(cov_target: np.ndarray) -> np.ndarray:
 
 def full_matrix(samples: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
     """The (P, P) adjustment for the chain's draws ``samples`` (n, P): A of
-    :func:`adjustment_matrix` on the entries of :func:`adjusted_entries` (their own
+    `adjustment_matrix` on the entries of `adjusted_entries` (their own
     sample covariance as Σ_post), the identity on the others."""
     samples = np.asarray(samples, dtype=np.float64)
     size = samples.shape[1]
@@ -107,7 +107,7 @@ def full_matrix(samples: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
 def adjust_samples(
     samples: np.ndarray, center: np.ndarray, matrix: np.ndarray, lower: np.ndarray, upper: np.ndarray
 ) -> tuple[np.ndarray, int]:
-    r""":math:`\theta' = \hat\theta + A(\theta - \hat\theta)` for every draw, keeping only
+    r"""`\theta' = \hat\theta + A(\theta - \hat\theta)` for every draw, keeping only
     those inside the prior box [``lower``, ``upper``]; returns them and how many were
     dropped."""
     samples = np.asarray(samples, dtype=np.float64)

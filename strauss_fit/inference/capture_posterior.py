@@ -1,16 +1,16 @@
 r"""The posterior of a capture's material, and sampling it with emcee (``strauss-fit sample
 --fit CAPTURE_RESULT.json``).
 
-A capture's fit (:func:`strauss_fit.fitting.capture_result.fit_capture`) minimises
-:math:`\mathrm{RSS}(\theta) = \sum_i r_i(\theta)^2` over the N usable values i (image ×
+A capture's fit (`strauss_fit.fitting.capture_result.fit_capture`) minimises
+`\mathrm{RSS}(\theta) = \sum_i r_i(\theta)^2` over the N usable values i (image ×
 sphere pixel × channel; saturated and under-exposed ones left out), θ the physical values
 of its parameters in the order of the result's labels (``color_r``, …, ``smoothness``,
 ``metalness``, ``exposure``, then per-image exposures, white balance, ambient as fitted).
 
 Likelihood. Independent Gaussian noise of one standard deviation σ on every usable value:
-:math:`\log L(\theta) = -\mathrm{RSS}(\theta)/(2\sigma^2)` (the constant left out). σ is
+`\log L(\theta) = -\mathrm{RSS}(\theta)/(2\sigma^2)` (the constant left out). σ is
 given (``sigma``, ``--sigma``), else estimated at the fit's optimum θ̂ as
-:math:`\hat\sigma = \sqrt{\mathrm{RSS}(\hat\theta)/(N-P)}`, and the chain states which
+`\hat\sigma = \sqrt{\mathrm{RSS}(\hat\theta)/(N-P)}`, and the chain states which
 (``sigma_source``).
 
 Prior: uniform over a box — [0, 1] for values in [0, 1] (colour, s, m); [0, 10·max(θ̂, 0.1)]
@@ -23,27 +23,27 @@ the box the log-posterior is −∞ (the model is evaluated at the point clipped
 Speed: a subsample with a control variate. A full DiLiGenT capture has 4.4 M values, one
 prediction over all of them costs tens of milliseconds, and emcee needs tens of thousands
 of them. So, when the capture has more than ``values`` values (default
-:data:`DEFAULT_VALUES`), the likelihood sees a fixed random subsample of sphere pixels
+`DEFAULT_VALUES`), the likelihood sees a fixed random subsample of sphere pixels
 (the same pixels in every image, drawn once with the chain's seed and stored with it; n
 usable values of the N) through the *difference estimator* (Quiroz, Kohn, Villani & Tran,
-JASA 2019). With :math:`\delta = \theta - \hat\theta`, the full data's
-:math:`g = J^\top r(\hat\theta)` and :math:`H = J^\top J + M`, the Hessian of ½RSS at θ̂
-(J the Jacobian of r, :math:`M = \sum_i r_i \nabla^2 r_i` the misfit's curvature; all
-computed once, over every value, in chunks), and :math:`q_i(\theta)` the second-order
-Taylor expansion of :math:`r_i(\theta)^2` about θ̂,
+JASA 2019). With `\delta = \theta - \hat\theta`, the full data's
+`g = J^\top r(\hat\theta)` and `H = J^\top J + M`, the Hessian of ½RSS at θ̂
+(J the Jacobian of r, `M = \sum_i r_i \nabla^2 r_i` the misfit's curvature; all
+computed once, over every value, in chunks), and `q_i(\theta)` the second-order
+Taylor expansion of `r_i(\theta)^2` about θ̂,
 
-.. math::
-
-    \widetilde{\mathrm{RSS}}(\theta) = \mathrm{RSS}(\hat\theta) + 2 g^\top\delta
-        + \delta^\top H\,\delta
-        + \frac{N}{n}\sum_{i \in \text{subsample}} \big[r_i(\theta)^2 - q_i(\theta)\big].
+```text
+\widetilde{\mathrm{RSS}}(\theta) = \mathrm{RSS}(\hat\theta) + 2 g^\top\delta
+    + \delta^\top H\,\delta
+    + \frac{N}{n}\sum_{i \in \text{subsample}} \big[r_i(\theta)^2 - q_i(\theta)\big].
+```
 
 The first three terms are the exact second-order expansion of the full RSS about θ̂; the
 sum estimates, from the subsample, only what that expansion misses (third order and up:
 how the model bends over the posterior's width), which is small. So the posterior keeps the
 full data's centre and curvature — near θ̂ it is the full data's, exactly — which a plain
 subsample with its likelihood scaled by N/n would not: that one centres on the
-*subsample's* optimum, about :math:`\sqrt{N/n - 1}` standard deviations away, and its width
+*subsample's* optimum, about `\sqrt{N/n - 1}` standard deviations away, and its width
 varies with the draw. The approximation left is the subsample's estimate of the
 higher-order remainder; log p(θ̂) = −RSS(θ̂)/(2σ²) whatever the subsample. On a synthetic
 capture (88 k usable values) a subsample of 18 k values gave log-posteriors within 0.007 of
@@ -52,14 +52,14 @@ the exact likelihood over every value, and a capture with at most ``values`` val
 always evaluated exactly.
 
 One evaluation is one jitted, ``vmap``-ed JAX call over a batch of walkers (compiled once
-per batch size), as for single images (:class:`strauss_fit.inference.posterior.LogPosterior`).
+per batch size), as for single images (`strauss_fit.inference.posterior.LogPosterior`).
 
-Adjustment (``adjust``, as :mod:`strauss_fit.inference.adjustment`): the capture's ± is the
+Adjustment (``adjust``, as `strauss_fit.inference.adjustment`): the capture's ± is the
 image-cluster sandwich V, the spread of the fitted values over other photographs of this
 kind, which on a capture the model cannot reproduce is wider than the Gaussian likelihood's
 posterior (a misfit is correlated over each image). ``"auto"`` is ``"affine"`` when the
 fit's verdict is ``mismatch`` (the draws are mapped so that their covariance is V; the raw
-chain is kept) or when the circle's share of some value's ± exceeds :data:`CIRCLE_SHARE` of
+chain is kept) or when the circle's share of some value's ± exceeds `CIRCLE_SHARE` of
 the likelihood's own, else ``"none"``; ``"temperature"`` samples with σ√T,
 T = max(1, the largest generalised eigenvalue of (σ²H⁻¹, V)), H the Hessian of ½ of the
 likelihood's RSS above at θ̂, over the entries V does not hold at a bound.
@@ -68,16 +68,16 @@ The sphere's circle. The fit's ± (both kinds) add the share of the uncertainty 
 the sphere is (``uncertainty_circle`` in the result); the likelihood takes the circle as
 detected, so an unadjusted chain is conditional on it and is set against the Laplace ±
 σ²(JᵀJ)⁻¹ of its own likelihood; the summary warns when the circle's share exceeds
-:data:`CIRCLE_SHARE` of it. The affine adjustment maps the draws to the image-cluster
+`CIRCLE_SHARE` of it. The affine adjustment maps the draws to the image-cluster
 sandwich, circle included.
 
 Running, the chain file, diagnostics, progress, Ctrl-C and ``resume`` are the single-image
-sampler's (:func:`strauss_fit.inference.sampler.run_sampler`, same file format). The
+sampler's (`strauss_fit.inference.sampler.run_sampler`, same file format). The
 chain's metadata says ``kind: "capture"`` and holds the capture's fit result (``fit``),
 where it was read from (``fit_path``, and ``fit_base``, the folder its recorded capture
 paths are relative to), σ and its source, the prior, the likelihood (``likelihood``:
 ``method``, the values N and n, the subsample's pixel indices) and a digest of the
-capture's usable values (``data_sha256``): :func:`reload_chain_capture` reads the capture
+capture's usable values (``data_sha256``): `reload_chain_capture` reads the capture
 again from it.
 """
 
@@ -242,7 +242,7 @@ def _full_pass(
     model: str, params: tuple[_Param, ...], samples: CaptureSamples, x_hat: np.ndarray
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """RSS, g = Jᵀr, B = JᵀJ and M = Σ rᵢ∇²rᵢ at ``x_hat`` over every usable value, in
-    chunks of about :data:`CHUNK_VALUES` values (all of one size: the last is padded with
+    chunks of about `CHUNK_VALUES` values (all of one size: the last is padded with
     weight 0, so that each function compiles once)."""
     images, pixels = np.asarray(samples.values).shape[:2]
     per_chunk = max(1, min(pixels, CHUNK_VALUES // max(3 * images, 1)))
@@ -286,9 +286,9 @@ def _functions(model: str, params: tuple[_Param, ...], subsampled: bool) -> tupl
 
 class CapturePosterior:
     """log p(θ | capture) up to a constant, for a batch of walkers: ``(W, P) -> (W,)`` (the
-    module docstring's likelihood and prior). Built by :meth:`build`; ``prior`` and
-    ``sigma`` as :class:`strauss_fit.inference.posterior.LogPosterior` has them, so that
-    :func:`strauss_fit.inference.sampler.run_sampler` runs it as it runs a single image's."""
+    module docstring's likelihood and prior). Built by `build`; ``prior`` and
+    ``sigma`` as `strauss_fit.inference.posterior.LogPosterior` has them, so that
+    `strauss_fit.inference.sampler.run_sampler` runs it as it runs a single image's."""
 
     prior: Prior
     sigma: float
@@ -444,14 +444,14 @@ class CapturePosterior:
 
 
 def is_capture_chain(meta: dict[str, Any]) -> bool:
-    """Whether a chain's metadata is a capture's (:func:`sample_capture`)."""
+    """Whether a chain's metadata is a capture's (`sample_capture`)."""
     return isinstance(meta, dict) and meta.get("kind") == KIND
 
 
 def check_capture_chain(meta: dict[str, Any], path: str | Path) -> dict[str, Any]:
     """``meta``, a capture's chain's metadata (of the chain file ``path``), or a one-line
-    :class:`~strauss_fit.inference.sampler.ChainError` when what only a capture's chain holds
-    (beside what :func:`strauss_fit.inference.sampler.read_metadata` checks) is damaged."""
+    `ChainError` when what only a capture's chain holds
+    (beside what `strauss_fit.inference.sampler.read_metadata` checks) is damaged."""
 
     def damaged(what: str) -> ChainError:
         return ChainError(f"chain file {path}: its strauss-fit metadata is damaged ({what})")
@@ -482,7 +482,7 @@ def check_capture_chain(meta: dict[str, Any], path: str | Path) -> dict[str, Any
 
 
 def reload_chain_capture(meta: dict[str, Any], capture: Capture | None = None) -> tuple[CaptureSamples, Any]:
-    """The capture's samples and fit (:func:`strauss_fit.fitting.capture_result.reload_capture_fit`)
+    """The capture's samples and fit (`strauss_fit.fitting.capture_result.reload_capture_fit`)
     that a capture's chain was sampled from, from its metadata (the fit result it holds, the
     capture paths relative to ``fit_base``), unless ``capture`` is given."""
     if not is_capture_chain(meta):
@@ -561,9 +561,9 @@ def _circle_warning(meta: dict[str, Any], laplace: Laplace) -> str | None:
 
 def summarise_capture_chain(chain: Any) -> dict[str, Any]:
     """The summary JSON of a capture's chain, in the layout of
-    :func:`strauss_fit.inference.summaries.summarise_chain` (diagnostics, percentiles, the
+    `strauss_fit.inference.summaries.summarise_chain` (diagnostics, percentiles, the
     ± the chain is set against — the fit's image-cluster sandwich when the chain is adjusted
-    to it, else the Laplace ± of the chain's likelihood (:func:`_fit_laplace`) — their
+    to it, else the Laplace ± of the chain's likelihood (`_fit_laplace`) — their
     comparison, warnings), with ``kind``, ``likelihood``, the capture's paths and the fit's
     own ± (``fit_uncertainty``: image-cluster sandwich, Laplace, the circle's share) added."""
     meta = chain.meta
@@ -612,7 +612,7 @@ def summarise_capture_chain(chain: Any) -> dict[str, Any]:
 
 
 def capture_chain_summary(chain: Any) -> dict[str, Any]:
-    """Per label of a capture's chain (a :class:`strauss_fit.inference.sampler.Chain`):
+    """Per label of a capture's chain (a `strauss_fit.inference.sampler.Chain`):
     the posterior ``mean``, ``sd``, ``median`` and the 16/84 % (``p16``, ``p84``) and
     2.5/97.5 % (``p2.5``, ``p97.5``) percentiles of the draws after burn-in (mapped by the
     chain's adjustment, if any), under ``parameters``; with ``labels``, ``count`` (draws),
@@ -674,7 +674,7 @@ def _adjustment(
 
 
 def _circle_dominated(result: dict[str, Any]) -> str:
-    """The values whose circle share exceeds :data:`CIRCLE_SHARE` of the likelihood's own
+    """The values whose circle share exceeds `CIRCLE_SHARE` of the likelihood's own
     Laplace ± (the result's Laplace ± without the circle's share), as text; "" if none."""
     circle, laplace = result.get("uncertainty_circle"), result.get("uncertainty_laplace")
     if not isinstance(circle, dict) or not isinstance(laplace, dict):
@@ -892,8 +892,8 @@ def sample_capture(
     progress: Callable[[Progress], None] | None = None,
 ) -> SampleResult:
     """Sample the posterior of a capture's material (the module docstring) into the chain
-    file ``output``, and write its summary (:func:`summarise_capture_chain`) beside it
-    (``output`` with the suffix ``.json``), as :func:`strauss_fit.inference.sampler.sample`
+    file ``output``, and write its summary (`summarise_capture_chain`) beside it
+    (``output`` with the suffix ``.json``), as `strauss_fit.inference.sampler.sample`
     does for a single image.
 
     ``fit``: the capture's fit result (``strauss-fit fit --capture``'s JSON, its path or the
@@ -906,8 +906,8 @@ def sample_capture(
     ``resume`` continues the chain in ``output`` (``fit`` is then ignored: the chain's
     own is used, with its σ, prior, subsample and adjustment); otherwise an existing
     ``output`` is refused unless ``force``. ``log`` receives status lines, ``progress``
-    a :class:`strauss_fit.inference.sampler.Progress` after every check; Ctrl-C raises
-    :class:`strauss_fit.inference.sampler.SamplingInterrupted` after every step so far is
+    a `strauss_fit.inference.sampler.Progress` after every check; Ctrl-C raises
+    `strauss_fit.inference.sampler.SamplingInterrupted` after every step so far is
     written."""
     log = log or (lambda message: None)
     out = Path(output)

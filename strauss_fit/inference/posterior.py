@@ -1,31 +1,31 @@
 r"""The posterior of a fit: likelihood, priors and noise level, shared by the sampler
-(:mod:`strauss_fit.inference.sampler`) and the report.
+(`strauss_fit.inference.sampler`) and the report.
 
-Model. The target's usable pixels (the same pixels as :func:`strauss_fit.fitting.api.fit`: on
+Model. The target's usable pixels (the same pixels as `strauss_fit.fitting.api.fit`: on
 the sphere, finite, not clipped, inside the mask) are the rendered image plus independent
 Gaussian noise of one standard deviation σ on every RGB value:
 
-.. math::
-
-    \log p(\theta \mid D) = -\frac{1}{2\sigma^2}\sum_{k=1}^{N} r_k(\theta)^2 + \log\pi(\theta) + \text{const},
-    \qquad r(\theta) = I_\text{model}(\theta) - I_\text{target},
+```text
+\log p(\theta \mid D) = -\frac{1}{2\sigma^2}\sum_{k=1}^{N} r_k(\theta)^2 + \log\pi(\theta) + \text{const},
+\qquad r(\theta) = I_\text{model}(\theta) - I_\text{target},
+```
 
 with N = 3 × (usable pixels) and θ the physical values of the free parameters (in
 ``problem.layout`` order). σ is either given (a known sensor noise) or estimated at the
-least-squares optimum :math:`\hat\theta` as :math:`\hat\sigma^2 = \mathrm{RSS}(\hat\theta)/(N - P)`
+least-squares optimum `\hat\theta` as `\hat\sigma^2 = \mathrm{RSS}(\hat\theta)/(N - P)`
 (P free entries), the same estimate the fit's Laplace deviations use. Plugging in
-:math:`\hat\sigma` instead of marginalising over σ changes the intervals by a factor of
-order :math:`1 + 1/N`, negligible for images.
+`\hat\sigma` instead of marginalising over σ changes the intervals by a factor of
+order `1 + 1/N`, negligible for images.
 
-Prior :math:`\pi`: uniform (a box) over each parameter's range — [0, 1] for the colour
+Prior `\pi`: uniform (a box) over each parameter's range — [0, 1] for the colour
 channels, smoothness, metalness and transparency; n ∈ [1, max(3, 1.5 n̂)] for the index of
 refraction; a light intensity I ∈ [0, 10 max(Î, 0.1)]. The last two have no natural upper
 bound, so a generous one is chosen (and recorded with the chain); the user may narrow any
-range (``--prior``). Outside the box :math:`\log p = -\infty`.
+range (``--prior``). Outside the box `\log p = -\infty`.
 
-Laplace (Gauss–Newton) estimate: at :math:`\hat\theta`,
-:math:`\Sigma \approx \sigma^2 (J^\top J)^{-1}`, J the Jacobian of r
-(:func:`strauss_fit.stats.laplace.laplace_covariance`). It is exact for a linear model
+Laplace (Gauss–Newton) estimate: at `\hat\theta`,
+`\Sigma \approx \sigma^2 (J^\top J)^{-1}`, J the Jacobian of r
+(`strauss_fit.stats.laplace.laplace_covariance`). It is exact for a linear model
 with a flat prior and an optimum away from the bounds.
 """
 
@@ -115,7 +115,7 @@ def default_prior(layout: Layout, x_hat: np.ndarray, overrides: dict[str, tuple[
 
 def parse_priors(items: list[str]) -> dict[str, tuple[float, float]]:
     """Prior ranges written as ``NAME=LOW,HIGH`` (the command line's ``--prior``), for
-    :func:`default_prior`'s ``overrides``."""
+    `default_prior`'s ``overrides``."""
     priors = {}
     for item in items:
         name, sep, text = item.partition("=")
@@ -131,7 +131,7 @@ def parse_priors(items: list[str]) -> dict[str, tuple[float, float]]:
 
 def check_sigma(sigma: float, what: str = "the noise level sigma") -> float:
     """σ must be a finite positive number, within
-    :data:`~strauss_fit.stats.noise.NOISE_RANGE` (σ² and 1/σ² stay in float64's range);
+    `NOISE_RANGE` (σ² and 1/σ² stay in float64's range);
     ``what`` names it in the error (``--sigma`` on the command line)."""
     from ..stats.noise import check_noise_level
 
@@ -155,7 +155,7 @@ def sum_of_squares(problem: Problem, x: np.ndarray) -> float:
 
 @uses_float64
 def estimate_sigma(problem: Problem, x_hat: np.ndarray) -> float:
-    """σ̂ = sqrt(RSS(θ̂) / (N − P)). An error if σ̂ is below :data:`EXACT_FIT` times the
+    """σ̂ = sqrt(RSS(θ̂) / (N − P)). An error if σ̂ is below `EXACT_FIT` times the
     target's largest value: such a target is noise-free (a rendering, up to float
     rounding), its noise cannot be estimated and ``--sigma`` must be given."""
     n, p = int(problem.target.size), problem.layout.size
@@ -174,7 +174,7 @@ _Spec = tuple[tuple[tuple[int, ...], str], ...]
 
 
 def _pack(tree: Any) -> tuple[np.ndarray, Any, _Spec]:
-    """All array leaves of ``tree`` as one float64 vector, with what :func:`_unpack` needs."""
+    """All array leaves of ``tree`` as one float64 vector, with what `_unpack` needs."""
     leaves, treedef = jax.tree_util.tree_flatten(tree)
     spec = tuple((tuple(np.shape(leaf)), np.asarray(leaf).dtype.name) for leaf in leaves)
     flat = np.concatenate([np.asarray(leaf, dtype=np.float64).ravel() for leaf in leaves]) if leaves else np.zeros(0)
@@ -258,9 +258,9 @@ def target_digest(problem: Problem) -> str:
 
 @uses_float64
 def problem_from_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) -> tuple[Problem, np.ndarray]:
-    """The fit's :class:`~strauss_fit.fitting.problem.Problem` and optimum θ̂, rebuilt from a
-    fit result (a :class:`~strauss_fit.fitting.result.FitResult`, or ``strauss-fit fit``'s JSON,
-    read with :meth:`~strauss_fit.fitting.result.FitResult.from_json`) for ``scene`` (already
+    """The fit's `Problem` and optimum θ̂, rebuilt from a
+    fit result (a `FitResult`, or ``strauss-fit fit``'s JSON,
+    read with `from_json`) for ``scene`` (already
     matched to ``target``'s size).
 
     Held parameters take the result's values; free ones are the layout. The pixels used

@@ -1,29 +1,29 @@
 r"""Summaries of uncertainty, the fit's ± against the emcee posterior, and degeneracy
-warnings in plain language. Pure NumPy, no plotting (:mod:`strauss_fit.reporting.fit_report` draws).
+warnings in plain language. Pure NumPy, no plotting (`strauss_fit.reporting.fit_report` draws).
 
 Percentiles: the posterior median and the central 68 % (16th–84th percentile) and 95 %
 (2.5th–97.5th) intervals of the samples after burn-in.
 
 Comparison (per parameter, when a chain and the fit's ± both exist; the ± is the noise
 sandwich or the Laplace estimate, as the fit computed it, and the notes name it). With
-:math:`\hat\theta` and :math:`s_L` the optimum and the fit's deviation, and
-:math:`m, q_{16}, q_{84}` the posterior median and percentiles, :math:`s_P = (q_{84}-q_{16})/2`:
+`\hat\theta` and `s_L` the optimum and the fit's deviation, and
+`m, q_{16}, q_{84}` the posterior median and percentiles, `s_P = (q_{84}-q_{16})/2`:
 
-- *width*: disagree if :math:`s_P / s_L \notin [0.8, 1.25]`;
-- *shift*: disagree if :math:`|m - \hat\theta| > 0.5\, s_P`;
+- *width*: disagree if `s_P / s_L \notin [0.8, 1.25]`;
+- *shift*: disagree if `|m - \hat\theta| > 0.5\, s_P`;
 - a width or shift is blamed on a parameter the fit pinned on a bound when the two
   correlate (|ρ| > 0.5) in the posterior: the fit's ± holds it fixed, the posterior does
   not; otherwise on the model's non-linearity;
-- *skew*: disagree if the tails differ, :math:`|u - d|/(u + d) > 0.2` with
-  :math:`u = q_{84} - m`, :math:`d = m - q_{16}`;
-- *bound*: the prior bound lies within :math:`2 s_P` of the median (the posterior is cut
+- *skew*: disagree if the tails differ, `|u - d|/(u + d) > 0.2` with
+  `u = q_{84} - m`, `d = m - q_{16}`;
+- *bound*: the prior bound lies within `2 s_P` of the median (the posterior is cut
   there and a symmetric ± is misleading) — the note then gives a one-sided 95 % limit;
 - *banana*: for a pair of parameters, regressing one standardised sample on the other
   with a quadratic term explains at least 0.05 more of its variance than the straight
   line (a curved ridge, which no covariance matrix describes).
 
-Degeneracies: a pair of quantities with :math:`|\rho| > 0.9` trades off; it is called
-inseparable when :math:`|\rho| > 0.99` or either deviation exceeds 5 % of its scale, and a
+Degeneracies: a pair of quantities with `|\rho| > 0.9` trades off; it is called
+inseparable when `|\rho| > 0.99` or either deviation exceeds 5 % of its scale, and a
 strong correlation otherwise. Besides the
 parameters, the *brightness of C* (the mean of the three colour channels) is considered,
 because that is what transparency, metalness and light intensities trade with. Parameters
@@ -104,7 +104,7 @@ def posterior_summary(samples: np.ndarray, labels: Sequence[str]) -> dict[str, A
     return out
 
 
-#: What :class:`Laplace` calls the fit's ± in words, by ``uncertainty_method.name``.
+#: What `Laplace` calls the fit's ± in words, by ``uncertainty_method.name``.
 SANDWICH = "noise sandwich"
 LAPLACE = "Laplace estimate"
 
@@ -113,7 +113,7 @@ LAPLACE = "Laplace estimate"
 class Laplace:
     """The fit's Gaussian uncertainty per vector entry: optimum, deviation (0 where the fit
     pinned the entry at a bound) and correlation matrix; ``method`` names it in words
-    (:data:`SANDWICH` or :data:`LAPLACE`, as the fit computed its ±), so that notes about it
+    (`SANDWICH` or `LAPLACE`, as the fit computed its ±), so that notes about it
     say which interval they mean. The class keeps its old name: it began as the Laplace
     estimate only."""
 
@@ -131,7 +131,7 @@ class Laplace:
     @classmethod
     def from_fit(cls, fit: FitResult | dict[str, Any]) -> Laplace:
         """From a fit result's ``free``, values, ``uncertainty`` and ``correlation`` (a
-        :class:`~strauss_fit.fitting.result.FitResult` or its JSON)."""
+        `FitResult` or its JSON)."""
         fit = FitResult.from_json(fit)
         labels, values, sds = [], [], []
         for name in fit.free:
@@ -186,8 +186,8 @@ def degeneracy_warnings(
     """Plain-language warnings: pairs with |ρ| > ``threshold`` (the brightness of C
     included), strongest first, then parameters the fit held and why.
 
-    A pair is said to be inseparable when |ρ| > :data:`SEVERE_CORRELATION` or either
-    deviation exceeds :data:`LOOSE_SD` of its scale (1 for values in [0, 1], 0.5 for n,
+    A pair is said to be inseparable when |ρ| > `SEVERE_CORRELATION` or either
+    deviation exceeds `LOOSE_SD` of its scale (1 for values in [0, 1], 0.5 for n,
     the value itself for a light intensity, taken from ``values``); otherwise it is
     reported as a strong correlation, with the factor 1/sqrt(1 - ρ²) by which
     knowing the other would shrink each deviation."""
@@ -399,7 +399,7 @@ class ChainPosterior:
     """A chain's posterior set against the fit's ± (its noise sandwich or Laplace
     estimate): the diagnostics, the samples after burn-in (at most ``max_samples`` of them,
     drawn without replacement), the summary (of *all* samples after burn-in), the prior
-    box, the comparison rows and notes of :func:`compare`, and the samples' covariance."""
+    box, the comparison rows and notes of `compare`, and the samples' covariance."""
 
     diagnostics: Any
     samples: np.ndarray
@@ -413,7 +413,7 @@ class ChainPosterior:
 
 def chain_posterior(chain: Chain, laplace: Laplace, max_samples: int | None = None) -> ChainPosterior:
     """Everything the sampler's summary and the report say about a chain (see
-    :class:`ChainPosterior`); the labels are the chain's."""
+    `ChainPosterior`); the labels are the chain's."""
     labels = chain.labels
     diagnostics = chain.diagnostics()
     samples = chain.samples(diagnostics.burn_in)
@@ -470,7 +470,7 @@ def summarise_chain(chain: Chain) -> dict[str, Any]:
 
 def loss_warning(fit: FitResult | dict[str, Any]) -> str | None:
     """A warning when the fit a chain is set against minimised another loss than least
-    squares (chains written before :func:`strauss_fit.inference.sampler.sample` refused such
+    squares (chains written before `strauss_fit.inference.sampler.sample` refused such
     fits, or a report given another fit than its chain's): the chain's likelihood is least
     squares, so it centres elsewhere and the fit's ± is another estimator's spread."""
     data = fit.to_json() if isinstance(fit, FitResult) else fit
@@ -485,7 +485,7 @@ def loss_warning(fit: FitResult | dict[str, Any]) -> str | None:
 
 
 def adjustment_summary(chain: Chain, laplace: Laplace, discard: int) -> dict[str, Any]:
-    """What the chain's adjustment did (:mod:`strauss_fit.inference.adjustment`): the
+    """What the chain's adjustment did (`strauss_fit.inference.adjustment`): the
     method and why, the temperature, the draws dropped outside the prior box, and per
     parameter the raw chain's standard deviation, the adjusted one and the fit's (the
     noise sandwich's, which the adjustment aims at)."""

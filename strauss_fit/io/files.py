@@ -1,8 +1,8 @@
 """Writing files safely, and reading JSON with one-line errors.
 
-Every output goes through :class:`Outputs`: each file is first written in full to a
+Every output goes through `Outputs`: each file is first written in full to a
 temporary sibling (``.NAME.XXXXXXXX.tmp.EXT`` in the same folder), every write and the
-final ``fsync`` checked, and only :meth:`Outputs.commit` renames the temporaries into
+final ``fsync`` checked, and only `Outputs.commit` renames the temporaries into
 place, all of them together. Until then no output exists or is changed; if anything fails
 before the commit — a full disk, a bad value, Ctrl-C — every temporary is removed and
 the error names the file (``cannot write out.png: No space left on device``). An
@@ -11,12 +11,12 @@ existing file is never overwritten unless ``force`` is true.
 Ctrl-C is honoured at the commit even when it was swallowed earlier (a
 ``KeyboardInterrupt`` raised inside a callback that ignores exceptions, such as JAX's
 garbage-collection hook): a SIGINT handler that records the interrupt in a true
-``pending`` attribute (the command line installs one, :mod:`strauss_fit_cli.interrupts`)
-makes :func:`raise_if_interrupted` raise. The renames themselves run with SIGINT deferred,
+``pending`` attribute (the command line installs one, `strauss_fit_cli.interrupts`)
+makes `raise_if_interrupted` raise. The renames themselves run with SIGINT deferred,
 so an interrupt never leaves half of a command's outputs renamed.
 
-:func:`write_bytes`, :func:`write_text` and :func:`write_json` are one-file shorthands;
-the image writer (:func:`strauss_fit.io.images.write_image`) stages its encoded bytes the
+`write_bytes`, `write_text` and `write_json` are one-file shorthands;
+the image writer (`strauss_fit.io.images.write_image`) stages its encoded bytes the
 same way.
 """
 
@@ -77,7 +77,7 @@ def check_replaceable(path: str | Path) -> Path:
 
 def check_writable(path: str | Path, force: bool) -> Path:
     """Refuse an existing output without ``force``, a path no output may replace
-    (:func:`check_replaceable`) and a missing parent folder."""
+    (`check_replaceable`) and a missing parent folder."""
     path = check_replaceable(path)
     if path.exists() and not force:
         raise OutputExistsError(f"output {path} exists; pass --force to overwrite it")
@@ -243,9 +243,9 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
-#: Every temporary that an :class:`Outputs` has staged and not yet renamed or removed, in
-#: this process: what :func:`remove_staged_temporaries` removes when the process must end
-#: at once (the command line's Ctrl-C watchdog, :mod:`strauss_fit_cli.interrupts`).
+#: Every temporary that an `Outputs` has staged and not yet renamed or removed, in
+#: this process: what `remove_staged_temporaries` removes when the process must end
+#: at once (the command line's Ctrl-C watchdog, `strauss_fit_cli.interrupts`).
 _STAGED_TEMPORARIES: set[Path] = set()
 
 
@@ -260,8 +260,8 @@ def remove_staged_temporaries() -> None:
 
 
 class Outputs:
-    """Outputs written together: :meth:`add` writes each to a temporary sibling at once,
-    :meth:`commit` renames them all into place; leaving the ``with`` block by an exception
+    """Outputs written together: `add` writes each to a temporary sibling at once,
+    `commit` renames them all into place; leaving the ``with`` block by an exception
     (or without a commit) removes every temporary and touches no output.
 
     .. code-block:: python
@@ -284,7 +284,7 @@ class Outputs:
         self.discard()
 
     def add_bytes(self, path: str | Path, data: bytes | memoryview) -> Path:
-        """Write ``data`` to a temporary sibling of ``path`` (renamed at :meth:`commit`)."""
+        """Write ``data`` to a temporary sibling of ``path`` (renamed at `commit`)."""
         path = check_writable(path, self.force)
         if any(final == path for _, final in self._staged):
             raise StraussFitError(f"{path} is written twice by one command")
@@ -318,7 +318,7 @@ class Outputs:
         """Rename every temporary into place (SIGINT deferred meanwhile) and return the
         outputs. An interrupt recorded before is raised first, and nothing is renamed; one
         during the renames is raised after them, unless ``final`` says that these outputs
-        complete the command (see :func:`deferred_sigint`)."""
+        complete the command (see `deferred_sigint`)."""
         raise_if_interrupted()
         mode = 0o666 & ~_umask()
         folders = []

@@ -13,7 +13,7 @@ the missing part with grey and only warns, is an error here.
 
 Writing encodes the image in memory first (an anonymous in-memory file on Linux: some
 image libraries end the whole process when the disk fills up under them) and then writes
-the bytes through :class:`strauss_fit.io.files.Outputs`: atomically, every write checked,
+the bytes through `strauss_fit.io.files.Outputs`: atomically, every write checked,
 and an existing file is never overwritten unless ``force`` is true. Written images carry
 no timestamp, so the same pixels always give the same bytes (reproducible datasets).
 """
@@ -64,7 +64,7 @@ def _oiio():
 
 def default_encoding(path: str | Path) -> str:
     """``"srgb"`` for LDR extensions, ``"linear"`` otherwise
-    (:attr:`strauss_fit.io.table_formats.ImageFormat.encoding`)."""
+    (`strauss_fit.io.table_formats.ImageFormat.encoding`)."""
     image_format = IMAGE_FORMATS.get(Path(path).suffix.lower())
     return "linear" if image_format is None else image_format.encoding
 
@@ -99,8 +99,8 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
     the file's real format; ``"linear"`` or ``"srgb"`` override that. Grey images are
     replicated to RGB; an alpha channel is ignored (the colour channels are read as
     stored, never premultiplied by it). A damaged or truncated file, and a path that is not
-    a regular file (:func:`~strauss_fit.io.files.check_input_file`), are an
-    :class:`~strauss_fit.errors.ImageError`.
+    a regular file (`check_input_file`), are an
+    `ImageError`.
     """
     path = check_input_file(path, "image", ImageError)  # never open a FIFO: it blocks
     if encoding not in IMAGE_ENCODINGS:
@@ -116,7 +116,7 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
 
 
 def _decode(oiio, path: Path, readable: str, config, encoding: Encoding) -> LoadedImage:
-    """:func:`read_image`'s decoding of the file at ``readable`` (``path``'s bytes)."""
+    """`read_image`'s decoding of the file at ``readable`` (``path``'s bytes)."""
     image_input = oiio.ImageInput.open(readable, config)
     if image_input is None:
         detail = _first_line(oiio.geterror(), "unknown format").replace(readable, str(path))
@@ -172,14 +172,14 @@ def check_image_output(path: str | Path, force: bool = False) -> Path:
 
 def _no_writer(path: Path) -> ImageError:
     """The error for an image output whose extension no image writer knows, listing the
-    formats of :data:`~strauss_fit.io.table_formats.IMAGE_FORMATS`."""
+    formats of `IMAGE_FORMATS`."""
     return ImageError(
         f"no image writer for {path.suffix or 'files without extension'}: {path}; "
         f"expected one of {', '.join(IMAGE_FORMATS)}"
     )
 
 
-#: How :func:`encode_image` stores pixels: a function of the linear image (H, W, C), the
+#: How `encode_image` stores pixels: a function of the linear image (H, W, C), the
 #: encoding (``"linear"`` or ``"srgb"``), the output path and the OpenImageIO module,
 #: giving the array to write and its OpenImageIO pixel type.
 PixelWriter = Callable[[np.ndarray, str, Path, Any], tuple[np.ndarray, Any]]
@@ -199,8 +199,8 @@ def _float32(image: np.ndarray, encoding: str, path: Path, oiio: Any) -> tuple[n
     return np.ascontiguousarray(image.astype(np.float32)), oiio.FLOAT
 
 
-#: The pixel writer of each image format (:data:`~strauss_fit.io.table_formats.IMAGE_FORMATS`,
-#: keyed by the same extensions); another extension is written by :func:`_float32`.
+#: The pixel writer of each image format (`IMAGE_FORMATS`,
+#: keyed by the same extensions); another extension is written by `_float32`.
 IMAGE_WRITERS: dict[str, PixelWriter] = {
     suffix: _eight_bit if image_format.ldr else _float32 for suffix, image_format in IMAGE_FORMATS.items()
 }
@@ -217,7 +217,7 @@ def _memory_file(name: str) -> int | None:
         return None
 
 
-#: Bytes per read when an input is copied into memory (:func:`_readable_copy`).
+#: Bytes per read when an input is copied into memory (`_readable_copy`).
 _READ_CHUNK = 1 << 24
 
 
@@ -313,16 +313,16 @@ def encode_image(image: np.ndarray, path: str | Path, *, encoding: Encoding = "a
 
 
 def add_image(out: Outputs, path: str | Path, image: np.ndarray, *, encoding: Encoding = "auto") -> Path:
-    """Stage a linear RGB image (H, W, 3), encoded for ``path`` (:func:`encode_image`), among
+    """Stage a linear RGB image (H, W, 3), encoded for ``path`` (`encode_image`), among
     ``out``'s outputs: written when they are committed, all of them or none. A function here
-    rather than a method of :class:`~strauss_fit.io.files.Outputs`, so that the atomic
+    rather than a method of `Outputs`, so that the atomic
     writer does not import the image codecs that write through it."""
     path = check_writable(path, out.force)
     return out.add_bytes(path, encode_image(image, path, encoding=encoding))
 
 
 def write_image(path: str | Path, image: np.ndarray, *, force: bool = False, encoding: Encoding = "auto") -> Path:
-    """Write a linear RGB image (H, W, 3) atomically (see :func:`encode_image`)."""
+    """Write a linear RGB image (H, W, 3) atomically (see `encode_image`)."""
     with Outputs(force=force) as out:
         add_image(out, path, image, encoding=encoding)
         return out.commit()[0]

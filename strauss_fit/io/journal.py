@@ -5,7 +5,7 @@ and a ``key`` that identifies the inputs and settings), then one line per finish
 Each append is one write of whole lines followed by ``fsync``; a failed append (a full
 disk) truncates the file back to where it was, so it never ends in a partial line that
 this process wrote. A process killed in the middle of an append can still leave a partial
-last line: :meth:`Journal.open` drops it (and truncates it away) when resuming.
+last line: `Journal.open` drops it (and truncates it away) when resuming.
 
 Used by the conversions (``phong2strauss``/``strauss2phong --resume``): the results are
 appended as they complete, and the final output is written atomically at the end, after

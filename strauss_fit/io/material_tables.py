@@ -1,6 +1,6 @@
 """Reading material batches for the conversions and writing their results.
 
-Inputs (:func:`read_phong_input`, :func:`read_strauss_input`):
+Inputs (`read_phong_input`, `read_strauss_input`):
 
 - **inline**: one material on the command line, as ``KEY=VALUE`` tokens (``kd=0.6
   ks=0.3 n=40 Cd=0.8,0.2,0.1``; RGB values as ``r,g,b``) or as a JSON object
@@ -10,18 +10,18 @@ Inputs (:func:`read_phong_input`, :func:`read_strauss_input`):
   ``"strauss"`` object use it, failed entries stay failed). A ``strauss-fit fit`` result
   is read as one Strauss material;
 - **CSV** (``.csv``): a header row, one material per row (columns in
-  :data:`PHONG_CSV_INPUT` / :data:`STRAUSS_CSV_INPUT`; an RGB value is three columns
+  `PHONG_CSV_INPUT` / `STRAUSS_CSV_INPUT`; an RGB value is three columns
   ``NAME_r``, ``NAME_g``, ``NAME_b``, or one column holding ``r g b``); empty cells take the
   defaults; the result columns written by the conversions are ignored, unknown ones are
   an error;
-- **Wavefront** ``.mtl`` (Phong only): :mod:`strauss_fit.io.mtl`.
+- **Wavefront** ``.mtl`` (Phong only): `strauss_fit.io.mtl`.
 
-A material that cannot be read becomes an :class:`Entry` with an
+A material that cannot be read becomes an `Entry` with an
 error (reported in the output, the others converted); a file that cannot be read at all
-is a one-line :class:`~strauss_fit.errors.StraussFitError`.
+is a one-line `StraussFitError`.
 
-Outputs (:func:`write_results`): JSON (everything), CSV (one row per material, columns
-in :func:`csv_columns`) or, for Strauss → Phong, a ``.mtl`` library.
+Outputs (`write_results`): JSON (everything), CSV (one row per material, columns
+in `csv_columns`) or, for Strauss → Phong, a ``.mtl`` library.
 """
 
 from __future__ import annotations
@@ -46,15 +46,15 @@ from .table_formats import INPUT_SUFFIXES, INPUT_SUFFIXES_BY_KIND, OUTPUT_FORMAT
 
 
 class Entry:
-    """One material to convert: the source material (a :class:`PhongMaterial` for
-    Phong → Strauss, a :class:`Material` for Strauss → Phong), its opacity and index of
+    """One material to convert: the source material (a `PhongMaterial` for
+    Phong → Strauss, a `Material` for Strauss → Phong), its opacity and index of
     refraction (for a Strauss source: opacity = 1 − t), where it came from, notes,
     warnings (values that are allowed but almost certainly not meant), or the error that
     makes it unusable.
 
     Read from a file, an entry holds its validated parameters as plain values
-    (``values``, of ``kind`` "phong" or "strauss", a key of :data:`KINDS`):
-    :attr:`material` builds the JAX material when it is first used, :meth:`release` drops
+    (``values``, of ``kind`` "phong" or "strauss", a key of `KINDS`):
+    `material` builds the JAX material when it is first used, `release` drops
     it again (reading 50 000 materials builds no JAX array)."""
 
     def __init__(
@@ -84,7 +84,7 @@ class Entry:
 
     @property
     def material(self) -> Any:
-        """The material (built from :attr:`values` on first use)."""
+        """The material (built from `values` on first use)."""
         if self._material is None and self.values is not None:
             self._material = KINDS[self.kind].material(**self.values)
         return self._material
@@ -98,7 +98,7 @@ class Entry:
         return self.material
 
     def release(self) -> None:
-        """Drop a material built from :attr:`values` (it is rebuilt when needed)."""
+        """Drop a material built from `values` (it is rebuilt when needed)."""
         if self.values is not None:
             self._material = None
 
@@ -218,7 +218,7 @@ def _canonical(key: str, aliases: dict[str, str]) -> str:
 
 
 def phong_entry(values: dict[str, Any], name: str, source: str) -> Entry:
-    """An :class:`Entry` from a mapping of Phong keys (aliases allowed) plus ``opacity``
+    """An `Entry` from a mapping of Phong keys (aliases allowed) plus ``opacity``
     and ``ior``; problems make an entry with an error."""
     entry = Entry(name=name, source=source)
     try:
@@ -247,7 +247,7 @@ def phong_entry(values: dict[str, Any], name: str, source: str) -> Entry:
 
 
 def strauss_entry(values: dict[str, Any], name: str, source: str) -> Entry:
-    """An :class:`Entry` from a mapping of Strauss keys (aliases allowed)."""
+    """An `Entry` from a mapping of Strauss keys (aliases allowed)."""
     entry = Entry(name=name, source=source)
     try:
         params: dict[str, Any] = {}
@@ -270,7 +270,7 @@ def strauss_entry(values: dict[str, Any], name: str, source: str) -> Entry:
 
 
 def _check_strauss(params: dict[str, Any]) -> None:
-    """Check Strauss values as :func:`_value` gives them (finite floats; colours as 3 of
+    """Check Strauss values as `_value` gives them (finite floats; colours as 3 of
     them) against the material's ranges, in parameter order, with the messages of the
     material's own check, and without building a JAX array (a library of 50 000
     materials)."""
@@ -288,7 +288,7 @@ def _check_strauss(params: dict[str, Any]) -> None:
 
 @dataclass(frozen=True)
 class Kind:
-    """What reading one kind of material takes: the :class:`Entry` maker, the material class
+    """What reading one kind of material takes: the `Entry` maker, the material class
     built from an entry's values, the material's keys (in order) and the other keys an input
     may give, the aliases of both, the file formats read, and whether a ``strauss-fit fit``
     result is one such material."""
@@ -338,7 +338,7 @@ STRAUSS = Kind(
     INPUT_SUFFIXES_BY_KIND["strauss"],
     fit_results=True,
 )
-#: The kinds of material read, by :attr:`Entry.kind`.
+#: The kinds of material read, by `Entry.kind`.
 KINDS: dict[str, Kind] = {kind.name: kind for kind in (PHONG, STRAUSS)}
 
 
@@ -539,7 +539,7 @@ def _from_mtl(path: Path, kind: Kind) -> tuple[list[Entry], list[str]]:
 
 
 #: What reads a material file, by its extension: the entries and the file's notes. Which of
-#: them a kind of material accepts is its :attr:`Kind.suffixes` (a ``.mtl`` library holds
+#: them a kind of material accepts is its `Kind.suffixes` (a ``.mtl`` library holds
 #: Phong materials only).
 INPUT_READERS: dict[str, Callable[[Path, Kind], tuple[list[Entry], list[str]]]] = {
     ".json": lambda path, kind: (_from_json(path, kind), []),
@@ -607,7 +607,7 @@ def read_strauss_input(tokens: list[str]) -> tuple[list[Entry], list[str], str]:
 
 def output_format(path: str | Path, direction: str) -> str:
     """The name of the output format the extension of ``path`` selects (``json``, ``csv`` or,
-    Strauss → Phong only, ``mtl``: :data:`~strauss_fit.io.table_formats.OUTPUT_FORMATS`)."""
+    Strauss → Phong only, ``mtl``: `OUTPUT_FORMATS`)."""
     suffix = Path(path).suffix.lower()
     name, directions = OUTPUT_FORMATS.get(suffix, (None, ()))
     if direction not in directions:
@@ -777,7 +777,7 @@ def _format_mtl_document(document: dict[str, Any], direction: str) -> tuple[str,
 
 
 #: What formats a conversion's document (text and warnings about it), by the format's name
-#: (:data:`~strauss_fit.io.table_formats.OUTPUT_FORMATS` names the extensions).
+#: (`OUTPUT_FORMATS` names the extensions).
 OUTPUT_WRITERS: dict[str, Callable[[dict[str, Any], str], tuple[str, list[str]]]] = {
     "json": _format_json,
     "csv": _format_csv_document,
@@ -786,7 +786,7 @@ OUTPUT_WRITERS: dict[str, Callable[[dict[str, Any], str], tuple[str, list[str]]]
 
 
 def format_results(document: dict[str, Any], direction: str, fmt: str) -> tuple[str, list[str]]:
-    """The text of a conversion's output in format ``fmt`` (:data:`OUTPUT_WRITERS`) and
+    """The text of a conversion's output in format ``fmt`` (`OUTPUT_WRITERS`) and
     warnings about it."""
     return OUTPUT_WRITERS[fmt](document, direction)
 

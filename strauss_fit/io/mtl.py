@@ -1,7 +1,7 @@
 r"""Wavefront ``.mtl`` material libraries: reading them as Phong materials, writing them.
 
-Reading (:func:`parse_mtl`, :func:`read_mtl`) maps each ``newmtl`` block to Phong values
-(a :class:`~strauss_fit.models.phong.PhongMaterial` on demand) plus an opacity and an
+Reading (`parse_mtl`, `read_mtl`) maps each ``newmtl`` block to Phong values
+(a `PhongMaterial` on demand) plus an opacity and an
 index of refraction:
 
 ==============  ==========================================================================
@@ -34,22 +34,22 @@ too.
 Missing statements take OpenGL's default material — ``Ka 0.2``, ``Kd 0.8``, ``Ks 0``,
 ``Ns 0`` — and ``d 1``, ``Ni 1.5`` (the project's default n); each default used is noted.
 
-Warnings (:attr:`MtlMaterial.warnings`) flag values that are allowed but almost certainly
+Warnings (`MtlMaterial.warnings`) flag values that are allowed but almost certainly
 not meant: ``d 0`` (a fully transparent, invisible material: exporters such as Blender's
 write it for opaque materials), a colour coefficient above 1 (the surface would reflect
 more light than it receives), ``Ni`` above 3 (no common material refracts that much).
 
 Errors are per material: a malformed line (e.g. ``material 'steel' line 12: Kd needs 3
 numbers (or 1 for grey), got 'Kd 0.5 0.5'``), a value out of range or a repeated material
-name marks that material as failed (:attr:`MtlMaterial.error`) and the others are kept. A
-statement before the first ``newmtl`` is reported in :attr:`MtlLibrary.notes` and ignored.
+name marks that material as failed (`MtlMaterial.error`) and the others are kept. A
+statement before the first ``newmtl`` is reported in `MtlLibrary.notes` and ignored.
 The file must be UTF-8 (a byte-order mark is allowed); UTF-16 or other encodings are a
 one-line error saying so.
 
 Parsing is plain Python (no JAX array per material), so a library of 50 000 materials
-reads in seconds; :attr:`MtlMaterial.phong` builds the JAX material when it is used.
+reads in seconds; `MtlMaterial.phong` builds the JAX material when it is used.
 
-Writing (:func:`format_mtl`) emits ``Ka = ka·Cd``, ``Kd = kd·Cd``, ``Ks = ks·Cs``, ``Ns``,
+Writing (`format_mtl`) emits ``Ka = ka·Cd``, ``Kd = kd·Cd``, ``Ks = ks·Cs``, ``Ns``,
 ``d``, ``Ni`` and ``illum 2`` for each material, under its name exactly as given (so the
 ``usemtl`` lines of the matching ``.obj`` still find it), so that reading the file back
 gives the same rendering.
@@ -110,7 +110,7 @@ _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 class MtlMaterial:
     """One ``newmtl`` block: its Phong values (None if the block has an error), opacity,
     index of refraction, the line it starts on, notes, warnings, and the error if any.
-    :attr:`phong` is the :class:`~strauss_fit.models.phong.PhongMaterial`, built when used."""
+    `phong` is the `PhongMaterial`, built when used."""
 
     name: str
     line: int
@@ -396,7 +396,7 @@ def _triple(values: Any) -> list[float]:
 def format_mtl_material(
     name: str, phong: dict[str, Any], opacity: float = 1.0, ior: float = 1.5, comment: str | None = None
 ) -> str:
-    """One ``newmtl`` block for a Phong material given as :meth:`PhongMaterial.to_dict`."""
+    """One ``newmtl`` block for a Phong material given as `PhongMaterial.to_dict`."""
     cd = np.asarray(phong.get("diffuse_color", (1.0, 1.0, 1.0)), dtype=np.float64)
     cs = np.asarray(phong.get("specular_color", (1.0, 1.0, 1.0)), dtype=np.float64)
     lines = []
@@ -418,6 +418,6 @@ def format_mtl_material(
 
 
 def format_mtl(blocks: list[str], header: str | None = None) -> str:
-    """A whole library from :func:`format_mtl_material` blocks."""
+    """A whole library from `format_mtl_material` blocks."""
     head = "".join(f"# {line}\n" for line in (header or "").splitlines())
     return head + ("\n" if head else "") + "\n".join(blocks)

@@ -1,6 +1,6 @@
 """The file formats strauss-fit reads and writes, by extension: the images it writes and
 the material tables of a conversion. Plain data without the readers and writers
-(:mod:`strauss_fit.io.images` and :mod:`strauss_fit.io.material_tables` bind those to it,
+(`strauss_fit.io.images` and `strauss_fit.io.material_tables` bind those to it,
 keyed by the same extensions), so that the command line builds its help and checks
 extensions without importing the numerical stack."""
 
@@ -28,7 +28,7 @@ class ImageFormat:
         return "srgb" if self.ldr else "linear"
 
 
-#: The image formats strauss-fit writes (:func:`strauss_fit.io.images.encode_image`), by
+#: The image formats strauss-fit writes (`strauss_fit.io.images.encode_image`), by
 #: extension: HDR formats as linear float32, LDR formats as 8-bit sRGB. Another extension
 #: OpenImageIO writes is written as linear float32 too, converted by OpenImageIO as that
 #: format stores it.
@@ -45,7 +45,7 @@ HDR_EXTENSIONS: tuple[str, ...] = tuple(suffix for suffix, image in IMAGE_FORMAT
 LDR_EXTENSIONS: tuple[str, ...] = tuple(suffix for suffix, image in IMAGE_FORMATS.items() if image.ldr)
 
 
-#: How an input image's values are decoded (:func:`strauss_fit.io.images.read_image`):
+#: How an input image's values are decoded (`strauss_fit.io.images.read_image`):
 #: ``"auto"`` by the file's real format (sRGB for 8-bit formats), or as named.
 IMAGE_ENCODINGS = ("auto", "linear", "srgb")
 

@@ -79,7 +79,7 @@ def match_scene(scene: Scene, target: Target) -> tuple[Scene, str | None]:
 
 
 #: The most pixels a fit works on: a larger target is fitted box-averaged to at most this
-#: many (:func:`reduce_target`), so that any image the scene format allows (8192 × 8192)
+#: many (`reduce_target`), so that any image the scene format allows (8192 × 8192)
 #: fits in a few GB. A 1024 × 1024 sphere has 820 000 pixels, far more than the handful
 #: of parameters need.
 MAX_FIT_PIXELS = 1024 * 1024

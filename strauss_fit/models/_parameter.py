@@ -1,9 +1,9 @@
-"""One parameter of a shading model: :class:`Parameter`, its name, size, range and default.
+"""One parameter of a shading model: `Parameter`, its name, size, range and default.
 
 A module of its own, importing nothing of the package's models: the Strauss material
-(:mod:`strauss_fit.models.material`) defines its parameters with it, and the reflectance
-models (:mod:`strauss_fit.models.reflectance`, which import the material) take them from
-there; :mod:`strauss_fit.models.reflectance` re-exports it.
+(`strauss_fit.models.material`) defines its parameters with it, and the reflectance
+models (`strauss_fit.models.reflectance`, which import the material) take them from
+there; `strauss_fit.models.reflectance` re-exports it.
 """
 
 from __future__ import annotations

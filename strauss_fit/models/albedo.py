@@ -1,57 +1,57 @@
 r"""Directional-hemispherical reflectance of the local Phong and Strauss models.
 
 **Normalisation.** Both models give the radiance leaving a surface lit by a directional
-light of intensity I as :math:`L_o = I\,Q(\omega_i, \omega_o)`, where the diffuse part of Q
-carries the factor :math:`\cos\alpha` and the highlight does not. Their coefficients are
-meant so that a white Lambertian surface (Phong :math:`k_d C_d = 1`; Strauss C = 1,
-s = m = t = 0) shows :math:`L_o = I\cos\alpha` and reflects *all* the light it receives.
+light of intensity I as `L_o = I\,Q(\omega_i, \omega_o)`, where the diffuse part of Q
+carries the factor `\cos\alpha` and the highlight does not. Their coefficients are
+meant so that a white Lambertian surface (Phong `k_d C_d = 1`; Strauss C = 1,
+s = m = t = 0) shows `L_o = I\cos\alpha` and reflects *all* the light it receives.
 That fixes the photometric reading of I: a light of intensity I delivers the irradiance
-:math:`E = \pi I \cos\alpha` (I is the radiance a white Lambertian surface facing it would
-reflect). The BRDF is then :math:`f_r = L_o/E = Q/(\pi\cos\alpha)` and the
+`E = \pi I \cos\alpha` (I is the radiance a white Lambertian surface facing it would
+reflect). The BRDF is then `f_r = L_o/E = Q/(\pi\cos\alpha)` and the
 directional-hemispherical reflectance (albedo) at the angle of incidence α is
 
-.. math::
+```text
+\rho(\alpha) = \int_{H} f_r \cos\theta_o\, d\omega_o
+             = \frac{1}{\pi\cos\alpha} \int_{H} Q(\alpha, \omega_o)\cos\theta_o\, d\omega_o,
+```
 
-    \rho(\alpha) = \int_{H} f_r \cos\theta_o\, d\omega_o
-                 = \frac{1}{\pi\cos\alpha} \int_{H} Q(\alpha, \omega_o)\cos\theta_o\, d\omega_o,
-
-over the outgoing hemisphere H (:math:`N\cdot V > 0`). A Lambertian
-:math:`Q = k_d\cos\alpha` gives exactly :math:`\rho = k_d` (the convention's closed form,
-checked numerically in the tests). Without the :math:`1/\pi` reading — I as the
+over the outgoing hemisphere H (`N\cdot V > 0`). A Lambertian
+`Q = k_d\cos\alpha` gives exactly `\rho = k_d` (the convention's closed form,
+checked numerically in the tests). Without the `1/\pi` reading — I as the
 irradiance itself — every ρ below would be π times larger and a white matte surface would
 already create energy; that reading is not what either model intends. ρ > 1 at some α
 means the model reflects more light than it receives: energy is created.
 
 Per RGB channel (light white):
 
-- Phong: :math:`\rho = k_d C_d + k_s C_{sp}\, \frac{1}{\pi\cos\alpha}\int_H \cos^n\beta\,\cos\theta_o\,d\omega`;
-  at normal incidence the lobe integral is :math:`2\pi/(n + 2)`, so
-  :math:`\rho(0) = k_d C_d + 2 k_s C_{sp}/(n + 2)` (closed form used in the tests).
-- Strauss: :math:`\rho = (1 - ms)(1 - s^3)(1 - t)\,C + C_s(\alpha)\,
+- Phong: `\rho = k_d C_d + k_s C_{sp}\, \frac{1}{\pi\cos\alpha}\int_H \cos^n\beta\,\cos\theta_o\,d\omega`;
+  at normal incidence the lobe integral is `2\pi/(n + 2)`, so
+  `\rho(0) = k_d C_d + 2 k_s C_{sp}/(n + 2)` (closed form used in the tests).
+- Strauss: `\rho = (1 - ms)(1 - s^3)(1 - t)\,C + C_s(\alpha)\,
   \frac{1}{\pi\cos\alpha}\int_H r_j(\alpha, \gamma_o)\cos^h\beta\,\cos\theta_o\,d\omega`, with
-  :math:`r_j`, h and :math:`C_s` as in :mod:`strauss_fit.models.strauss` (the local model only:
+  `r_j`, h and `C_s` as in `strauss_fit.models.strauss` (the local model only:
   the global model's mirror ray is a separate, delta-shaped term and light transmitted
   at t > 0 is not counted, so ρ > 1 is a sufficient condition for creating energy). At
   s = 1 the direct highlight is a delta that carries no energy (h = ∞), so ρ is the
   diffuse part alone.
 
-Both highlights are not multiplied by :math:`\cos\alpha`, so their albedo grows like
-:math:`1/\cos\alpha` toward grazing incidence for wide lobes: both models create energy
+Both highlights are not multiplied by `\cos\alpha`, so their albedo grows like
+`1/\cos\alpha` toward grazing incidence for wide lobes: both models create energy
 near 90° for most materials. Angles are therefore reported up to a stated maximum.
 
 **Quadrature.** The lobe integral is computed in coordinates about the mirror direction R
-(β from R, azimuth ψ about it; :math:`d\omega = d(\cos\beta)\,d\psi`), with the
-substitution :math:`w = \cos^{k+1}\beta` that absorbs the peak,
-:math:`\cos^k\beta\, d(\cos\beta) = dw/(k + 1)`, so that narrow lobes (n up to 10⁴) need
+(β from R, azimuth ψ about it; `d\omega = d(\cos\beta)\,d\psi`), with the
+substitution `w = \cos^{k+1}\beta` that absorbs the peak,
+`\cos^k\beta\, d(\cos\beta) = dw/(k + 1)`, so that narrow lobes (n up to 10⁴) need
 no more nodes than wide ones. For each ring β the visible azimuths are
-:math:`|\psi| < \psi_m(\beta)`, :math:`\cos\psi_m = -\cot\beta\cot\alpha` (where
-:math:`\cos\theta_o = \cos\beta\cos\alpha + \sin\beta\sin\alpha\cos\psi` crosses 0); ψ is
-integrated by Gauss–Legendre on :math:`[0, \psi_m]` (the integrand is even in ψ), and w by
+`|\psi| < \psi_m(\beta)`, `\cos\psi_m = -\cot\beta\cot\alpha` (where
+`\cos\theta_o = \cos\beta\cos\alpha + \sin\beta\sin\alpha\cos\psi` crosses 0); ψ is
+integrated by Gauss–Legendre on `[0, \psi_m]` (the integrand is even in ψ), and w by
 Gauss–Legendre on two pieces split where the rings start to cross the horizon,
-:math:`\cos\beta = \sin\alpha`, which keeps the integrand smooth on each piece. The diffuse
+`\cos\beta = \sin\alpha`, which keeps the integrand smooth on each piece. The diffuse
 part uses the same rule about N (α = 0, k = 0), which is exact for it. With the default
-:data:`DEFAULT_NODES` = 48 nodes per axis (2 × 48 in w) the error is below 1e-6 on the
-closed forms and below :func:`quadrature_error`'s estimate (difference to twice the
+`DEFAULT_NODES` = 48 nodes per axis (2 × 48 in w) the error is below 1e-6 on the
+closed forms and below `quadrature_error`'s estimate (difference to twice the
 nodes, reported by the study) elsewhere.
 """
 
@@ -79,12 +79,12 @@ def _normalised(cosine: np.ndarray) -> np.ndarray:
 
 
 def lobe_nodes(alpha: np.ndarray, k: np.ndarray, nodes: int = DEFAULT_NODES) -> tuple[np.ndarray, np.ndarray]:
-    r"""Quadrature for :math:`\int_H \max(\cos\beta, 0)^k\, g(\cos\theta_o) \cos\theta_o\, d\omega`.
+    r"""Quadrature for `\int_H \max(\cos\beta, 0)^k\, g(\cos\theta_o) \cos\theta_o\, d\omega`.
 
     ``alpha`` (A,) angles of incidence in radians (< π/2), ``k`` (M,) lobe exponents ≥ 0
     (``inf`` for a delta: weight 0). Returns ``weights`` and ``cos_theta`` (M, A, 2·nodes,
     nodes) such that the integral is ``sum(weights * g(cos_theta))``; ``weights`` already
-    hold :math:`\cos\theta_o`, the Jacobians and the :math:`1/(k + 1)` factor.
+    hold `\cos\theta_o`, the Jacobians and the `1/(k + 1)` factor.
     """
     alpha = np.asarray(alpha, dtype=np.float64)[None, :, None, None]
     k = np.asarray(k, dtype=np.float64)[:, None, None, None]

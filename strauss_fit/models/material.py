@@ -17,7 +17,7 @@ from ..precision import uses_float64
 from ._parameter import Parameter
 
 #: The Strauss parameters, in the order used by fits and reports: the one place they are
-#: written. The reflectance registry's Strauss model (:mod:`strauss_fit.models.reflectance`)
+#: written. The reflectance registry's Strauss model (`strauss_fit.models.reflectance`)
 #: holds these very objects; every name list and range below is derived from them.
 STRAUSS_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
@@ -131,7 +131,7 @@ def check_values(
     transparency: Any = 0.0,
     ior: Any = 1.5,
 ) -> None:
-    """Validate material values as :class:`Material` does, without building JAX arrays
+    """Validate material values as `Material` does, without building JAX arrays
     (cheap: for reading thousands of materials from a file)."""
     _check_color(color)
     _check_scalar("smoothness", smoothness)
@@ -153,7 +153,7 @@ class Material(eqx.Module):
 
     ``color`` is linear RGB in [0, 1]^3; ``smoothness``, ``metalness`` and ``transparency``
     lie in [0, 1]; ``ior`` (the index of refraction n) is at least 1. Concrete values are
-    validated on construction (a :class:`~strauss_fit.errors.MaterialError` names the field
+    validated on construction (a `MaterialError` names the field
     and its range); traced values, e.g. inside a fit or ``jax.grad`` — also a tuple
     holding them, ``Material(color=(p[0], p[1], p[2]))`` — are not checked. Leaves may carry
     leading batch axes (colour ``(..., 3)``, scalars ``(...)``) for ``vmap``.

@@ -1,5 +1,5 @@
 """The Strauss evaluator's modes and table size: importable without JAX (the command line
-names them in its help, which must not load JAX). :mod:`strauss_fit.models.strauss`
+names them in its help, which must not load JAX). `strauss_fit.models.strauss`
 implements them."""
 
 from __future__ import annotations

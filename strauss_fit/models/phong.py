@@ -6,45 +6,45 @@ parameters in [0, 1]. It is offered here so that both models can render the same
 be fitted and compared.
 
 Geometry as in the Strauss model: unit vectors N (normal), L (toward the light), V (toward
-the viewer); :math:`R = 2N(N\cdot L) - L` is the mirror direction of L and
-:math:`H = (L + V)/|L + V|` the half vector.
+the viewer); `R = 2N(N\cdot L) - L` is the mirror direction of L and
+`H = (L + V)/|L + V|` the half vector.
 
-Material (:class:`PhongMaterial`):
+Material (`PhongMaterial`):
 
 =================  =============================  ============================================
 symbol             field                          range
 =================  =============================  ============================================
-:math:`k_a`        ``ka``                         scalar or RGB, each ≥ 0 (ambient)
-:math:`k_d`        ``kd``                         scalar or RGB, each ≥ 0 (diffuse)
-:math:`k_s`        ``ks``                         scalar or RGB, each ≥ 0 (specular)
-:math:`n`          ``exponent``                   [0, 10000] (:data:`MAX_EXPONENT`)
-:math:`C_d`        ``diffuse_color``              RGB in [0, 1]^3
-:math:`C_{sp}`     ``specular_color``             RGB in [0, 1]^3
+`k_a`        ``ka``                         scalar or RGB, each ≥ 0 (ambient)
+`k_d`        ``kd``                         scalar or RGB, each ≥ 0 (diffuse)
+`k_s`        ``ks``                         scalar or RGB, each ≥ 0 (specular)
+`n`          ``exponent``                   [0, 10000] (`MAX_EXPONENT`)
+`C_d`        ``diffuse_color``              RGB in [0, 1]^3
+`C_{sp}`     ``specular_color``             RGB in [0, 1]^3
 —                  ``blinn``                      static bool: Blinn–Phong half vector
 =================  =============================  ============================================
 
-Radiance (linear RGB, no tone mapping) with ambient intensity :math:`I_a` and lights i of
-intensity :math:`I_i` (after a point light's attenuation, as for Strauss) and colour
-:math:`C_{L,i}`:
+Radiance (linear RGB, no tone mapping) with ambient intensity `I_a` and lights i of
+intensity `I_i` (after a point light's attenuation, as for Strauss) and colour
+`C_{L,i}`:
 
-.. math::
+```text
+I = k_a I_a C_d + \sum_i I_i\, C_{L,i} \left[k_d C_d \cos\alpha_i
+    + k_s C_{sp} \cos^n\beta_i\right],
+```
 
-    I = k_a I_a C_d + \sum_i I_i\, C_{L,i} \left[k_d C_d \cos\alpha_i
-        + k_s C_{sp} \cos^n\beta_i\right],
+with `\cos\alpha = N\cdot L` and
 
-with :math:`\cos\alpha = N\cdot L` and
-
-- Phong (``blinn = False``): :math:`\cos\beta = \max(R\cdot V, 0)`, the angle between the
+- Phong (``blinn = False``): `\cos\beta = \max(R\cdot V, 0)`, the angle between the
   mirror direction of L and the view direction;
-- Blinn–Phong (``blinn = True``): :math:`\cos\beta = \max(N\cdot H, 0)`.
+- Blinn–Phong (``blinn = True``): `\cos\beta = \max(N\cdot H, 0)`.
 
-A light contributes nothing where :math:`N\cdot L \le 0` or :math:`N\cdot V \le 0`.
-:math:`\cos\beta` is clamped at 0 *before* the power, and :math:`\cos^n\beta` is 0 where
-:math:`\cos\beta = 0` (so for n = 0 the highlight term is :math:`k_s C_{sp}` wherever
-:math:`\cos\beta > 0`). The power is evaluated as :math:`\exp(n \log\cos\beta)` behind a
+A light contributes nothing where `N\cdot L \le 0` or `N\cdot V \le 0`.
+`\cos\beta` is clamped at 0 *before* the power, and `\cos^n\beta` is 0 where
+`\cos\beta = 0` (so for n = 0 the highlight term is `k_s C_{sp}` wherever
+`\cos\beta > 0`). The power is evaluated as `\exp(n \log\cos\beta)` behind a
 double ``where``, so value and gradient are finite everywhere, in n as well.
 
-Rendering a scene with a Phong material is :func:`strauss_fit.rendering.phong.render_phong`.
+Rendering a scene with a Phong material is `strauss_fit.rendering.phong.render_phong`.
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def check_values(
     specular_color: Any = (1.0, 1.0, 1.0),
     blinn: bool = False,
 ) -> None:
-    """Validate Phong values as :class:`PhongMaterial` does, without building JAX arrays
+    """Validate Phong values as `PhongMaterial` does, without building JAX arrays
     (cheap: for reading thousands of materials from a file)."""
     for name, value in (("ka", ka), ("kd", kd), ("ks", ks)):
         _check_number(name, value, rgb_allowed=True)
@@ -158,7 +158,7 @@ class PhongMaterial(eqx.Module):
     ``ka``, ``kd`` and ``ks`` are scalars or RGB triples, each ≥ 0; ``exponent`` lies in
     [0, 10000]; ``diffuse_color`` and ``specular_color`` are linear RGB in [0, 1]^3;
     ``blinn`` (static) selects the Blinn–Phong half-vector highlight. Concrete values are
-    validated on construction (a :class:`~strauss_fit.errors.MaterialError` names the field
+    validated on construction (a `MaterialError` names the field
     and its range); traced values are not checked. See the module docstring for the model.
     """
 
@@ -254,8 +254,8 @@ def coefficient(value: Array) -> Array:
 
 
 def highlight_power(cos_beta: ArrayLike, exponent: ArrayLike) -> Array:
-    r""":math:`\cos^n\beta` for a cosine already clamped at 0: 0 where cos β ≤ 0, else
-    :math:`\exp(n \log\cos\beta)`; value and gradient (in cos β and n) are finite."""
+    r"""`\cos^n\beta` for a cosine already clamped at 0: 0 where cos β ≤ 0, else
+    `\exp(n \log\cos\beta)`; value and gradient (in cos β and n) are finite."""
     cos_beta = jnp.asarray(cos_beta)
     positive = cos_beta > 0
     log_base = jnp.log(jnp.where(positive, cos_beta, 1.0))
@@ -288,13 +288,13 @@ def phong_shade(
     to_eye: ArrayLike,
     light_color: ArrayLike = (1.0, 1.0, 1.0),
 ) -> Array:
-    r"""Phong radiance per unit light intensity, :math:`C_L [k_d C_d \cos\alpha + k_s C_{sp}
+    r"""Phong radiance per unit light intensity, `C_L [k_d C_d \cos\alpha + k_s C_{sp}
     \cos^n\beta]`, shape ``(..., 3)``.
 
     ``normal``, ``to_light`` and ``to_eye`` are unit vectors of shape ``(..., 3)`` that
     broadcast against each other; the result is 0 where N·L ≤ 0 or N·V ≤ 0. cos β is R·V
     (Phong) or N·H (Blinn–Phong, ``material.blinn``), clamped at 0 before the power.
-    The ambient term is not included (see :func:`strauss_fit.rendering.phong.render_phong`).
+    The ambient term is not included (see `strauss_fit.rendering.phong.render_phong`).
     """
     lit, cos_alpha, cos_beta = phong_angles(normal, to_light, to_eye, material.blinn)
     zero = jnp.zeros((), dtype=cos_beta.dtype)

@@ -1,31 +1,31 @@
 r"""The local Strauss (1990) lighting model, as fixed in docs/model.md.
 
 For unit vectors N (normal), L (toward the light) and V (toward the viewer), with
-:math:`\cos\alpha = N\cdot L`, :math:`\cos\gamma = N\cdot V`, :math:`R = 2N(N\cdot L) - L` and
-:math:`\cos\beta = \max(R\cdot V, 0)`, one light of colour :math:`C_L` contributes, per unit
+`\cos\alpha = N\cdot L`, `\cos\gamma = N\cdot V`, `R = 2N(N\cdot L) - L` and
+`\cos\beta = \max(R\cdot V, 0)`, one light of colour `C_L` contributes, per unit
 intensity,
 
-.. math::
+```text
+Q_d C_L + Q_s, \qquad
+Q_d = (1 - m s)\, r_d\, C \cos\alpha, \qquad r_d = (1 - s^3)(1 - t),
 
-    Q_d C_L + Q_s, \qquad
-    Q_d = (1 - m s)\, r_d\, C \cos\alpha, \qquad r_d = (1 - s^3)(1 - t),
+Q_s = r_s C_s, \quad r_s = r_j \cos^h\beta, \quad h = \frac{3}{1 - s}, \quad
+r_j = \min\{1,\ r_n + j\,(r_n + k_j)\}, \quad r_n = (1 - t)\,s^3,
 
-    Q_s = r_s C_s, \quad r_s = r_j \cos^h\beta, \quad h = \frac{3}{1 - s}, \quad
-    r_j = \min\{1,\ r_n + j\,(r_n + k_j)\}, \quad r_n = (1 - t)\,s^3,
+j = F(2\alpha/\pi)\,G(2\alpha/\pi)\,G(2\gamma/\pi), \qquad
+C_s = C_L + m\,(1 - F(2\alpha/\pi))\,(C - C_L),
+```
 
-    j = F(2\alpha/\pi)\,G(2\alpha/\pi)\,G(2\gamma/\pi), \qquad
-    C_s = C_L + m\,(1 - F(2\alpha/\pi))\,(C - C_L),
-
-and nothing where :math:`N\cdot L \le 0` or :math:`N\cdot V \le 0`. F and G are Strauss's
-Fresnel and shadowing approximations (:func:`fresnel`, :func:`shadow`) with
-:data:`K_F` = 1.12, :data:`K_G` = 1.01 and :data:`K_J` = 0.1.
+and nothing where `N\cdot L \le 0` or `N\cdot V \le 0`. F and G are Strauss's
+Fresnel and shadowing approximations (`fresnel`, `shadow`) with
+`K_F` = 1.12, `K_G` = 1.01 and `K_J` = 0.1.
 
 The evaluation is split in two stages so that fits can precompute the first once per
-scene: :func:`angular_terms` depends only on the geometry (and the evaluation mode), and
-:func:`shade_terms` adds the material. :func:`shade` composes them.
+scene: `angular_terms` depends only on the geometry (and the evaluation mode), and
+`shade_terms` adds the material. `shade` composes them.
 
 At ``s = 1`` the exponent h is infinite and the direct highlight is a delta: it is
-:math:`r_j` where :math:`\cos\beta = 1` exactly and 0 elsewhere (no arbitrary large h).
+`r_j` where `\cos\beta = 1` exactly and 0 elsewhere (no arbitrary large h).
 """
 
 from __future__ import annotations
@@ -54,10 +54,10 @@ from .modes import DEFAULT_TABLE_SIZE, MODES, Mode  # noqa: E402 (the evaluator 
 
 @uses_float64
 def fresnel(x: ArrayLike) -> Array:
-    r"""Strauss's Fresnel approximation, :math:`x \in [0, 1]` the normalised angle 2θ/π.
+    r"""Strauss's Fresnel approximation, `x \in [0, 1]` the normalised angle 2θ/π.
 
-    :math:`F(x) = \dfrac{(x - k_f)^{-2} - k_f^{-2}}{(1 - k_f)^{-2} - k_f^{-2}}`;
-    F(0) = 0, F(1) = 1. Safe for all x in [0, 1] since :math:`k_f > 1`.
+    `F(x) = \dfrac{(x - k_f)^{-2} - k_f^{-2}}{(1 - k_f)^{-2} - k_f^{-2}}`;
+    F(0) = 0, F(1) = 1. Safe for all x in [0, 1] since `k_f > 1`.
 
     Examples:
         >>> import strauss_fit as sf
@@ -89,7 +89,7 @@ def _shadow(x):
 def shadow(x: ArrayLike) -> Array:
     r"""Strauss's shadowing approximation (the paper's form, not the lecture's misprint).
 
-    :math:`G(x) = \dfrac{(1 - k_g)^{-2} - (x - k_g)^{-2}}{(1 - k_g)^{-2} - k_g^{-2}}`;
+    `G(x) = \dfrac{(1 - k_g)^{-2} - (x - k_g)^{-2}}{(1 - k_g)^{-2} - k_g^{-2}}`;
     G(0) = 1 (normal incidence), G(1) = 0 (grazing).
 
     Examples:
@@ -177,7 +177,7 @@ def angular_terms(
     mode: Mode = "exact",
     table_size: int = DEFAULT_TABLE_SIZE,
 ) -> AngularTerms:
-    """Compute :class:`AngularTerms` for unit vectors of shape ``(..., 3)`` (broadcasting)."""
+    """Compute `AngularTerms` for unit vectors of shape ``(..., 3)`` (broadcasting)."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
     normal, to_light, to_eye = (jnp.asarray(v) for v in (normal, to_light, to_eye))
@@ -210,24 +210,24 @@ def angular_terms(
 
 
 def diffuse_reflectivity(material: Material) -> Array:
-    """:math:`r_d = (1 - s^3)(1 - t)`."""
+    """`r_d = (1 - s^3)(1 - t)`."""
     s, t = material.smoothness, material.transparency
     return (1 - s**3) * (1 - t)
 
 
 def specular_base(material: Material) -> Array:
-    """:math:`r_n = (1 - t)\\,s^3` (= 1 - t - r_d)."""
+    """`r_n = (1 - t)\\,s^3` (= 1 - t - r_d)."""
     return (1 - material.transparency) * material.smoothness**3
 
 
 def specular_peak(material: Material, j: ArrayLike) -> Array:
-    """:math:`r_j = \\min\\{1, r_n + j (r_n + k_j)\\}`."""
+    """`r_j = \\min\\{1, r_n + j (r_n + k_j)\\}`."""
     r_n = specular_base(material)
     return jnp.minimum(1.0, r_n + jnp.asarray(j) * (r_n + K_J))
 
 
 def highlight_falloff(cos_beta: ArrayLike, smoothness: ArrayLike) -> Array:
-    """:math:`\\cos^h\\beta` with :math:`h = 3/(1-s)`, guarded at both ends.
+    """`\\cos^h\\beta` with `h = 3/(1-s)`, guarded at both ends.
 
     cos β ≤ 0 gives 0 (the base is clamped before the power). At s = 1 exactly the lobe is a
     delta: 1 where cos β = 1, else 0. Below s = 1 it is ``exp(h log cos β)``, whose gradient
@@ -237,8 +237,8 @@ def highlight_falloff(cos_beta: ArrayLike, smoothness: ArrayLike) -> Array:
 
 
 def _falloff(cos_beta: Array, smoothness: Array, slope: bool = False) -> tuple[Array, Array | None]:
-    r""":func:`highlight_falloff` and, with ``slope``, its derivative in s,
-    :math:`\cos^h\beta \log(\cos\beta)\, dh/ds` with :math:`dh/ds = 3/(1 - s)^2 = h^2/3`
+    r"""`highlight_falloff` and, with ``slope``, its derivative in s,
+    `\cos^h\beta \log(\cos\beta)\, dh/ds` with `dh/ds = 3/(1 - s)^2 = h^2/3`
     (0 where the value is guarded: cos β ≤ 0, s = 1)."""
     below_one = smoothness < 1
     exponent = 3.0 / (1.0 - jnp.where(below_one, smoothness, 0.0))
@@ -253,7 +253,7 @@ def _falloff(cos_beta: Array, smoothness: Array, slope: bool = False) -> tuple[A
 
 
 def specular_color(material: Material, fresnel_alpha: ArrayLike, light_color: ArrayLike) -> Array:
-    """:math:`C_s = C_L + m (1 - F) (C - C_L)`, shape ``(..., 3)``."""
+    """`C_s = C_L + m (1 - F) (C - C_L)`, shape ``(..., 3)``."""
     light_color = jnp.asarray(light_color)
     weight = material.metalness * (1 - jnp.asarray(fresnel_alpha))
     return light_color + weight[..., None] * (material.color - light_color)
@@ -261,7 +261,7 @@ def specular_color(material: Material, fresnel_alpha: ArrayLike, light_color: Ar
 
 class ShadeWeights(NamedTuple):
     r"""The scalar weights of one light, shape ``(...)``, such that
-    :math:`Q_d C_L + Q_s = d\,(C \circ C_L) + r_s C_L + w\,(C - C_L)`:
+    `Q_d C_L + Q_s = d\,(C \circ C_L) + r_s C_L + w\,(C - C_L)`:
     ``diffuse`` d = (1 − m s) r_d cos α, ``specular`` r_s, ``tint`` w = r_s m (1 − F)."""
 
     diffuse: Array
@@ -270,19 +270,19 @@ class ShadeWeights(NamedTuple):
 
 
 def shade_weights(material: Material, terms: AngularTerms) -> ShadeWeights:
-    """:class:`ShadeWeights` from precomputed terms. Why scalars: forming RGB once, by
+    """`ShadeWeights` from precomputed terms. Why scalars: forming RGB once, by
     broadcasting at the end, is several times faster on XLA:CPU than per-light RGB arrays."""
     return weights_of(material.smoothness, material.metalness, material.transparency, terms)
 
 
 def weights_of(s: Array, m: Array, t: Array, terms: AngularTerms) -> ShadeWeights:
-    """:class:`ShadeWeights` of smoothness ``s``, metalness ``m`` and transparency ``t``."""
+    """`ShadeWeights` of smoothness ``s``, metalness ``m`` and transparency ``t``."""
     return _weights(s, m, t, terms, slopes=False)[0]
 
 
 class WeightSlopes(NamedTuple):
-    """The derivatives of :class:`ShadeWeights` in s, m and t (each a
-    :class:`ShadeWeights` of the same shape)."""
+    """The derivatives of `ShadeWeights` in s, m and t (each a
+    `ShadeWeights` of the same shape)."""
 
     smoothness: ShadeWeights
     metalness: ShadeWeights
@@ -290,34 +290,34 @@ class WeightSlopes(NamedTuple):
 
 
 def weight_slopes(s: Array, m: Array, t: Array, terms: AngularTerms) -> tuple[ShadeWeights, WeightSlopes]:
-    r"""The weights (:func:`weights_of`) and their derivatives in s, m and t, in closed form:
+    r"""The weights (`weights_of`) and their derivatives in s, m and t, in closed form:
 
-    .. math::
+    ```text
+    \partial_s d = -[m (1 - s^3) + 3 s^2 (1 - m s)] (1 - t) \cos\alpha, \quad
+    \partial_m d = -s (1 - s^3)(1 - t)\cos\alpha, \quad
+    \partial_t d = -(1 - m s)(1 - s^3)\cos\alpha,
 
-        \partial_s d = -[m (1 - s^3) + 3 s^2 (1 - m s)] (1 - t) \cos\alpha, \quad
-        \partial_m d = -s (1 - s^3)(1 - t)\cos\alpha, \quad
-        \partial_t d = -(1 - m s)(1 - s^3)\cos\alpha,
+    \partial_s r_s = g\,(1 + j)\,3 s^2 (1 - t)\,P + r_j P \log(\cos\beta)\,\frac{3}{(1 - s)^2},
+    \quad \partial_t r_s = -g\,(1 + j)\,s^3 P, \quad \partial_m r_s = 0,
 
-        \partial_s r_s = g\,(1 + j)\,3 s^2 (1 - t)\,P + r_j P \log(\cos\beta)\,\frac{3}{(1 - s)^2},
-        \quad \partial_t r_s = -g\,(1 + j)\,s^3 P, \quad \partial_m r_s = 0,
+    \partial_\theta w = \partial_\theta r_s\, m (1 - F) \ (\theta = s, t), \quad
+    \partial_m w = r_s (1 - F),
+    ```
 
-        \partial_\theta w = \partial_\theta r_s\, m (1 - F) \ (\theta = s, t), \quad
-        \partial_m w = r_s (1 - F),
-
-    with :math:`P = \cos^h\beta` and g the slope of the clamp :math:`\min\{1, \cdot\}` (1
+    with `P = \cos^h\beta` and g the slope of the clamp `\min\{1, \cdot\}` (1
     below, 0 above, ½ at the tie, as JAX differentiates ``minimum``). The guards are those
-    of :func:`highlight_falloff`: no slope where cos β ≤ 0 or s = 1 (the delta lobe).
+    of `highlight_falloff`: no slope where cos β ≤ 0 or s = 1 (the delta lobe).
     Why: a fit's Jacobian built from these costs about two renders, where forward-mode
     differentiation of the render costs about one per parameter (see
-    :func:`strauss_fit.rendering.strauss.direct_radiance`)."""
+    `strauss_fit.rendering.strauss.direct_radiance`)."""
     return _weights(s, m, t, terms, slopes=True)
 
 
 def _weights(
     s: Array, m: Array, t: Array, terms: AngularTerms, slopes: bool
 ) -> tuple[ShadeWeights, WeightSlopes | None]:
-    """The one home of the weights' formulas: :func:`weights_of`, and with ``slopes`` the
-    derivatives of :func:`weight_slopes` from the same subexpressions."""
+    """The one home of the weights' formulas: `weights_of`, and with ``slopes`` the
+    derivatives of `weight_slopes` from the same subexpressions."""
     s3 = s**3
     one_minus_t = 1 - t
     r_d = (1 - s3) * one_minus_t  # diffuse_reflectivity
@@ -347,7 +347,7 @@ def _weights(
 
 
 def combine_rgb(weights: ShadeWeights, color: Array, light_color: Array) -> Array:
-    r""":math:`d\,(C \circ C_L) + r_s C_L + w\,(C - C_L)`, shape ``(..., 3)``."""
+    r"""`d\,(C \circ C_L) + r_s C_L + w\,(C - C_L)`, shape ``(..., 3)``."""
     return (
         weights.diffuse[..., None] * (color * light_color)
         + weights.specular[..., None] * light_color
@@ -356,7 +356,7 @@ def combine_rgb(weights: ShadeWeights, color: Array, light_color: Array) -> Arra
 
 
 def shade_terms(material: Material, terms: AngularTerms, light_color: ArrayLike = (1.0, 1.0, 1.0)) -> Array:
-    """:math:`Q_d C_L + Q_s` (RGB, per unit light intensity) from precomputed terms."""
+    """`Q_d C_L + Q_s` (RGB, per unit light intensity) from precomputed terms."""
     light_color = jnp.asarray(light_color, dtype=terms.cos_alpha.dtype)
     return combine_rgb(shade_weights(material, terms), material.color, light_color)
 
@@ -371,7 +371,7 @@ def shade(
     mode: Mode = "exact",
     table_size: int = DEFAULT_TABLE_SIZE,
 ) -> Array:
-    """Strauss radiance :math:`Q_d C_L + Q_s` per unit light intensity, shape ``(..., 3)``.
+    """Strauss radiance `Q_d C_L + Q_s` per unit light intensity, shape ``(..., 3)``.
 
     ``normal``, ``to_light`` and ``to_eye`` are unit vectors of shape ``(..., 3)`` and
     broadcast against each other; the result is 0 where N·L ≤ 0 or N·V ≤ 0.

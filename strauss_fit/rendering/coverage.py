@@ -8,15 +8,15 @@ were sphere pixels sampled at the centre biases the fit: on a noise-free Lambert
 rendered by Mitsuba, the 252 partly covered pixels of a 64 × 64 image pulled smoothness
 from 0 to 0.12 (their dimming mimics the darker limb of a smoother material).
 
-:func:`pixel_coverage` gives, per pixel, the fraction of its square footprint that shows
-the sphere; :func:`fully_covered` the pixels whose whole footprint does. The projected
+`pixel_coverage` gives, per pixel, the fraction of its square footprint that shows
+the sphere; `fully_covered` the pixels whose whole footprint does. The projected
 sphere is convex in the image plane (a disk for the orthographic camera, the interior of
 an ellipse for the perspective one), so a pixel is fully covered exactly when the rays
 through its four corners all hit, and uncovered when none of the rays through a fine grid
 over it does. Only pixels whose corners disagree are supersampled.
 
 Which pixels a fit uses (``FitOptions.edge_pixels``): by default (``"auto"``) the fit
-looks at the silhouette (:func:`silhouette_blend`). Where a pixel's centre misses the sphere
+looks at the silhouette (`silhouette_blend`). Where a pixel's centre misses the sphere
 but its footprint does not, a point-sampled image shows pure background and a blended one
 (box filter, camera) background mixed with as much of the sphere as covers the pixel; when
 the target shows no such mix, the image is point-sampled (strauss-fit's own renders) and
@@ -75,7 +75,7 @@ def fully_covered(camera: Camera) -> np.ndarray:
 
 
 #: At least this many usable pixels of each kind (outer edge, clear background) for
-#: :func:`silhouette_blend` to decide.
+#: `silhouette_blend` to decide.
 SILHOUETTE_MIN_PIXELS = 16
 #: The clear background must match the scene's (its median offset, per channel) within
 #: this fraction of the sphere's brightness (its 98th percentile) for the check to mean
@@ -108,18 +108,18 @@ def silhouette_blend(
     docstring): True (blended), False (point-sampled) or None (cannot tell), and why.
 
     ``pixels`` (H, W, 3) the target, ``usable`` its usable pixels, ``hit`` where the ray
-    through the pixel centre hits the sphere, ``coverage`` :func:`pixel_coverage`,
+    through the pixel centre hits the sphere, ``coverage`` `pixel_coverage`,
     ``background`` (H, W, 3) the scene's background radiance at every pixel.
 
     On the *outer edge* (centre missing the sphere, footprint partly covered, coverage c)
-    a blended image records :math:`T = B + c\,(S - B)` and a point-sampled one
-    :math:`T = B`, plus noise; S is taken as the mean of the pixel's neighbours whose
-    centre hits the sphere. The blend factor k of :math:`T - B = k\,c\,(S - B) + ε` is
+    a blended image records `T = B + c\,(S - B)` and a point-sampled one
+    `T = B`, plus noise; S is taken as the mean of the pixel's neighbours whose
+    centre hits the sphere. The blend factor k of `T - B = k\,c\,(S - B) + ε` is
     fitted by least squares over the outer edge's values, with the noise's σ from the clear
     background (not covered; 1.4826 × the median absolute deviation of T − B): k ≈ 0 is
     point-sampled, k ≈ 1 (or more: the neighbours are partly covered too) blended, and
     the verdict is k > 1/2 — unless k's standard error exceeds
-    :data:`SILHOUETTE_MAX_ERROR` (too little contrast against the noise) or the clear
+    `SILHOUETTE_MAX_ERROR` (too little contrast against the noise) or the clear
     background does not match the scene's, when it cannot be told."""
     pixels = np.asarray(pixels, dtype=np.float64)
     difference = pixels - background

@@ -1,9 +1,9 @@
-r"""Rendering the sphere with the Phong model (:mod:`strauss_fit.models.phong`).
+r"""Rendering the sphere with the Phong model (`strauss_fit.models.phong`).
 
-Phong has no global model: :func:`render_phong` evaluates the local model at every pixel
+Phong has no global model: `render_phong` evaluates the local model at every pixel
 that sees the sphere and shows the scene's background elsewhere (``scene.depth`` is
 ignored; the scene's Strauss ``[material]`` is not used). The ambient term is
-:math:`k_a I_a C_d`.
+`k_a I_a C_d`.
 """
 
 from __future__ import annotations

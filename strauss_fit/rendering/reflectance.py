@@ -1,12 +1,12 @@
 r"""Rendering the sphere with any registered reflectance model
-(:mod:`strauss_fit.models.reflectance`).
+(`strauss_fit.models.reflectance`).
 
-Like Phong's renderer (:mod:`strauss_fit.rendering.phong`), the other models are local and
-opaque: :func:`render_model` evaluates the model at every pixel that sees the sphere, every
+Like Phong's renderer (`strauss_fit.rendering.phong`), the other models are local and
+opaque: `render_model` evaluates the model at every pixel that sees the sphere, every
 directional and point light as seen from the point, plus the scene's ambient light
 reflected as the model's ambient reflectance, and shows the scene's background elsewhere
 (``scene.depth`` is ignored; the scene's Strauss ``[material]`` is not used). Radiance per
-light: :math:`I\,C_L\,\text{radiance}(x)`, the models' convention (a Lambertian surface of
+light: `I\,C_L\,\text{radiance}(x)`, the models' convention (a Lambertian surface of
 albedo ρ shows ρ cos α I).
 """
 
@@ -31,7 +31,7 @@ from ..scene.loading import Scene
 @uses_float64
 def render_model(scene: Scene, model: str, values: Mapping[str, Any] | None = None) -> tuple[Array, Array]:
     """Render the sphere of ``scene`` with the registered reflectance ``model`` and its
-    parameter ``values`` (a mapping as :meth:`~strauss_fit.models.reflectance.ReflectanceModel.from_dict`
+    parameter ``values`` (a mapping as `from_dict`
     reads it; missing ones take the model's defaults): a linear RGB image (height, width, 3)
     and the sphere mask (height, width), float64."""
     reflectance = reflectance_model(model)
@@ -43,7 +43,7 @@ def render_model(scene: Scene, model: str, values: Mapping[str, Any] | None = No
 
 @eqx.filter_jit
 def _render_local(scene: Scene, reflectance: ReflectanceModel, x: dict[str, Array]) -> tuple[Array, Array]:
-    """The compiled core of :func:`render_model` (the model is a field-less module, so each
+    """The compiled core of `render_model` (the model is a field-less module, so each
     model and image size compiles once; a whole render is one call, as Strauss's is)."""
     dtype = jnp.float64
     rays = primary_rays(scene.camera, dtype)

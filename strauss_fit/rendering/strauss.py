@@ -2,33 +2,33 @@ r"""Rendering the sphere with the Strauss model: local lighting plus the global 
 
 Rendering runs in two stages so that a fit can do the first once per scene:
 
-1. :func:`prepare` traces the primary rays and computes everything that does not depend
+1. `prepare` traces the primary rays and computes everything that does not depend
    on the material: hit mask, normals, view vectors, the angular terms of every light
-   (:func:`strauss_fit.models.strauss.angular_terms`), the background seen by missed rays and, when
+   (`strauss_fit.models.strauss.angular_terms`), the background seen by missed rays and, when
    reflection is traced, the background seen along the mirror direction.
-2. :func:`shade_prepared` adds the material: the local model at every hit and, where the
-   :class:`RenderPlan` asks for it, the global model.
+2. `shade_prepared` adds the material: the local model at every hit and, where the
+   `RenderPlan` asks for it, the global model.
 
-:func:`render` composes them.
+`render` composes them.
 
 Global model (recursive ray tracing, Strauss's "global illumination model"). At a hit seen
-from outside, with :math:`\gamma` the angle of view:
+from outside, with `\gamma` the angle of view:
 
-- the *reflected* ray, along :math:`R_V = 2N(N\cdot V) - V`, is weighted by the specular
-  reflectivity for light arriving from the mirror direction, :math:`r_j` with α = γ
-  (cos β = 1), and coloured by :math:`C_s` (light colour white). The sphere is convex, so it
+- the *reflected* ray, along `R_V = 2N(N\cdot V) - V`, is weighted by the specular
+  reflectivity for light arriving from the mirror direction, `r_j` with α = γ
+  (cos β = 1), and coloured by `C_s` (light colour white). The sphere is convex, so it
   sees the background;
-- the *transmitted* ray is weighted by :math:`z = t(1 - r_s)/(1 - r_n)` (nothing where
-  t = 0), bent by Snell's law with :math:`n_{12} = 1/n`,
-  :math:`T = [n_{12}(N\cdot V) - \cos\alpha_2] N - n_{12} V`, and tinted by the colour C
+- the *transmitted* ray is weighted by `z = t(1 - r_s)/(1 - r_n)` (nothing where
+  t = 0), bent by Snell's law with `n_{12} = 1/n`,
+  `T = [n_{12}(N\cdot V) - \cos\alpha_2] N - n_{12} V`, and tinted by the colour C
   (a coloured-glass filter: without the tint a fully transparent material would show no
   colour at all and C could not be recovered from it). The tint applies once per passage
   through the body, at entry.
 
 Inside the sphere a ray meets the surface again at its exit point, where the same
-weights apply with the inward normal: the refracted part (:math:`n_{12} = n`) leaves and
-sees the background; the reflected part (weight :math:`r_j`, colour :math:`C_s`) stays
-inside. Beyond the critical angle, :math:`\sin\alpha > 1/n`, there is no refracted ray
+weights apply with the inward normal: the refracted part (`n_{12} = n`) leaves and
+sees the background; the reflected part (weight `r_j`, colour `C_s`) stays
+inside. Beyond the critical angle, `\sin\alpha > 1/n`, there is no refracted ray
 (total internal reflection): the share z that would have left is reflected too. Direct
 light is evaluated only at the hit seen from outside (lamps seen through the glass,
 i.e. caustics, are not modelled).
@@ -38,17 +38,17 @@ model alone. A ray still inside the sphere after the last allowed interaction is
 background radiance along its direction, as if the sphere ended there; nothing is dropped
 silently.
 
-Bounded work (:func:`effective_depth`). Each interaction inside the sphere multiplies what
-a ray still carries by the reflected weight :math:`r_j C_s`, and inside a sphere every
+Bounded work (`effective_depth`). Each interaction inside the sphere multiplies what
+a ray still carries by the reflected weight `r_j C_s`, and inside a sphere every
 interaction of a ray that entered by refraction happens at the same angle, below the
-critical angle :math:`\arcsin(1/n)`, where :math:`r_j` is small (at most 0.077 for the
+critical angle `\arcsin(1/n)`, where `r_j` is small (at most 0.077 for the
 bundled glass, t = 0.9, s = 0.9, n = 1.5). So the light a path can still bring after k
-interactions falls geometrically, and :func:`render` traces only as deep as it can change
+interactions falls geometrically, and `render` traces only as deep as it can change
 the image by more than a tolerance (by default the unit roundoff of the result's dtype,
 relative to the background's brightest radiance): the compiled program is smaller (at
 ``depth = 64`` a glass sphere compiled for about 70 s and 2.5 GB, 128 × 128 pixels).
 
-Only what the scene needs is computed (:func:`plan_render`): no light term for a kind of
+Only what the scene needs is computed (`plan_render`): no light term for a kind of
 light the scene lacks, no reflected ray when the background is black, and no transmitted
 ray for an opaque material. An opaque material over a black background costs exactly the
 local model.
@@ -130,7 +130,7 @@ def plan_render(scene: Scene, material: Material | None = None, *, transparent: 
 
 
 class Prepared(eqx.Module):
-    """The material-independent part of a rendering (see :func:`prepare`)."""
+    """The material-independent part of a rendering (see `prepare`)."""
 
     hit: Array
     point: Array
@@ -212,7 +212,7 @@ _PER_PIXEL_FIELDS = (
 
 
 def take_pixels(prepared: Prepared, index: Any) -> Prepared:
-    """The :class:`Prepared` terms of the pixels at flat ``index`` (leading axes (H, W)
+    """The `Prepared` terms of the pixels at flat ``index`` (leading axes (H, W)
     become one axis of ``len(index)``), e.g. the usable pixels of a fit."""
     index = jnp.asarray(index)
 
@@ -226,8 +226,8 @@ def take_pixels(prepared: Prepared, index: Any) -> Prepared:
 
 
 def first_pixels(prepared: Prepared, count: int) -> Prepared:
-    """The :class:`Prepared` terms of the first ``count`` pixels of a prepared set of pixels
-    (one pixel axis, as :func:`take_pixels` returns): a padded set without its padding."""
+    """The `Prepared` terms of the first ``count`` pixels of a prepared set of pixels
+    (one pixel axis, as `take_pixels` returns): a padded set without its padding."""
 
     def first(x):
         return None if x is None else x[:count]
@@ -241,9 +241,9 @@ def first_pixels(prepared: Prepared, count: int) -> Prepared:
 def local_radiance(material: Material, prepared: Prepared) -> Array:
     """The local model at every pixel: ambient plus every light, (H, W, 3).
 
-    The lights' part (:func:`direct_radiance`) has its derivatives in closed form: it is
+    The lights' part (`direct_radiance`) has its derivatives in closed form: it is
     linear in C and in the irradiance, and s, m, t enter only through three scalar weights
-    per pixel and light (:func:`strauss_fit.models.strauss.weight_slopes`). A fit's
+    per pixel and light (`strauss_fit.models.strauss.weight_slopes`). A fit's
     Jacobian then costs about two renders instead of one forward-mode pass per parameter."""
     radiance = jnp.zeros(prepared.normal.shape, dtype=prepared.normal.dtype)
     if prepared.direct is not None:
@@ -262,7 +262,7 @@ def local_radiance(material: Material, prepared: Prepared) -> Array:
 
 
 def _sum_lights(weights: ShadeWeights, irradiance: Array, color: Array, light_color: Array) -> Array:
-    r""":math:`\sum_k E_k [d_k (C \circ C_{L,k}) + r_{s,k} C_{L,k} + w_k (C - C_{L,k})]`, (..., 3)."""
+    r"""`\sum_k E_k [d_k (C \circ C_{L,k}) + r_{s,k} C_{L,k} + w_k (C - C_{L,k})]`, (..., 3)."""
     weights = ShadeWeights(*(w * irradiance for w in weights))  # scalars (..., K)
     # K is static and small: adding the lights one by one avoids materialising
     # (..., K, 3) arrays and a reduction over K
@@ -284,15 +284,15 @@ def direct_radiance(
     lights (fields (..., K)), their ``irradiance`` (..., K) and colours (K, 3).
 
     Differentiated in closed form (a ``jax.custom_jvp``): with
-    :math:`R = \sum_k E_k [d_k\,C \circ C_{L,k} + r_{s,k} C_{L,k} + w_k (C - C_{L,k})]`,
+    `R = \sum_k E_k [d_k\,C \circ C_{L,k} + r_{s,k} C_{L,k} + w_k (C - C_{L,k})]`,
 
-    .. math::
+    ```text
+    \dot R = \dot C \circ \sum_k E_k (d_k C_{L,k} + w_k)
+    + \sum_{\theta \in \{s, m, t\}} \dot\theta\,\partial_\theta R
+    + \sum_k \dot E_k [d_k\,C \circ C_{L,k} + r_{s,k} C_{L,k} + w_k (C - C_{L,k})],
+    ```
 
-        \dot R = \dot C \circ \sum_k E_k (d_k C_{L,k} + w_k)
-        + \sum_{\theta \in \{s, m, t\}} \dot\theta\,\partial_\theta R
-        + \sum_k \dot E_k [d_k\,C \circ C_{L,k} + r_{s,k} C_{L,k} + w_k (C - C_{L,k})],
-
-    :math:`\partial_\theta R` from :func:`strauss_fit.models.strauss.weight_slopes`. Only
+    `\partial_\theta R` from `strauss_fit.models.strauss.weight_slopes`. Only
     the terms whose tangent is not zero are formed, so that a linearised fit keeps four
     (N, 3) arrays and its Jacobian is a few multiply-adds per parameter. Tangents of the
     geometry or of the lights' colours (never a fit's) go through plain forward-mode
@@ -345,17 +345,17 @@ direct_radiance.defjvp(_direct_radiance_jvp, symbolic_zeros=True)
 
 
 def transmission_weight(material: Material, r_s: Array) -> Array:
-    """:math:`z = t (1 - r_s)/(1 - r_n)`, and 0 where t = 0 (no division there)."""
+    """`z = t (1 - r_s)/(1 - r_n)`, and 0 where t = 0 (no division there)."""
     t = material.transparency
     return jnp.where(t > 0, safe_divide(t * (1 - r_s), 1 - specular_base(material)), 0.0)
 
 
 def refract(direction: Array, normal: Array, relative_ior: Array) -> tuple[Array, Array]:
     r"""Snell refraction of a ray travelling along ``direction`` through a surface whose
-    unit ``normal`` faces the incoming ray, with :math:`n_{12} = n_1/n_2`.
+    unit ``normal`` faces the incoming ray, with `n_{12} = n_1/n_2`.
 
-    With L = −direction: :math:`\cos\alpha_2 = \sqrt{1 - n_{12}^2 (1 - (N\cdot L)^2)}` and
-    :math:`T = [n_{12} (N\cdot L) - \cos\alpha_2] N - n_{12} L`. Returns ``(T, total)``
+    With L = −direction: `\cos\alpha_2 = \sqrt{1 - n_{12}^2 (1 - (N\cdot L)^2)}` and
+    `T = [n_{12} (N\cdot L) - \cos\alpha_2] N - n_{12} L`. Returns ``(T, total)``
     where ``total`` marks total internal reflection (the radicand is negative; T is then 0).
     """
     to_source = -direction
@@ -373,7 +373,7 @@ def interior_radiance(
     """Radiance carried back along a ray travelling inside the sphere, allowing
     ``interactions`` more surface interactions (the exit point included).
 
-    Internal API (the global model's inner loop, used by :func:`shade_prepared`; public
+    Internal API (the global model's inner loop, used by `shade_prepared`; public
     for tests)."""
     shape = direction.shape
     gathered = jnp.zeros(shape, dtype=direction.dtype)
@@ -398,7 +398,7 @@ def interior_radiance(
     return gathered + throughput * background_radiance(background, Rays(origin, direction))
 
 
-#: The depths :func:`effective_depth` rounds up to, so that materials of similar
+#: The depths `effective_depth` rounds up to, so that materials of similar
 #: transparency share one compiled program (a dataset of many materials compiles a few).
 DEPTH_STEPS = (2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
 
@@ -406,7 +406,7 @@ DEPTH_STEPS = (2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
 #: of the image files it writes (8-bit files are coarser).
 OUTPUT_TOLERANCE = 2.0**-24
 
-#: Estimated compile time (s) from which ``strauss-fit render`` warns (:func:`depth_messages`).
+#: Estimated compile time (s) from which ``strauss-fit render`` warns (`depth_messages`).
 SLOW_COMPILE_S = 10.0
 
 # Sub-intervals of [0, x_c] over which the mirror j is bounded (the bound is tight to
@@ -423,25 +423,25 @@ def unit_roundoff(dtype: Any) -> float:
 @functools.lru_cache(maxsize=256)
 def _angle_intervals(x_c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Over each of the sub-intervals [a, b] of [0, x_c]: an upper bound of j = F G²,
-    F(b) G(a)², and F at both ends (see :func:`interior_reflectance_bound`)."""
+    F(b) G(a)², and F at both ends (see `interior_reflectance_bound`)."""
     steps = np.linspace(0.0, x_c, _J_INTERVALS + 1)
     f, g = _fresnel(steps), _shadow(steps)
     return f[1:] * g[:-1] ** 2, f[:-1], f[1:]
 
 
 def interior_reflectance_bound(material: Material) -> np.ndarray:
-    r"""An upper bound of the reflected weight :math:`r_j\,C_s` per interaction inside the
+    r"""An upper bound of the reflected weight `r_j\,C_s` per interaction inside the
     sphere, per channel (shape (..., 3) for a material with batch axes (...)); concrete
     material values only.
 
     A ray refracted into a sphere meets its surface at the same angle at every
-    interaction, and below the critical angle :math:`\alpha_c = \arcsin(1/n)` (the
-    refracted angle from outside, :math:`\sin\alpha_2 = \sin\gamma / n`), so its normalised
-    angle is at most :math:`x_c = 2\alpha_c/\pi` (1 for n = 1) and there is no total
+    interaction, and below the critical angle `\alpha_c = \arcsin(1/n)` (the
+    refracted angle from outside, `\sin\alpha_2 = \sin\gamma / n`), so its normalised
+    angle is at most `x_c = 2\alpha_c/\pi` (1 for n = 1) and there is no total
     internal reflection. The interval [0, x_c] (plus a margin of 10⁻³ for rounding) is cut
     into 512 pieces [a, b]. F grows and G falls on [0, 1], so on a piece
-    :math:`j = F G^2 \le F(b)\,G(a)^2`, and :math:`r_j = \min\{1, r_n + j (r_n + k_j)\}`
-    grows with j; :math:`C_s = 1 + m (1 - F)(C - 1)` is linear in F, so at most its larger
+    `j = F G^2 \le F(b)\,G(a)^2`, and `r_j = \min\{1, r_n + j (r_n + k_j)\}`
+    grows with j; `C_s = 1 + m (1 - F)(C - 1)` is linear in F, so at most its larger
     value at F(a) and F(b). The bound is the largest product of the two over the pieces
     (within a few per cent of the true largest weight)."""
     return _reflectance_bound(*_material_values(material))
@@ -454,7 +454,7 @@ def _material_values(material: Material) -> tuple[np.ndarray, ...]:
 
 
 def _reflectance_bound(t, s, m, color, ior) -> np.ndarray:
-    """:func:`interior_reflectance_bound` from the material's values (batch axes allowed)."""
+    """`interior_reflectance_bound` from the material's values (batch axes allowed)."""
     batch = np.broadcast_shapes(t.shape, s.shape, m.shape, color.shape[:-1], ior.shape)
     t, s, m, ior = (np.broadcast_to(v, batch) for v in (t, s, m, ior))
     color = np.broadcast_to(color, batch + (3,))
@@ -473,17 +473,17 @@ def _reflectance_bound(t, s, m, color, ior) -> np.ndarray:
 def effective_depth(scene: Scene, material: Material | None = None, *, tolerance: float) -> int:
     r"""The depth beyond which the global model cannot change any pixel by more than
     ``tolerance`` times the background's brightest radiance
-    (:func:`~strauss_fit.scene.loading.background_peak`): at most ``scene.depth``, rounded
-    up to one of :data:`DEPTH_STEPS`.
+    (`background_peak`): at most ``scene.depth``, rounded
+    up to one of `DEPTH_STEPS`.
 
     Only transmitted light recurses (the reflected ray from outside sees the background at
     once), so an opaque material, or a black background, needs ``min(depth, 2)``. Otherwise,
-    with :math:`\rho` from :func:`interior_reflectance_bound`: a path has weight at most
-    :math:`z\,C \le t\,C` at entry and keeps at most the factor :math:`\rho` per
+    with `\rho` from `interior_reflectance_bound`: a path has weight at most
+    `z\,C \le t\,C` at entry and keeps at most the factor `\rho` per
     interaction, and what depth D and any deeper depth give differ by at most what the
     ray still carries after D − 1 interactions times the background's radiance, since the
-    weights that leave (z) and stay (:math:`r_j`) add up to at most 1. So depth D is exact
-    to :math:`\max_c t\,C_c\,\rho_c^{D-1} \le` ``tolerance`` (in exact arithmetic; the
+    weights that leave (z) and stay (`r_j`) add up to at most 1. So depth D is exact
+    to `\max_c t\,C_c\,\rho_c^{D-1} \le` ``tolerance`` (in exact arithmetic; the
     rendering's own rounding comes on top, as at any depth).
 
     Pure: concrete values only. A traced material or background (inside ``jax.grad`` or a
@@ -496,7 +496,7 @@ def effective_depth(scene: Scene, material: Material | None = None, *, tolerance
 
 
 def _effective_depth(depth: int, material: Material, peak: float | None, tolerance: float) -> int:
-    """:func:`effective_depth` with the background's peak radiance given."""
+    """`effective_depth` with the background's peak radiance given."""
     if depth <= 2 or peak is None:
         return depth
     try:
@@ -541,8 +541,8 @@ def estimated_compile_cost(depth: int) -> tuple[float, float]:
 
 def depth_messages(scene: Scene, material: Material | None = None, *, tolerance: float) -> list[str]:
     """One-line notes for a render of ``scene`` with ``depth_tolerance=tolerance``: that the
-    depth is reduced (:func:`effective_depth`), and a warning when what remains is slow to
-    compile (:func:`estimated_compile_cost` at least :data:`SLOW_COMPILE_S`). Empty when
+    depth is reduced (`effective_depth`), and a warning when what remains is slow to
+    compile (`estimated_compile_cost` at least `SLOW_COMPILE_S`). Empty when
     nothing is traced beyond depth 2 (an opaque material, a black background)."""
     material = scene.material if material is None else material
     if scene.depth <= 2 or is_traced(material) or not plan_render(scene, material).transmit:
@@ -568,7 +568,7 @@ def depth_messages(scene: Scene, material: Material | None = None, *, tolerance:
 
 
 def shade_prepared(material: Material, prepared: Prepared, scene: Scene, plan: RenderPlan) -> Array:
-    """Add the material to a :class:`Prepared` rendering: the image, (H, W, 3)."""
+    """Add the material to a `Prepared` rendering: the image, (H, W, 3)."""
     radiance = local_radiance(material, prepared)
     white = jnp.ones(3, dtype=radiance.dtype)
     if plan.reflect or plan.transmit:
@@ -592,7 +592,7 @@ _CHECKED: list[tuple[weakref.ref, weakref.ref, float | None]] = []
 
 
 def _checked_background_peak(scene: Scene) -> float | None:
-    """:func:`~strauss_fit.scene.loading.check_radiance_range` of ``scene`` and the peak
+    """`check_radiance_range` of ``scene`` and the peak
     radiance of its background, remembered for the last 8 (lights, background) pairs."""
     for lights, background, peak in _CHECKED:
         if lights() is scene.lights and background() is scene.background:
@@ -607,9 +607,9 @@ def _checked_background_peak(scene: Scene) -> float | None:
 
 @eqx.filter_jit
 def render_jit(scene: Scene, material: Material, plan: RenderPlan, mode: str, table_size: int, dtype: Any):
-    """The jitted core of :func:`render` (all arguments resolved). Internal API, public for
+    """The jitted core of `render` (all arguments resolved). Internal API, public for
     compile-time measurements (``render_jit.lower(...)``); call it inside
-    :func:`strauss_fit.precision.float64`."""
+    `strauss_fit.precision.float64`."""
     scene = scene.astype(dtype)  # inside the jit: eager casts cost more than a small render
     material = material.astype(dtype)
     prepared = prepare(scene, plan, mode, table_size, dtype)
@@ -632,20 +632,20 @@ def render(
     ``material`` defaults to the scene file's. ``dtype`` (``jnp.float32`` or
     ``jnp.float64``; default float64) sets the precision of the whole computation.
     Differentiable in the material and in the light intensities (``scene.lights``).
-    ``plan`` overrides :func:`plan_render` (transmission is never traced for a material
+    ``plan`` overrides `plan_render` (transmission is never traced for a material
     that is concretely opaque, t = 0, whatever the plan says). ``mode`` and ``table_size`` select the
-    evaluator (see :func:`strauss_fit.models.strauss.shade`).
+    evaluator (see `strauss_fit.models.strauss.shade`).
 
-    The global model is traced to :func:`effective_depth` (at most ``scene.depth``): the
+    The global model is traced to `effective_depth` (at most ``scene.depth``): the
     interactions beyond it change no pixel by more than ``depth_tolerance`` times the
     background's brightest radiance. ``depth_tolerance`` defaults to the unit roundoff of
     ``dtype`` (2^-53 for float64, 2^-24 for float32); 0 traces the full ``scene.depth``.
     With a traced material or background (inside ``jax.grad``) the full depth is traced.
 
     A scene outside the renderer's range (a light or background brighter than
-    :data:`strauss_fit.scene.loading.MAX_RADIANCE`, see
-    :func:`strauss_fit.scene.loading.check_radiance_range`) raises a
-    :class:`~strauss_fit.scene.loading.RadianceRangeError` before any work.
+    `strauss_fit.scene.loading.MAX_RADIANCE`, see
+    `strauss_fit.scene.loading.check_radiance_range`) raises a
+    `RadianceRangeError` before any work.
 
     Examples:
         >>> import strauss_fit as sf

@@ -1,6 +1,6 @@
 """The report of a capture's fit (``strauss-fit report --fit`` of a result of ``fit --capture``):
 one self-contained HTML page and the same content as Markdown with the PNGs beside it, like
-the report of one image (:mod:`strauss_fit.reporting.fit_report`, whose document, figures and
+the report of one image (`strauss_fit.reporting.fit_report`, whose document, figures and
 atomic writing it shares).
 
 Contents, in order: the verdict and the warnings (codes and messages, then the fit's notes);
@@ -8,16 +8,16 @@ the capture (images fitted and held out, sphere pixels, the circle, the camera);
 table (value, ± image-cluster sandwich, ± Laplace, and the perceptual equivalence range when
 the result has one) with one sentence per kind of interval; the residual (relative RMS, mean
 CIEDE2000, against the noise floor and the noise bound, by region); the per-light grid, one row
-of target, fit and residual per image (:func:`light_panels`, :func:`grid_figure`), the
+of target, fit and residual per image (`light_panels`, `grid_figure`), the
 held-out images last with the fit's prediction of them; the per-image table; the held-out
 comparison with other models; the correlation matrix; with a chain of ``strauss-fit sample``
-(:mod:`strauss_fit.inference.capture_posterior`), the posterior: its percentiles against the
+(`strauss_fit.inference.capture_posterior`), the posterior: its percentiles against the
 fit, the corner plot and the sampler's diagnostics (an untrustworthy chain is the first warning).
 
-:func:`capture_report_from_files` is the whole workflow: it reads the capture the result
-records again (:func:`strauss_fit.fitting.capture_result.reload_capture_fit` and
-:func:`strauss_fit.fitting.capture_result.reload_held_out`; a chain's from the fit its metadata
-holds, :func:`strauss_fit.inference.capture_posterior.reload_chain_capture`), builds the
+`capture_report_from_files` is the whole workflow: it reads the capture the result
+records again (`strauss_fit.fitting.capture_result.reload_capture_fit` and
+`strauss_fit.fitting.capture_result.reload_held_out`; a chain's from the fit its metadata
+holds, `strauss_fit.inference.capture_posterior.reload_chain_capture`), builds the
 report and writes it.
 """
 
@@ -165,7 +165,7 @@ def light_panels(
     thumbnail: int = THUMBNAIL_PX,
     margin: int = CROP_MARGIN_PX,
 ) -> LightPanels:
-    """The grid's thumbnails of ``parts``: per part the images (:class:`CaptureSamples`),
+    """The grid's thumbnails of ``parts``: per part the images (`CaptureSamples`),
     their prediction (L, P, 3), their 1-based numbers in the capture and whether they were
     held out. The rows come in the order of the parts and their images."""
     parts = [part for part in parts if part[0].count]
@@ -378,11 +378,11 @@ def build_capture_report(
 ) -> Report:
     """Assemble the report of a capture's fit from its result (the JSON of ``fit
     --capture``), the images it was fitted to and the fit read back
-    (:func:`strauss_fit.fitting.capture_result.reload_capture_fit`), and optionally the held-out
-    images with the fit's prediction of them (:func:`strauss_fit.fitting.capture_result.reload_held_out`).
+    (`strauss_fit.fitting.capture_result.reload_capture_fit`), and optionally the held-out
+    images with the fit's prediction of them (`strauss_fit.fitting.capture_result.reload_held_out`).
     ``equivalence`` replaces the result's equivalence ranges. ``chain``: a capture's chain
-    sampled from this fit (:func:`check_chain_fit`), whose posterior gets a section of its own
-    (:func:`_posterior_section`)."""
+    sampled from this fit (`check_chain_fit`), whose posterior gets a section of its own
+    (`_posterior_section`)."""
     if not is_capture_result(result):
         raise ReportError("not a capture's fit result (no images_fitted, circle and settings)")
     posterior = _chain_part(chain, result, fit, samples) if chain is not None else None
@@ -663,7 +663,7 @@ def _residual_section(doc: Document, residual: dict[str, Any]) -> None:
 
 
 def _grid_section(doc: Document, panels: LightPanels, with_held: bool, data: dict[str, Any]) -> list[dict[str, Any]]:
-    """The per-light grid, :data:`GRID_IMAGES` images a figure, and what its rows show;
+    """The per-light grid, `GRID_IMAGES` images a figure, and what its rows show;
     returns one row of numbers per image (also in ``data``)."""
     doc.heading("Target, fit and residual per light")
     figures = []
@@ -769,7 +769,7 @@ def _holdout_section(
 
 def _correlation_section(doc: Document, result: dict[str, Any], labels: list[str]) -> None:
     """The correlation matrix of the image-cluster sandwich (the per-image exposures left
-    out beyond :data:`MAX_CORRELATION_LABELS` labels), and as a table when it is small."""
+    out beyond `MAX_CORRELATION_LABELS` labels), and as a table when it is small."""
     doc.heading("Correlations")
     corr = np.asarray((result.get("correlation") or {}).get("matrix", np.eye(len(labels))), dtype=np.float64)
     if corr.shape != (len(labels), len(labels)):
@@ -791,7 +791,7 @@ def _correlation_section(doc: Document, result: dict[str, Any], labels: list[str
 
 def _shown(labels: Sequence[str]) -> list[int]:
     """The parameters a figure shows: all, or without the per-image exposures beyond
-    :data:`MAX_CORRELATION_LABELS` labels."""
+    `MAX_CORRELATION_LABELS` labels."""
     if len(labels) <= MAX_CORRELATION_LABELS:
         return list(range(len(labels)))
     return [k for k, label in enumerate(labels) if not label.startswith("image_exposure_")]
@@ -815,7 +815,7 @@ def check_chain_fit(
     """Refuse, in one line, a chain that was not sampled from the capture's fit ``result``
     (called ``source`` in the message): it must be a capture's chain whose recorded fit has
     the result's model, free parameters (and, with ``fit``, its labels) and values within
-    :data:`CHAIN_TOLERANCE`."""
+    `CHAIN_TOLERANCE`."""
     if not is_capture_chain(chain.meta):
         raise ReportError(
             f"{chain.path} is the chain of a single image's fit, not of a capture's: give a capture's chain "
@@ -853,8 +853,8 @@ def check_chain_fit(
 
 @dataclass
 class _ChainPart:
-    """What the report says about a chain: its diagnostics, :func:`capture_chain_summary`,
-    the draws after burn-in (as adjusted, at most :data:`MAX_PLOT_SAMPLES`) and how many the
+    """What the report says about a chain: its diagnostics, `capture_chain_summary`,
+    the draws after burn-in (as adjusted, at most `MAX_PLOT_SAMPLES`) and how many the
     adjustment dropped, and the warnings that go first and those after the fit's."""
 
     diagnostics: Diagnostics
@@ -1154,7 +1154,7 @@ def open_recorded_capture(
     """The capture a capture's result records (its paths as written, else relative to the
     folder of ``fit_path``, the result's JSON), each of ``capture`` (paths), ``lights`` and
     ``mask`` replacing the recorded one when given; the result's recorded encoding, if any,
-    replaces the capture's (as :func:`strauss_fit.fitting.capture_result.reload_capture_fit`
+    replaces the capture's (as `strauss_fit.fitting.capture_result.reload_capture_fit`
     reads it). With ``chain`` (the path of a capture's chain, whose metadata holds
     ``result``), ``fit_path`` is the folder the recorded paths are relative to (the chain's
     ``fit_base``), then the chain's own folder. A recorded path found nowhere is a one-line
@@ -1196,10 +1196,10 @@ def capture_report_from_files(
     chain (``chain``, of ``strauss-fit sample --fit``; without a fit result, the fit its
     metadata holds) or of both, and write it to ``output_html`` (.html; the Markdown and the
     PNG folder beside it, all or none). The capture is read again from the paths the result
-    records (:func:`open_recorded_capture`; a chain's relative to the folder of the result
-    it was sampled from) unless ``capture`` (a :class:`strauss_fit.capture.Capture` or
+    records (`open_recorded_capture`; a chain's relative to the folder of the result
+    it was sampled from) unless ``capture`` (a `strauss_fit.capture.Capture` or
     paths) is given. A chain sampled from another fit than ``fit_json_path`` is a one-line
-    error (:func:`check_chain_fit`). Returns the report and the files written."""
+    error (`check_chain_fit`). Returns the report and the files written."""
     out = Path(output_html)
     if fit_json_path is None and chain is None:
         raise ReportError("give a capture's fit result (--fit RESULT.json), its chain (--chain CHAIN.h5), or both")

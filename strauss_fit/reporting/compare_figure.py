@@ -3,7 +3,7 @@
 The first column is the target; each further column a model's prediction of the same image
 and under it its residual (fit − target, the mean over R, G and B, at the pixels whose three
 channels are usable; grey: values not used). Every panel is cropped to the sphere's bounding
-box (the thumbnails of the capture report, :func:`strauss_fit.reporting.capture_report.light_panels`),
+box (the thumbnails of the capture report, `strauss_fit.reporting.capture_report.light_panels`),
 shown at one display exposure, and every residual on one symmetric colour scale.
 """
 

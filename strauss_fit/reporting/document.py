@@ -1,11 +1,11 @@
 """The one HTML and Markdown document builder of every report.
 
-A :class:`Document` collects headings, paragraphs, bullet lists, tables and images, and
+A `Document` collects headings, paragraphs, bullet lists, tables and images, and
 renders them as Markdown (images linked from a folder, or beside the page) and as one
 self-contained HTML page (images embedded as base64 PNG, no scripts, no network). The fit
-report (:mod:`strauss_fit.reporting.fit_report`), the capture's report
-(:mod:`strauss_fit.reporting.capture_report`) and the study report
-(:mod:`strauss_fit.reporting.study_report`) all build theirs with it, and the blocks the
+report (`strauss_fit.reporting.fit_report`), the capture's report
+(`strauss_fit.reporting.capture_report`) and the study report
+(`strauss_fit.reporting.study_report`) all build theirs with it, and the blocks the
 first two share (the verdict and its warnings, the held parameters, a correlation table,
 the posterior's columns, number formats) are here once.
 """
@@ -39,10 +39,10 @@ class _Block:
 
 
 class Document:
-    """A report's content, rendered by :meth:`markdown` and :meth:`html`.
+    """A report's content, rendered by `markdown` and `html`.
 
     ``assets``: the folder (relative to the Markdown file) its images are linked from;
-    empty for images beside it. :attr:`images` holds the PNGs by file name.
+    empty for images beside it. `images` holds the PNGs by file name.
     """
 
     def __init__(self, assets: str = ""):
@@ -157,7 +157,7 @@ def fmt(value: float | None, digits: int = 4) -> str:
 
 
 def value_text(value: Any) -> str:
-    """A recorded value as a cell: a vector as "(a, b, c)", a number by :func:`fmt`."""
+    """A recorded value as a cell: a vector as "(a, b, c)", a number by `fmt`."""
     if isinstance(value, (list, tuple)):
         return "(" + ", ".join(f"{float(v):.4g}" for v in value) + ")"
     return fmt(value) if value is not None else "–"
@@ -229,7 +229,7 @@ def posterior_header(name: str) -> list[str]:
 
 def posterior_cells(percentiles: dict[str, Any]) -> list[str]:
     """One parameter's median and percentiles (a posterior summary's entry) as cells; the
-    prior's cell follows them (:func:`prior_text`)."""
+    prior's cell follows them (`prior_text`)."""
     return [fmt(percentiles[key]) for key in PERCENTILES]
 
 

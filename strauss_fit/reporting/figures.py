@@ -1,5 +1,5 @@
 """The one figure helper of every report: matplotlib figures drawn with the object API
-(:class:`matplotlib.figure.Figure` and the Agg canvas) and returned as PNG bytes.
+(`matplotlib.figure.Figure` and the Agg canvas) and returned as PNG bytes.
 
 Building a report never touches pyplot's global state and needs no display.
 """
@@ -11,7 +11,7 @@ from typing import Any
 
 
 def new_figure(**kwargs: Any):
-    """A :class:`matplotlib.figure.Figure` (``figsize=...`` etc.) on an Agg canvas."""
+    """A `matplotlib.figure.Figure` (``figsize=...`` etc.) on an Agg canvas."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

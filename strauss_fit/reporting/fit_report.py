@@ -8,13 +8,13 @@ valid for the best Strauss approximation, or the Laplace estimate, conditional o
 model, as the fit computed it — the perceptual equivalence band beside it when the fit
 computed one, posterior median and 16/84 and 2.5/97.5 percentiles, prior), one sentence on
 what each kind of interval means and a figure of both per parameter; parameters held and
-why; the fit's ± against the posterior (:func:`strauss_fit.inference.summaries.compare`);
+why; the fit's ± against the posterior (`strauss_fit.inference.summaries.compare`);
 the correlation matrix; a corner plot; trace plots and sampler diagnostics. Without a chain
 the intervals are the fit's Gaussian ones and say so.
 
-The page is built with :class:`strauss_fit.reporting.document.Document` and the plots with
-:mod:`strauss_fit.reporting.figures` (matplotlib's object API and the Agg canvas: building a
-report never touches pyplot's global state or needs a display). :func:`report_from_files`
+The page is built with `strauss_fit.reporting.document.Document` and the plots with
+`strauss_fit.reporting.figures` (matplotlib's object API and the Agg canvas: building a
+report never touches pyplot's global state or needs a display). `report_from_files`
 is the whole workflow of ``strauss-fit report``: it finds and loads the inputs a fit result
 or chain recorded, builds the report and writes it.
 """
@@ -242,7 +242,7 @@ def build_report(
     assets: str = "report_files",
     sources: dict[str, str] | None = None,
 ) -> Report:
-    """Assemble the report from a fit result (a :class:`~strauss_fit.fitting.result.FitResult`
+    """Assemble the report from a fit result (a `FitResult`
     or its JSON), the target and fitted images (H, W, 3), the mask of pixels the fit used
     (H, W), and optionally a chain."""
     fit = FitResult.from_json(fit)
@@ -747,7 +747,7 @@ def write_report(report: Report, html_path: str | Path, *, force: bool = False) 
 def render_fit(scene: Scene, target: Target, fit: FitResult | dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """The fitted image (H, W, 3) of a fit result — the scene rendered with the result's
     material, light intensities and exposure — and the mask of the pixels the fit used
-    (:func:`strauss_fit.fitting.problem.used_pixels`). ``scene`` must match the target's size."""
+    (`strauss_fit.fitting.problem.used_pixels`). ``scene`` must match the target's size."""
     import equinox as eqx
     import jax.numpy as jnp
 

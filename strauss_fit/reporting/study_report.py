@@ -1,13 +1,13 @@
 """The study's report: conclusions drawn from the numbers, plots, Markdown, HTML and JSON.
 
-:func:`conclusions` turns the figures of :func:`strauss_fit.study.study.run_study` into plain
+`conclusions` turns the figures of `strauss_fit.study.study.run_study` into plain
 statements — for each aspect whether the claim holds, does not, or is mixed, with the
 numbers that decide it. Nothing in it is fixed praise: each verdict is a comparison of two
-measured values. :func:`write_report` writes ``study.json`` (every figure),
+measured values. `write_report` writes ``study.json`` (every figure),
 ``study.md`` (with the plots as PNG files beside it) and ``study.html`` (self-contained:
 the plots are embedded as base64 PNG), with the one document builder
-(:class:`strauss_fit.reporting.document.Document`) and figure helper
-(:mod:`strauss_fit.reporting.figures`) of every report.
+(`strauss_fit.reporting.document.Document`) and figure helper
+(`strauss_fit.reporting.figures`) of every report.
 """
 
 from __future__ import annotations
@@ -516,7 +516,7 @@ def study_figure(doc: Document, images: dict[str, bytes], name: str, caption: st
 
 
 def study_document(study: dict[str, Any], verdicts: list[dict[str, Any]], images: dict[str, bytes]) -> Document:
-    """The report's text, tables and figures (``images``: the PNGs of :func:`plots`): the
+    """The report's text, tables and figures (``images``: the PNGs of `plots`): the
     conclusions, then one section per part, then the timing line."""
     doc = Document()
     _conclusions_section(doc, study, verdicts)

@@ -6,14 +6,14 @@ Three kinds, all emitting (unlit) linear radiance:
 - ``"checkerboard"``: an infinite plane through ``point`` with normal ``normal``, squares of
   side ``square_size`` alternating ``colors[0]`` and ``colors[1]``; rays that miss the plane
   see ``color``. Square edges are softened,
-  :math:`w = \tfrac12 + \tfrac12\tanh(k \sin(\pi u/a)\sin(\pi v/a))` with sharpness
-  :math:`k` = ``sharpness``, so that an image seen through a refracting sphere is
+  `w = \tfrac12 + \tfrac12\tanh(k \sin(\pi u/a)\sin(\pi v/a))` with sharpness
+  `k` = ``sharpness``, so that an image seen through a refracting sphere is
   differentiable in the index of refraction (a hard-edged board has zero gradient
   almost everywhere). Towards the horizon the pattern fades to its mean,
-  :math:`w = \tfrac12 + \tfrac12 c \tanh(\dots)` with
-  :math:`c = \exp(-(f/f_0)^8)`, :math:`f = h / (a \cos^2)` the squares per radian of
+  `w = \tfrac12 + \tfrac12 c \tanh(\dots)` with
+  `c = \exp(-(f/f_0)^8)`, `f = h / (a \cos^2)` the squares per radian of
   ray direction seen from the origin (h its distance to the plane, cos the ray's with the
-  normal) and :math:`f_0` = :data:`HORIZON_FADE`: there a pixel covers many squares,
+  normal) and `f_0` = `HORIZON_FADE`: there a pixel covers many squares,
   and without the fade the radiance's derivative grows without bound (a fit of n once
   followed such rays to n = 1.02 against a true 1.7).
 - ``"environment"``: a latitude–longitude image (rows: polar angle from +y at the top to

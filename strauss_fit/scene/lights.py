@@ -4,7 +4,7 @@ Lights of one kind are stored together as arrays with a leading light axis, so t
 renderer evaluates all of them at once by broadcasting rather than by a Python loop. A
 kind a scene does not have is ``None`` and costs nothing.
 
-A point light at distance d is attenuated by :math:`1/(c_0 + c_1 d + c_2 d^2)`.
+A point light at distance d is attenuated by `1/(c_0 + c_1 d + c_2 d^2)`.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ class DirectionalLights(eqx.Module):
     intensity: Array
     color: Array
 
-    #: The kind's name in scene files, in :meth:`Lights.intensities` and in results.
+    #: The kind's name in scene files, in `Lights.intensities` and in results.
     KIND: ClassVar[str] = "directional"
 
     def sample(self, position: Array) -> tuple[Array, Array, Array]:
@@ -55,7 +55,7 @@ class PointLights(eqx.Module):
 
     def sample(self, position: Array) -> tuple[Array, Array, Array]:
         """``(to_light, irradiance, color)`` at the points ``position`` (..., 3): the unit
-        vector to each light and its intensity over :math:`c_0 + c_1 d + c_2 d^2`."""
+        vector to each light and its intensity over `c_0 + c_1 d + c_2 d^2`."""
         offset = self.position - position[..., None, :]
         distance = jnp.sqrt(dot(offset, offset))
         c0, c1, c2 = self.attenuation[:, 0], self.attenuation[:, 1], self.attenuation[:, 2]
@@ -65,8 +65,8 @@ class PointLights(eqx.Module):
 
 #: The kinds of light with a direction, in the order their lights are numbered and shaded
 #: (a scene's directional lights come first). The ambient light has no direction: it is
-#: one summed intensity, :attr:`Lights.ambient`. A new kind is a class with ``KIND``,
-#: ``intensity`` and ``sample`` added here and as a field of :class:`Lights`.
+#: one summed intensity, `Lights.ambient`. A new kind is a class with ``KIND``,
+#: ``intensity`` and ``sample`` added here and as a field of `Lights`.
 LIGHT_KINDS: tuple[type[DirectionalLights] | type[PointLights], ...] = (DirectionalLights, PointLights)
 #: Every kind's name, the ambient light's last.
 KIND_NAMES: tuple[str, ...] = (*(kind.KIND for kind in LIGHT_KINDS), "ambient")
@@ -80,7 +80,7 @@ class Lights(eqx.Module):
     ambient: Array | None = None
 
     def present(self) -> tuple[DirectionalLights | PointLights, ...]:
-        """The lights of the scene with a direction, kind by kind (:data:`LIGHT_KINDS`'
+        """The lights of the scene with a direction, kind by kind (`LIGHT_KINDS`'
         order), the kinds it does not have left out."""
         found = (getattr(self, kind.KIND) for kind in LIGHT_KINDS)
         return tuple(lights for lights in found if lights is not None)
@@ -99,7 +99,7 @@ class Lights(eqx.Module):
 
     @uses_float64
     def with_intensities(self, intensities: dict[str, ArrayLike]) -> Lights:
-        """A copy with the intensities of :meth:`intensities` replaced."""
+        """A copy with the intensities of `intensities` replaced."""
         lights = self
         for kind in LIGHT_KINDS:
             if kind.KIND in intensities:

@@ -3,18 +3,18 @@
 The file format is documented in ``docs/formats.md`` (scene files). Loading is strict:
 unknown sections or keys, wrong types, values out of range, a scene without any light and
 an environment image holding NaN or infinite values are reported as one-line
-:class:`~strauss_fit.errors.SceneError` messages that name the file, the place and the
+`SceneError` messages that name the file, the place and the
 problem — before any work is done.
 
-The renderer's range (:func:`check_radiance_range`, also run by
-:func:`strauss_fit.rendering.strauss.render` on scenes built in code): every light intensity,
-light colour component and background radiance is at most :data:`MAX_RADIANCE` (10^30), and
+The renderer's range (`check_radiance_range`, also run by
+`strauss_fit.rendering.strauss.render` on scenes built in code): every light intensity,
+light colour component and background radiance is at most `MAX_RADIANCE` (10^30), and
 so is the scene's *radiance scale*, the sum of every light's peak irradiance at the sphere
-(:func:`light_peaks`), the ambient intensity and the brightest background radiance. Each
+(`light_peaks`), the ambient intensity and the brightest background radiance. Each
 weight of the Strauss model is at most 1, so no pixel exceeds 3 × 10^30, far below
 float32's largest value (3.4 × 10^38); the margin covers the renderer's intermediate
 products and a fit's (Jacobians, squared residuals, in float64). A scene outside it is a
-:class:`RadianceRangeError` naming the light (or the background) and its value, instead of
+`RadianceRangeError` naming the light (or the background) and its value, instead of
 an image of infinities found only when writing it.
 """
 
@@ -38,7 +38,7 @@ from .background import BACKGROUND_KINDS, Background
 from .camera import Camera
 from .lights import DirectionalLights, Lights, PointLights
 
-#: Default recursion depth of the global model (see :func:`strauss_fit.rendering.strauss.render`).
+#: Default recursion depth of the global model (see `strauss_fit.rendering.strauss.render`).
 DEFAULT_DEPTH = 4
 MAX_IMAGE_SIDE = 8192
 #: The largest radiance scale the renderer guarantees finite images for (module docstring).
@@ -47,7 +47,7 @@ MAX_RADIANCE = 1e30
 
 class RadianceRangeError(SceneError):
     """A light or the background is brighter than the renderer's range
-    (:data:`MAX_RADIANCE`): its radiance could overflow to infinity."""
+    (`MAX_RADIANCE`): its radiance could overflow to infinity."""
 
 
 _SECTIONS = {"camera", "material", "light", "background", "render"}
@@ -343,7 +343,7 @@ def background_peak(background: Background) -> float | None:
 
 
 class LightPeak(NamedTuple):
-    """One light's share of the radiance scale (:func:`light_peaks`)."""
+    """One light's share of the radiance scale (`light_peaks`)."""
 
     kind: str  #: "directional", "point" or "ambient" (all ambient lights added)
     index: int  #: position among the lights of its kind
@@ -364,9 +364,9 @@ def _peak(intensity: float, color: float, attenuation: float) -> float:
 def light_peaks(lights: Lights) -> list[LightPeak]:
     """Every light's peak irradiance at the sphere: its intensity × max(1, brightest colour
     component), divided for a point light by its attenuation at the sphere's nearest point
-    (distance :math:`d = |p| - 1`; the attenuation grows with d). One light adds at most 3
+    (distance `d = |p| - 1`; the attenuation grows with d). One light adds at most 3
     × its peak to a pixel: the diffuse, specular and metallic-tint weights are each at most
-    1, and the tint, :math:`w (C - C_L)`, is non-zero even for a black light colour (hence
+    1, and the tint, `w (C - C_L)`, is non-zero even for a black light colour (hence
     max(1, ·)). Concrete values only."""
     peaks: list[LightPeak] = []
     if lights.directional is not None:
@@ -402,10 +402,10 @@ def _light_name(kind: str, index: int, names: dict[tuple[str, int], str] | None)
 
 
 def check_radiance_range(scene: Scene, source: str = "scene", names: dict[tuple[str, int], str] | None = None) -> None:
-    """Raise a one-line :class:`RadianceRangeError` if the scene is outside the renderer's
+    """Raise a one-line `RadianceRangeError` if the scene is outside the renderer's
     range (module docstring): a light's intensity, colour component or peak irradiance
-    (:func:`light_peaks`), a background radiance (:func:`background_peak`), or their sum,
-    above :data:`MAX_RADIANCE`. ``names`` names the lights by ``(kind, index)`` (a scene
+    (`light_peaks`), a background radiance (`background_peak`), or their sum,
+    above `MAX_RADIANCE`. ``names`` names the lights by ``(kind, index)`` (a scene
     file's ``[[light]] #n``). Does nothing for traced lights or background (the values are
     read with ``np.asarray``, which a tracer refuses)."""
     try:
@@ -460,7 +460,7 @@ def check_radiance_range(scene: Scene, source: str = "scene", names: dict[tuple[
 
 @uses_float64
 def parse_scene(data: dict[str, Any], source: str = "scene", base_dir: Path | str = ".") -> Scene:
-    """Build a :class:`Scene` from a parsed TOML mapping (see docs/formats.md, scene files)."""
+    """Build a `Scene` from a parsed TOML mapping (see docs/formats.md, scene files)."""
     unknown = sorted(set(data) - _SECTIONS)
     if unknown:
         raise SceneError(f"{source}: unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_SECTIONS))}")

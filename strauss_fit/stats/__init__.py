@@ -1,14 +1,14 @@
 """Statistics a fit needs, below the fit in the layers (docs/development.md#layers):
 
-- :mod:`~strauss_fit.stats.laplace`: JᵀJ → covariance → deviations and correlations, the
+- `laplace`: JᵀJ → covariance → deviations and correlations, the
   noise sandwich (the one home of those computations);
-- :mod:`~strauss_fit.stats.noise`: the target's noise, estimated from the image or read
+- `noise`: the target's noise, estimated from the image or read
   from its sidecar, and the noise model at a radiance.
 
-They take arrays and problems, never fits: :mod:`strauss_fit.fitting` uses them, and
-:mod:`strauss_fit.inference` (the posterior and sampling) sits above both. The perceptual
+They take arrays and problems, never fits: `strauss_fit.fitting` uses them, and
+`strauss_fit.inference` (the posterior and sampling) sits above both. The perceptual
 equivalence ranges refit with a parameter held, so they live in the fit
-(:mod:`strauss_fit.fitting.equivalence`).
+(`strauss_fit.fitting.equivalence`).
 
-Next in the flow: :mod:`strauss_fit.rendering` is below; :mod:`strauss_fit.fitting` above.
+Next in the flow: `strauss_fit.rendering` is below; `strauss_fit.fitting` above.
 """

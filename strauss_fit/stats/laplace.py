@@ -1,26 +1,26 @@
 r"""The Laplace (Gauss–Newton) approximation: JᵀJ → covariance → deviations and correlations.
 
 The one home of that computation, for every part of the library that needs it: the fit's
-uncertainties (:func:`problem_laplace`), the sampler's starting spread and the report
-(:func:`laplace_covariance`), the Phong fit, the study's Fisher information and the
+uncertainties (`problem_laplace`), the sampler's starting spread and the report
+(`laplace_covariance`), the Phong fit, the study's Fisher information and the
 identifiability analysis; the curvature the sampler's posterior has
-(:func:`posterior_covariance`).
+(`posterior_covariance`).
 
-At a least-squares optimum :math:`\hat\theta` of residuals :math:`r(\theta)` with Jacobian
+At a least-squares optimum `\hat\theta` of residuals `r(\theta)` with Jacobian
 J (with respect to the *physical* parameters), the Fisher information of Gaussian noise
-of standard deviation σ is :math:`\mathcal I = J^\top J/\sigma^2` and the Laplace
-covariance its inverse, :math:`\Sigma = \sigma^2 (J^\top J)^{-1}` — exact for a linear
+of standard deviation σ is `\mathcal I = J^\top J/\sigma^2` and the Laplace
+covariance its inverse, `\Sigma = \sigma^2 (J^\top J)^{-1}` — exact for a linear
 model with a flat prior and an optimum away from the bounds. σ² is given, or estimated as
-:math:`\mathrm{RSS}/(N - P)` (:func:`residual_variance`). The inverse is a pseudo-inverse
-(:func:`covariance`, eigenvalues below ``rcond`` times the largest dropped), or, with a
-``ridge``, the inverse of :math:`\mathcal I + \epsilon I`, which shows an exact degeneracy
+`\mathrm{RSS}/(N - P)` (`residual_variance`). The inverse is a pseudo-inverse
+(`covariance`, eigenvalues below ``rcond`` times the largest dropped), or, with a
+``ridge``, the inverse of `\mathcal I + \epsilon I`, which shows an exact degeneracy
 as an enormous deviation instead of dropping it. Deviations are
-:math:`\sqrt{\max(\Sigma_{ii}, 0)}` and correlations
-:math:`\Sigma_{ij}/(s_i s_j)` (:func:`deviations`, :func:`correlation`).
+`\sqrt{\max(\Sigma_{ii}, 0)}` and correlations
+`\Sigma_{ij}/(s_i s_j)` (`deviations`, `correlation`).
 
 Problems are duck-typed: anything with ``residual_physical(x)`` (a Strauss
-:class:`strauss_fit.fitting.problem.Problem`, a Phong
-:class:`strauss_fit.convert.phong_fit.PhongProblem`).
+`strauss_fit.fitting.problem.Problem`, a Phong
+`strauss_fit.convert.phong_fit.PhongProblem`).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def _jacobian(problem: Any, x: Array) -> Array:
     return jax.jacfwd(problem.residual_physical)(x)
 
 
-#: The Jacobian as a :class:`~strauss_fit.engine.Kernel` (for steps; see :func:`jacobian`).
+#: The Jacobian as a `Kernel` (for steps; see `jacobian`).
 jacobian_kernel = Kernel(_jacobian, "jacobian")
 
 
@@ -95,7 +95,7 @@ def correlation(cov: np.ndarray, *, fallback: np.ndarray | None = None, floor: f
 def problem_laplace(
     problem: Any, x: np.ndarray, rss: float, sigma: float | None = None, info: np.ndarray | None = None
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray | None]:
-    """:func:`problem_laplace_steps`, run directly."""
+    """`problem_laplace_steps`, run directly."""
     return run(problem_laplace_steps(problem, x, rss, sigma, info))
 
 
@@ -104,7 +104,7 @@ def problem_laplace_steps(
 ) -> Steps:
     r"""The Laplace deviations and correlations of a fit problem at its optimum ``x``.
 
-    :math:`\Sigma = \sigma^2 (J^\top J)^{+}` with σ² given or RSS/(N − P). Entries the
+    `\Sigma = \sigma^2 (J^\top J)^{+}` with σ² given or RSS/(N − P). Entries the
     problem pins at a bound get deviation 0 (their rows and columns of JᵀJ are zeroed).
     ``info``: JᵀJ of the physical residuals at ``x`` if already computed (the polish
     does). Returns the deviations by parameter name (a list for colour), the correlation
@@ -164,11 +164,11 @@ def _value_derivatives(problem: Any, model: Array) -> tuple[Array, Array, Array,
 
 
 def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
-    r""":math:`\sum_i w_i \nabla^2 m_i(x)` (P, P) for the model values m (M,) of
+    r"""`\sum_i w_i \nabla^2 m_i(x)` (P, P) for the model values m (M,) of
     ``problem.render_physical``: each of the P(P + 1)/2 second derivatives
-    :math:`\partial^2 m/\partial x_a \partial x_b` as a forward-over-forward directional
+    `\partial^2 m/\partial x_a \partial x_b` as a forward-over-forward directional
     derivative, one pair after the other (``lax.map``). Why not ``jax.hessian``: the model's
-    derivatives are a closed-form ``custom_jvp`` (:func:`strauss_fit.rendering.strauss.direct_radiance`),
+    derivatives are a closed-form ``custom_jvp`` (`strauss_fit.rendering.strauss.direct_radiance`),
     and batching its second derivatives over the P × P pairs (``vmap``) cost 6-10 times the
     pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5)."""
     size = x.shape[0]
@@ -198,11 +198,11 @@ def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array, Array
 
 
 def _objective_terms_and_model_jacobian(problem: Any, x: Array) -> tuple[Array, ...]:
-    r"""J, H, D, g and ∂J/∂y of :func:`objective_terms`, from the model's Jacobian F (M, P)
-    and the value-by-value derivatives of the residuals (:func:`_value_derivatives`):
-    :math:`J_i = g'_i F_i`, :math:`\partial J_i/\partial y_i = \partial^2 g_i/\partial m_i\partial y_i\,F_i`
-    and :math:`H = \sum_i (g_i'^2 + g_i g''_i) F_i F_i^\top + \sum_i g_i g'_i \nabla^2 m_i`
-    (:func:`_weighted_model_hessian`), g′ and g″ the derivatives in mᵢ: the Hessian of ½Σg²
+    r"""J, H, D, g and ∂J/∂y of `objective_terms`, from the model's Jacobian F (M, P)
+    and the value-by-value derivatives of the residuals (`_value_derivatives`):
+    `J_i = g'_i F_i`, `\partial J_i/\partial y_i = \partial^2 g_i/\partial m_i\partial y_i\,F_i`
+    and `H = \sum_i (g_i'^2 + g_i g''_i) F_i F_i^\top + \sum_i g_i g'_i \nabla^2 m_i`
+    (`_weighted_model_hessian`), g′ and g″ the derivatives in mᵢ: the Hessian of ½Σg²
     by the chain rule, with the render differentiated once and twice instead of the whole
     residual (the render's batched second derivatives are what made ``jax.hessian`` slow)."""
     model = problem.render_physical(x)
@@ -216,7 +216,7 @@ def _objective_terms_and_model_jacobian(problem: Any, x: Array) -> tuple[Array, 
     return jacobian, hessian, slope_y, values, cross_my[:, None] * model_jacobian, model_jacobian
 
 
-#: :func:`objective_terms` as a :class:`~strauss_fit.engine.Kernel`.
+#: `objective_terms` as a `Kernel`.
 objective_terms_kernel = Kernel(_objective_terms, "objective_terms")
 
 
@@ -227,10 +227,10 @@ def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
     Hessian H of ½Σg² (P, P: JᵀJ plus the curvature of each residual times its value),
     D = ∂gᵢ/∂yᵢ (M,), the slope of each residual in its own target value (each gᵢ depends on
     yᵢ alone), and the rows C (M, P) of the cross derivative of the cost's gradient,
-    :math:`C_i = \partial(g_i \nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`:
-    how the value yᵢ's noise moves the optimum (:func:`problem_sandwich_steps`).
+    `C_i = \partial(g_i \nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`:
+    how the value yᵢ's noise moves the optimum (`problem_sandwich_steps`).
 
-    ``problem``: a fit problem (:class:`strauss_fit.fitting.problem.Problem`) whose residuals
+    ``problem``: a fit problem (`strauss_fit.fitting.problem.Problem`) whose residuals
     are value by value functions of its model (``render_physical``) and target
     (``objective_of_model``)."""
     j, h, slope, values, jacobian_slope = (
@@ -241,9 +241,9 @@ def objective_terms(problem: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def _sandwich_parts(problem: Any, x: Array, noise_sd: Array) -> dict[str, Array]:
     r"""What the noise sandwich and the Laplace errors need, reduced on the device to P × P
-    matrices (:func:`problem_sandwich_steps`): the bread H/c², the meat
-    :math:`C^\top \mathrm{diag}(\sigma^2) C/c^4` (C's rows divided by c² factor by factor,
-    :func:`_cross_rows`), the Gauss–Newton JᵀJ/c² of the objective, and JᵀJ of the physical
+    matrices (`problem_sandwich_steps`): the bread H/c², the meat
+    `C^\top \mathrm{diag}(\sigma^2) C/c^4` (C's rows divided by c² factor by factor,
+    `_cross_rows`), the Gauss–Newton JᵀJ/c² of the objective, and JᵀJ of the physical
     residuals (model minus target, the padding weighted 0) — c the largest |D|, 1 when that
     is not a positive finite number. ``noise_sd`` (M,): every value's noise, 0 on the padding."""
     jacobian, hessian, slope, values, jacobian_slope, model_jacobian = _objective_terms_and_model_jacobian(problem, x)
@@ -263,14 +263,14 @@ def _sandwich_parts(problem: Any, x: Array, noise_sd: Array) -> dict[str, Array]
     }
 
 
-#: :func:`_sandwich_parts` as a :class:`~strauss_fit.engine.Kernel`.
+#: `_sandwich_parts` as a `Kernel`.
 sandwich_parts_kernel = Kernel(_sandwich_parts, "sandwich_parts")
 
 
 def _cross_rows(
     j: np.ndarray, slope: np.ndarray, values: np.ndarray, jacobian_slope: np.ndarray, scale: float = 1.0
 ) -> np.ndarray:
-    """C = D J + g ∂J/∂y (see :func:`objective_terms`), divided by ``scale``² — each factor by
+    """C = D J + g ∂J/∂y (see `objective_terms`), divided by ``scale``² — each factor by
     ``scale`` before the product, so that neither overflows when the residuals were divided
     by a tiny reference noise."""
     return (slope / scale)[:, None] * (j / scale) + (values / scale)[:, None] * (jacobian_slope / scale)
@@ -283,7 +283,7 @@ def _positive_part(matrix: np.ndarray) -> np.ndarray:
 
 
 def sandwich(bread: np.ndarray, meat: np.ndarray, free: np.ndarray | None = None) -> np.ndarray:
-    r""":math:`V = B^{+} M B^{+}` over the ``free`` entries (the others get 0 rows and
+    r"""`V = B^{+} M B^{+}` over the ``free`` entries (the others get 0 rows and
     columns), B's negative eigenvalues dropped first (a saddle of the cost along a
     direction the data do not pin gives no information, not a negative variance)."""
     size = len(bread)
@@ -299,7 +299,7 @@ def sandwich(bread: np.ndarray, meat: np.ndarray, free: np.ndarray | None = None
 def problem_sandwich(
     problem: Any, x: np.ndarray, noise_sd: np.ndarray
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray, dict[str, Any]]:
-    """:func:`problem_sandwich_steps`, run directly."""
+    """`problem_sandwich_steps`, run directly."""
     return run(problem_sandwich_steps(problem, x, noise_sd))
 
 
@@ -307,21 +307,23 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
     r"""The noise-sandwich covariance of a fit at its optimum ``x``: how far the fitted
     values would move if the image were taken again with fresh noise.
 
-    For the estimator :math:`\hat\theta = \arg\min L(\theta, y)`,
-    :math:`L = \tfrac12\sum g_i(\theta, y_i)^2`, at a fixed image with noise ε of standard
+    For the estimator `\hat\theta = \arg\min L(\theta, y)`,
+    `L = \tfrac12\sum g_i(\theta, y_i)^2`, at a fixed image with noise ε of standard
     deviations ``noise_sd`` (per residual value, (M,)), the optimum moves with the noise as
-    :math:`\hat\theta - \theta^* \approx -H^{-1} C^\top \varepsilon`, C the rows
-    :math:`\partial(g_i\nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`
+    `\hat\theta - \theta^* \approx -H^{-1} C^\top \varepsilon`, C the rows
+    `\partial(g_i\nabla_\theta g_i)/\partial y_i = D_i J_i + g_i\,\partial J_i/\partial y_i`
     of the derivative of ∇L in the data, so
 
-    .. math:: V = H^{-1}\,(C^\top \mathrm{diag}(\sigma^2)\,C)\,H^{-1},
+    ```text
+    V = H^{-1}\,(C^\top \mathrm{diag}(\sigma^2)\,C)\,H^{-1},
+    ```
 
-    with J, H, D = ∂g/∂y and C from :func:`objective_terms`. For the linear and perceptual
+    with J, H, D = ∂g/∂y and C from `objective_terms`. For the linear and perceptual
     losses ∂J/∂y = 0 and C = DJ. For Huber and Cauchy, whose residuals are
-    :math:`g = \operatorname{sign}(z)\sqrt{2\rho(z)}` of the noise-scaled residual z (so that
-    ½Σg² = Σρ), :math:`C_i \propto \psi'(z_i)\nabla_\theta z_i` with ψ = ρ′: a value beyond
+    `g = \operatorname{sign}(z)\sqrt{2\rho(z)}` of the noise-scaled residual z (so that
+    ½Σg² = Σρ), `C_i \propto \psi'(z_i)\nabla_\theta z_i` with ψ = ρ′: a value beyond
     Huber's threshold moves the optimum by nothing (ψ is flat there), where DJ alone gave it
-    the weight :math:`(k^2/g_i^2)^2` and widened the ± (by 1.2–1.35 times on a Phong target,
+    the weight `(k^2/g_i^2)^2` and widened the ± (by 1.2–1.35 times on a Phong target,
     see docs/uncertainty.md). For Gaussian noise the per-value weight E[ψ′(z + ε)²] is at
     least Var ψ(z + ε) (the Gaussian Poincaré inequality, Var h(ε) ≤ E h′(ε)²): the robust
     ± errs on the wide side where the noise straddles the threshold (on the Phong target,
@@ -351,9 +353,9 @@ def problem_sandwich_steps(problem: Any, x: np.ndarray, noise_sd: np.ndarray) ->
 
 
 def padded_noise(problem: Any, noise_sd: np.ndarray) -> np.ndarray:
-    """``noise_sd`` (one per real residual value) as :func:`_sandwich_parts` takes it: one
+    """``noise_sd`` (one per real residual value) as `_sandwich_parts` takes it: one
     per value of ``problem.target``, 0 on a padded pixel set's padding
-    (:func:`strauss_fit.fitting.problem.pixel_bucket`), whose slope is 0 too."""
+    (`strauss_fit.fitting.problem.pixel_bucket`), whose slope is 0 too."""
     noise_sd = np.asarray(noise_sd, dtype=np.float64).ravel()
     return np.concatenate([noise_sd, np.zeros(int(np.asarray(problem.target).size) - noise_sd.size)])
 
@@ -361,7 +363,7 @@ def padded_noise(problem: Any, noise_sd: np.ndarray) -> np.ndarray:
 def sandwich_from_parts(
     problem: Any, parts: dict[str, Any]
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray, dict[str, Any]]:
-    """:func:`problem_sandwich_steps`'s result from :func:`_sandwich_parts`' P × P matrices.
+    """`problem_sandwich_steps`'s result from `_sandwich_parts`' P × P matrices.
 
     V is the same with C divided by any c² and H by c²: with c the largest slope (1/the
     residual scale, for the linear loss) the products stay of the image's own magnitude
@@ -392,7 +394,7 @@ def _rss_hessian(problem: Any, x: Array) -> Array:
     return jax.hessian(half_rss)(x)
 
 
-#: :func:`rss_hessian` as a :class:`~strauss_fit.engine.Kernel`.
+#: `rss_hessian` as a `Kernel`.
 rss_hessian_kernel = Kernel(_rss_hessian, "rss_hessian")
 
 
@@ -406,9 +408,9 @@ def rss_hessian(problem: Any, x: np.ndarray) -> np.ndarray:
 @uses_float64
 def posterior_covariance(problem: Any, x_hat: np.ndarray, sigma: float, free: np.ndarray) -> np.ndarray:
     r"""The covariance the least-squares posterior has near its optimum ``x_hat``,
-    :math:`\sigma^2 H^{+}` with H the Hessian of ½RSS (:func:`rss_hessian`), over the
+    `\sigma^2 H^{+}` with H the Hessian of ½RSS (`rss_hessian`), over the
     ``free`` entries with the others held (0 rows and columns) — as the noise sandwich of
-    :func:`problem_sandwich_steps` holds entries pinned at a bound, so that the two can be
+    `problem_sandwich_steps` holds entries pinned at a bound, so that the two can be
     compared entry for entry (``sample --adjust temperature``).
 
     H rather than the Gauss–Newton JᵀJ because it is the curvature the chain sees: when the

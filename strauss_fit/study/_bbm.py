@@ -7,35 +7,35 @@ model; bbm (Pieter Peers, github.com/bsdfbenchmark/bbm) ships their published pa
 ``Aggregate(Lambertian(albedo = kd), NganCookTorrance(albedo = ks, eta = F0, roughness = m))``,
 and its BRDF, read from bbm at commit ``9807fb38d7ab51802f3a0fe0f65cf763cb01a0f4`` (2023-09-01), is
 
-.. math::
+```text
+f_r(\omega_i, \omega_o) = \frac{k_d}{\pi}
+    + k_s\,\frac{D(h)\,G(\omega_i, \omega_o, h)\,F(\omega_i, \omega_o, h)}{\pi\,\cos\theta_i\cos\theta_o}
+```
 
-    f_r(\omega_i, \omega_o) = \frac{k_d}{\pi}
-        + k_s\,\frac{D(h)\,G(\omega_i, \omega_o, h)\,F(\omega_i, \omega_o, h)}{\pi\,\cos\theta_i\cos\theta_o}
-
-for :math:`\cos\theta_i, \cos\theta_o > 0` (0 otherwise; the Lambertian term also at 0), with
+for `\cos\theta_i, \cos\theta_o > 0` (0 otherwise; the Lambertian term also at 0), with
 
 - ``include/bsdfmodel/ngan.h``: ``ngancooktorrance`` = ``scaledmodel<microfacet<beckmann<Isotropic>,
-  vgroove, schlick, microfacet_n::Cook>, SpecularScale>`` — the specular albedo :math:`k_s`
+  vgroove, schlick, microfacet_n::Cook>, SpecularScale>`` — the specular albedo `k_s`
   multiplies the microfacet model, whose normalisation factor ``microfacet_n::Cook`` is π;
 - ``include/bsdfmodel/microfacet.h``: ``D * G * F / NormalizationFactor / (cosθ_i cosθ_o)``,
-  the half vector :math:`h = \mathrm{normalise}(\omega_i + \omega_o)`, and the Fresnel term
-  evaluated at the mean of :math:`\omega_i\cdot h` and :math:`\omega_o\cdot h` (equal; bbm
+  the half vector `h = \mathrm{normalise}(\omega_i + \omega_o)`, and the Fresnel term
+  evaluated at the mean of `\omega_i\cdot h` and `\omega_o\cdot h` (equal; bbm
   averages them against round-off);
 - ``include/ndf/beckmann.h`` (``Normalize = true``, the default that ``ngan.h`` uses):
-  :math:`D(h) = \exp(-\tan^2\theta_h / m^2) / (\pi\, m^2 \cos^4\theta_h)` for
-  :math:`\cos\theta_h > 0` — normalised so that :math:`\int D\cos\theta_h\,d\omega_h = 1`;
-- ``include/maskingshadowing/vgroove.h``: :math:`G = \min(1,\ 2\cos\theta_h\cos\theta_i/(\omega_i\cdot h),\
+  `D(h) = \exp(-\tan^2\theta_h / m^2) / (\pi\, m^2 \cos^4\theta_h)` for
+  `\cos\theta_h > 0` — normalised so that `\int D\cos\theta_h\,d\omega_h = 1`;
+- ``include/maskingshadowing/vgroove.h``: `G = \min(1,\ 2\cos\theta_h\cos\theta_i/(\omega_i\cdot h),\
   2\cos\theta_h\cos\theta_o/(\omega_o\cdot h))`, 0 unless both dot products with h are positive;
-- ``include/bbm/fresnel_schlick.h``: :math:`F = F_0 + (1 - F_0)(1 - \cos)^5`, whose parameter
-  defaults to ``ior::reflectance``: the fits' ``eta`` *is* :math:`F_0`, not an index of
+- ``include/bbm/fresnel_schlick.h``: `F = F_0 + (1 - F_0)(1 - \cos)^5`, whose parameter
+  defaults to ``ior::reflectance``: the fits' ``eta`` *is* `F_0`, not an index of
   refraction;
 - ``include/bsdfmodel/lambertian.h``: ``albedo / π``.
 
 Radiance follows strauss-fit's convention (docs/study.md, "Normalisation"): a light of
 intensity I delivers the irradiance π I cos θ_i, so it contributes
-:math:`L_o = \pi f_r \cos\theta_i\, I` — a white Lambertian :math:`k_d = 1` shows
-:math:`I\cos\theta_i`, exactly as Phong's :math:`k_d C_d = 1` and Strauss's C = 1, s = m = 0
-do. The scene's ambient light A adds :math:`A\,k_d` (the radiance of a Lambertian surface
+`L_o = \pi f_r \cos\theta_i\, I` — a white Lambertian `k_d = 1` shows
+`I\cos\theta_i`, exactly as Phong's `k_d C_d = 1` and Strauss's C = 1, s = m = 0
+do. The scene's ambient light A adds `A\,k_d` (the radiance of a Lambertian surface
 under a uniform surround; the specular lobe's share of it is left out, as Phong's ambient
 term leaves it out).
 """
@@ -56,7 +56,7 @@ from ..scene.loading import Scene
 
 #: The bbm commit the formulas were read from (``include/bsdfmodel/ngan.h`` and the files it uses).
 BBM_COMMIT = "9807fb38d7ab51802f3a0fe0f65cf763cb01a0f4"
-#: Sub-samples per pixel side of :func:`render_material` (the image a camera records is the
+#: Sub-samples per pixel side of `render_material` (the image a camera records is the
 #: mean over each pixel's footprint; a Beckmann lobe of m = 0.005 is 0.3° wide, a 48-pixel
 #: sphere's pixel spans 2.4° of normal at its centre, so one sample per pixel is a lottery).
 SUPERSAMPLE = 8
@@ -142,7 +142,7 @@ def render_material(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The image (H, W, 3) of ``material`` on the unit sphere of ``scene`` and the pixels it
     holds (H, W): those whose whole footprint shows the sphere
-    (:func:`~strauss_fit.rendering.coverage.fully_covered`), each the mean radiance over
+    (`fully_covered`), each the mean radiance over
     ``supersample`` × ``supersample`` points of its footprint; 0 elsewhere. Radiance per
     light π f_r cos θ_i I·colour, plus the ambient light times kd (module docstring)."""
     camera = scene.camera

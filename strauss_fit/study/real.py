@@ -1,37 +1,37 @@
 r"""The study on measured materials: how well do Strauss and Phong reproduce real reflectance?
 
-Part 4 of the study (:func:`strauss_fit.study.study.conversions`) compares the models on
+Part 4 of the study (`strauss_fit.study.study.conversions`) compares the models on
 images that one of them rendered itself. This module measures them on two kinds of real
 data, each read from a path the user gives (the data stay where they are):
 
-5. **MERL materials as Ngan, Durand & Matusik (2005) fitted them** (:func:`merl_expressiveness`).
+5. **MERL materials as Ngan, Durand & Matusik (2005) fitted them** (`merl_expressiveness`).
    Ngan et al. fitted a Lambertian term plus a Cook–Torrance lobe to each of 86 measured
    MERL BRDFs; the BSDF benchmark bbm publishes their parameters (``fits_parsed.json`` /
-   ``ngan_cooktorrance.fit``). Each material's BRDF (:mod:`strauss_fit.study._bbm`) is
-   rendered on the sphere under the study's scenes (:data:`MERL_SCENES`; the mean over
+   ``ngan_cooktorrance.fit``). Each material's BRDF (`strauss_fit.study._bbm`) is
+   rendered on the sphere under the study's scenes (`MERL_SCENES`; the mean over
    8 × 8 points of each fully covered pixel, as a camera integrates over its pixels), and
    both models are fitted to each image with the same objective, least squares on linear
    radiance over the same pixels: Strauss by the single-target fit
-   (:func:`strauss_fit.fit_many`, the loss held ``"linear"``), Phong by the capture fitter
-   (:func:`strauss_fit.fitting.capture.fit_capture_samples` on
-   :func:`strauss_fit.fitting.scene_samples.samples_from_scene`, the scene's lights known).
+   (`strauss_fit.fit_many`, the loss held ``"linear"``), Phong by the capture fitter
+   (`strauss_fit.fitting.capture.fit_capture_samples` on
+   `strauss_fit.fitting.scene_samples.samples_from_scene`, the scene's lights known).
    Strauss is fitted a second time with its default loss (``"auto"``: refitted with the
    Huber loss when the least-squares fit visibly misses), which keeps a highlight it
    cannot reach from pulling the rest of the sphere (``strauss_default``; Phong has no such
    fit to compare it with). A
    material is *matched* when the mean CIEDE2000 over the sphere
-   (:func:`strauss_fit.color.delta_e_2000`, as the fitters compute it) is at most 1 (one
+   (`strauss_fit.color.delta_e_2000`, as the fitters compute it) is at most 1 (one
    just-noticeable difference) in every scene; its ΔE is the largest over the scenes.
-   Strauss's fit is *out of reach* (:func:`out_of_reach`) when it reports
+   Strauss's fit is *out of reach* (`out_of_reach`) when it reports
    ``highlight-out-of-reach`` (the target is brighter than any Strauss material can be,
    the bound r_s ≤ 1), or when it pins the colour at 1 or the smoothness at a bound while
-   the highlight holds more than :data:`CONCENTRATION` times its share of the residual.
-   Materials are classed by name (:func:`material_class`).
-6. **Real photographs** (:func:`capture_models`): a capture the capture fitter reads
+   the highlight holds more than `CONCENTRATION` times its share of the residual.
+   Materials are classed by name (`material_class`).
+6. **Real photographs** (`capture_models`): a capture the capture fitter reads
    (e.g. DiLiGenT's ``ballPNG``) fitted by every model of
-   :data:`strauss_fit.fitting.capture.MODELS` on half of its images, the other half predicted
+   `strauss_fit.fitting.capture.MODELS` on half of its images, the other half predicted
    (held-out error), and each model's lobe parameters fitted on two disjoint halves of
-   the fitted images (:func:`strauss_fit.fitting.capture_stability.halves`: stable when each
+   the fitted images (`strauss_fit.fitting.capture_stability.halves`: stable when each
    half's value lies within the other's perceptual equivalence range).
 
 One material or model that fails is recorded with its error and the others go on.
@@ -75,7 +75,7 @@ FITTED = ("strauss", "phong", "strauss_default", "strauss_clipped", "phong_clipp
 REACH = ("strauss", "strauss_default")
 #: One just-noticeable difference: a material is matched when its mean CIEDE2000 is at most this.
 JND = 1.0
-#: The highlight (core and wings, :mod:`strauss_fit.fitting.diagnosis`) holds the residual when
+#: The highlight (core and wings, `strauss_fit.fitting.diagnosis`) holds the residual when
 #: its share of χ² exceeds this multiple of its share of the pixels (the diagnosis's own rule).
 CONCENTRATION = 1.5
 #: Material classes, by name keyword; the first class with a keyword in the name wins,
@@ -124,7 +124,7 @@ CLASSES = tuple(name for name, _ in CLASS_KEYWORDS) + ("other",)
 
 
 def material_class(name: str) -> str:
-    """The class of a MERL material by its name (:data:`CLASS_KEYWORDS`): paints first (a
+    """The class of a MERL material by its name (`CLASS_KEYWORDS`): paints first (a
     "gold-metallic-paint" is a paint), then fabrics, metals and plastics; else "other"."""
     lowered = name.lower()
     for label, keywords in CLASS_KEYWORDS:
@@ -143,7 +143,7 @@ def _triple(value: Any, what: str) -> tuple[float, float, float]:
 def read_ngan_fits(path: str | Path) -> tuple[list[NganMaterial], Path]:
     """The materials of Ngan's Cook–Torrance fits in bbm's parsed form: ``path`` is
     ``fits_parsed.json`` or the folder holding it, ``{file: {material: {lambertian_albedo,
-    model, params: {albedo, eta, roughness}}}}``; the entry :data:`NGAN_FILE` (with or
+    model, params: {albedo, eta, roughness}}}}``; the entry `NGAN_FILE` (with or
     without ``.fit``) is read. Returns the materials (in the file's order) and the file."""
     path = Path(path)
     file = path / "fits_parsed.json" if path.is_dir() else path
@@ -216,7 +216,7 @@ def _highlight_share(regions: dict[str, Any]) -> float | None:
 
 
 def out_of_reach(result: Any) -> tuple[bool, str | None]:
-    """Whether a Strauss :class:`~strauss_fit.fitting.result.FitResult` shows the target out of
+    """Whether a Strauss `FitResult` shows the target out of
     Strauss's reach, and why (module docstring): the ``highlight-out-of-reach`` warning, or
     the colour pinned at 1 or the smoothness at a bound with the residual concentrated in
     the highlight."""
@@ -388,7 +388,7 @@ def _merl_scene(
     materials: Sequence[NganMaterial], scene_name: str, size: int, supersample: int, say: Callable[[str], None]
 ) -> list[dict[str, Any]]:
     """One record per material under the scene ``scene_name``: its render's figures and
-    every fit of :data:`FITTED` (a material that could not be rendered: an error in each)."""
+    every fit of `FITTED` (a material that could not be rendered: an error in each)."""
     scene = study_scene(scene_name, size)
     targets, clipped, levels, records = _render_targets(materials, scene, supersample)
     strauss = _fit_strauss(targets, clipped, scene, scene_name, size, say)
@@ -487,7 +487,7 @@ def _material_rows(
     materials: Sequence[NganMaterial], per_scene: dict[str, list[dict[str, Any]]], scenes: Sequence[str]
 ) -> list[dict[str, Any]]:
     """One row per material: its parameters and class, each fit's worst over the scenes
-    (:func:`_worst`), and its record in every scene."""
+    (`_worst`), and its record in every scene."""
     rows = []
     for i, material in enumerate(materials):
         scenes_of = {name: per_scene[name][i] for name in scenes}
@@ -512,7 +512,7 @@ def capture_models(
     models: Sequence[str] | None = None,
     say: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Part 6 (module docstring): every model of :data:`strauss_fit.fitting.capture.MODELS`
+    """Part 6 (module docstring): every model of `strauss_fit.fitting.capture.MODELS`
     fitted to the capture at ``path`` without the images ``holdout`` names (every second
     by default), its error on those, and its lobe parameters on two disjoint halves of the
     fitted images."""

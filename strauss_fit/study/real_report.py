@@ -1,10 +1,10 @@
-"""The measured-material parts of the study's report (:mod:`strauss_fit.study.real`).
+"""The measured-material parts of the study's report (`strauss_fit.study.real`).
 
-:func:`real_conclusions` turns the ``merl`` and ``capture`` entries of a study into
-verdicts in the style of :func:`strauss_fit.reporting.study_report.conclusions`: each a
+`real_conclusions` turns the ``merl`` and ``capture`` entries of a study into
+verdicts in the style of `strauss_fit.reporting.study_report.conclusions`: each a
 comparison of measured values, with the numbers that decide it, no fixed text praising
-either model. :func:`write_study_report` writes the whole report — the four parts of
-:mod:`strauss_fit.reporting.study_report` and, when the study has them, sections 5 and 6
+either model. `write_study_report` writes the whole report — the four parts of
+`strauss_fit.reporting.study_report` and, when the study has them, sections 5 and 6
 with their tables and the figure ``fig-merl.png`` — all files or none.
 """
 
@@ -58,7 +58,7 @@ def real_conclusions(study: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def all_conclusions(study: dict[str, Any]) -> list[dict[str, Any]]:
-    """The four aspects of :func:`strauss_fit.reporting.study_report.conclusions` and parts 5 and 6."""
+    """The four aspects of `strauss_fit.reporting.study_report.conclusions` and parts 5 and 6."""
     return conclusions(study) + real_conclusions(study)
 
 
@@ -541,7 +541,7 @@ def _capture_section(doc: Document, c: dict[str, Any]) -> None:
 def study_markdown_document(
     study: dict[str, Any], verdicts: list[dict[str, Any]], images: dict[str, bytes]
 ) -> Document:
-    """The whole report as a :class:`~strauss_fit.reporting.document.Document`: the four
+    """The whole report as a `Document`: the four
     parts, then sections 5 and 6, then the timing line."""
     doc = study_document(study, verdicts, images)
     timing = doc.blocks.pop()  # the timing line stays last
@@ -553,7 +553,7 @@ def study_markdown_document(
 def write_study_report(study: dict[str, Any], outdir: str | Path, *, force: bool = False) -> list[Path]:
     """Write study.json, study.md, study.html and the PNG plots into ``outdir`` (created if
     missing; its parent must exist), all or none, as
-    :func:`strauss_fit.reporting.study_report.write_report` does, with sections 5 and 6
+    `strauss_fit.reporting.study_report.write_report` does, with sections 5 and 6
     and their verdicts when the study has them."""
     return write_study_files(
         study,

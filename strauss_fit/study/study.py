@@ -2,42 +2,42 @@ r"""The intuitive-parameter study: does Strauss's parameterisation beat Phong's,
 
 Strauss (1990) claims that his parameters are more intuitive and more consistent than
 Phong's: a user cannot set values that create energy, each parameter does one thing, and
-the parameters are closer to physics. :func:`run_study` measures four aspects, for both
-models, and :mod:`strauss_fit.reporting.study_report` writes them up with conclusions drawn from
+the parameters are closer to physics. `run_study` measures four aspects, for both
+models, and `strauss_fit.reporting.study_report` writes them up with conclusions drawn from
 the numbers.
 
-1. **Consistency** (:func:`consistency`): parameter sets drawn as a novice would — Phong
+1. **Consistency** (`consistency`): parameter sets drawn as a novice would — Phong
    ka, kd, ks uniform in [0, 1], n uniform in [1, 1000], colours uniform in [0, 1]³;
    Strauss C, s, m, t each uniform in its range (n is irrelevant to reflectance) — and
-   the fraction whose directional-hemispherical reflectance (:mod:`strauss_fit.models.albedo`)
+   the fraction whose directional-hemispherical reflectance (`strauss_fit.models.albedo`)
    exceeds 1 at some angle of incidence up to 60°, 80° and 89°. A set counts only if it
    exceeds 1 by more than the quadrature's stated accuracy. Because the fraction for
    Phong depends mostly on how n is drawn, a log-uniform n is reported too.
-2. **Independence** (:func:`independence`): on the same sphere images (the conversion
-   scene, :mod:`strauss_fit.convert.converter`; Phong-rendered and Strauss-rendered materials),
-   the Fisher information :math:`\mathcal I = J^\top J/\sigma^2` of each model at its
+2. **Independence** (`independence`): on the same sphere images (the conversion
+   scene, `strauss_fit.convert.converter`; Phong-rendered and Strauss-rendered materials),
+   the Fisher information `\mathcal I = J^\top J/\sigma^2` of each model at its
    parameters for that image (the truth for its own renders, the fitted conversion for
    the other model's), J from ``jax.jacfwd`` of the rendered pixels, σ = 1 % of the
    image's 98th percentile. Reported: the posterior correlations
-   (:math:`\mathcal I^{-1}` normalised), the condition number of :math:`\mathcal I` with
+   (`\mathcal I^{-1}` normalised), the condition number of `\mathcal I` with
    every parameter on a unit range (Strauss: C, s, m; Phong: D = kd·Cd, S = ks·Cs, and
    u = log n / log 10000), and the scale-free condition number of the correlation form
-   :math:`D^{-1/2}\mathcal I D^{-1/2}` (invariant to any per-parameter rescaling or
+   `D^{-1/2}\mathcal I D^{-1/2}` (invariant to any per-parameter rescaling or
    reparameterisation, so it measures dependence alone). The parameterisations users
    actually set are checked too: Phong's kd, Cd, ks, Cs, n (where only products reach
    the image) and Strauss's C, s, m, t (t in a local image only dims).
-3. **Uniformity** (:func:`uniformity`): for base materials drawn as in 1 (Phong's n
+3. **Uniformity** (`uniformity`): for base materials drawn as in 1 (Phong's n
    log-uniform here, so that the bases' highlights are wider than a pixel), each parameter
    is swept across its range in equal steps and the CIEDE2000 difference (mean over the
    sphere) between successive images is recorded; a perfectly even parameter changes the
    image by the same amount per step. Reported per parameter: the coefficient of
    variation of the steps, the largest step over the mean step, and where the largest
    step lies. Phong's exponent is swept linearly (as drawn in 1) and geometrically.
-4. **Expressiveness** (:func:`conversions`): Phong materials (drawn as in 1) converted to
+4. **Expressiveness** (`conversions`): Phong materials (drawn as in 1) converted to
    Strauss and Strauss materials (opaque, drawn as in 1) converted to Phong, with the
    distribution of the residual CIEDE2000.
 
-Part 4's images are rendered by one of the two models; :mod:`strauss_fit.study.real` adds,
+Part 4's images are rendered by one of the two models; `strauss_fit.study.real` adds,
 when given the data, 5. the same question on measured materials (the MERL BRDFs as Ngan et
 al. fitted them) and 6. on real photographs (held-out error and stability of every capture
 model).
@@ -484,7 +484,7 @@ PER_IMAGE_KEYS = ("condition_scale_free", "condition_unit_range", "max_abs_corre
 def independence(run: dict[str, Any], say: Callable[[str], None]) -> dict[str, Any]:
     """Part 2 (module docstring): the Fisher information of both models, in every
     parameterisation, on the images of the conversions that succeeded (``run``: what
-    :func:`conversions` returns), summarised over the images and kept per image."""
+    `conversions` returns), summarised over the images and kept per image."""
     converter: Converter = run["converter"]
     say("independence: Fisher information of both models on the same images")
     with_t = _problem_with_transparency(converter)
@@ -740,10 +740,10 @@ def run_study(
     capture: str | Path | None = None,
 ) -> dict[str, Any]:
     """Run the four parts and return every figure (JSON-ready, see
-    :mod:`strauss_fit.reporting.study_report`). With ``merl_fits`` (bbm's
+    `strauss_fit.reporting.study_report`). With ``merl_fits`` (bbm's
     ``fits_parsed.json`` or its folder) and ``capture`` (a capture folder or manifest), the
-    measured-material parts run too (:mod:`strauss_fit.study.real`: the ``merl`` and
-    ``capture`` entries; :func:`strauss_fit.study.real_report.write_study_report` writes them
+    measured-material parts run too (`strauss_fit.study.real`: the ``merl`` and
+    ``capture`` entries; `strauss_fit.study.real_report.write_study_report` writes them
     up)."""
     from .real import capture_models, merl_expressiveness
 

@@ -1,9 +1,9 @@
-"""The chain file held in memory while sampling: :class:`BufferedHDFBackend`.
+"""The chain file held in memory while sampling: `BufferedHDFBackend`.
 
 Why: HDF5 cannot survive a full disk (a failed write inside it can crash the process and
 leave a file that no longer opens), so HDF5 never writes to the disk here; the whole file
 image is written atomically instead (see "Writing the chain safely" in
-:mod:`strauss_fit.inference.sampler`).
+`strauss_fit.inference.sampler`).
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ CHUNK_STEPS = 64
 
 class BufferedHDFBackend(emcee.backends.HDFBackend):
     """emcee's HDF5 backend, same file layout, but the HDF5 file lives in memory: steps are
-    buffered until :meth:`flush` adds them to the in-memory file, and only :meth:`persist`
+    buffered until `flush` adds them to the in-memory file, and only `persist`
     writes the file to ``filename`` (atomically, every write checked; see
-    :mod:`strauss_fit.inference.sampler`). ``image`` is the bytes of an existing chain file (to resume it)."""
+    `strauss_fit.inference.sampler`). ``image`` is the bytes of an existing chain file (to resume it)."""
 
     def __init__(self, filename: str | Path, image: bytes | None = None, **kwargs: Any):
         super().__init__(str(filename), name=CHAIN_GROUP, **kwargs)
@@ -86,7 +86,7 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
         return f
 
     def reset(self, nwalkers, ndim):  # noqa: D102 (emcee's API)
-        """emcee's layout, with chunks of :data:`CHUNK_STEPS` whole steps (h5py's automatic
+        """emcee's layout, with chunks of `CHUNK_STEPS` whole steps (h5py's automatic
         chunks split the walkers and made a chain of a few steps weigh 200 KB)."""
         with self.open("a") as f:
             if self.name in f:
@@ -148,14 +148,14 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
             write_metadata_group(f, meta)
 
     def persist_due(self) -> bool:
-        """Whether the file is due to be written (see :data:`FLUSH_SECONDS`)."""
+        """Whether the file is due to be written (see `FLUSH_SECONDS`)."""
         interval = max(FLUSH_SECONDS, self.persist_seconds / PERSIST_SHARE)
         return time.perf_counter() - self.last_persist >= interval
 
     def persist(self) -> None:
         """Flush, then write the whole file to ``filename``: a temporary file, every write
         and the fsync checked, renamed over the chain. A failure (a full disk) leaves the
-        chain on disk as it was and raises a :class:`ChainError` saying how many steps it
+        chain on disk as it was and raises a `ChainError` saying how many steps it
         keeps."""
         self.flush()
         steps = self._stored_iteration()

@@ -1,9 +1,9 @@
-"""Reading and writing chain files: the metadata (:func:`read_metadata`,
-:func:`write_metadata`) and the stored chain (:func:`load_chain`, :class:`Chain`).
+"""Reading and writing chain files: the metadata (`read_metadata`,
+`write_metadata`) and the stored chain (`load_chain`, `Chain`).
 
 Reading checks what it reads (metadata with every key a report or a resume needs, as many
 rows as the iteration count says, finite samples), so that a damaged file is a one-line
-:class:`ChainError` rather than a traceback further on.
+`ChainError` rather than a traceback further on.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def _check_file(path: Path) -> None:
         raise ChainError(f"cannot read chain file {path}: not an HDF5 file (corrupt, or not a chain)")
 
 
-#: Metadata keys every chain of :func:`sample` holds, and what each must be.
+#: Metadata keys every chain of `sample` holds, and what each must be.
 REQUIRED_METADATA = {
     "labels": "a list of parameter names",
     "fit": "the fit result it started from",
@@ -116,7 +116,7 @@ def read_metadata(path: str | Path, *, required: bool = True) -> dict[str, Any]:
 
 def write_metadata(path: str | Path, meta: dict[str, Any]) -> None:
     """Create or replace the ``strauss_fit`` group of the chain file ``path`` (the emcee
-    group is left alone), atomically (the file is rewritten, see :mod:`strauss_fit.inference.sampler`)."""
+    group is left alone), atomically (the file is rewritten, see `strauss_fit.inference.sampler`)."""
     backend = BufferedHDFBackend.load(path) if Path(path).exists() else BufferedHDFBackend(path)
     backend.write_metadata(meta)
     backend.persist()
@@ -125,7 +125,7 @@ def write_metadata(path: str | Path, meta: dict[str, Any]) -> None:
 @dataclass
 class Chain:
     """A stored chain: ``chain`` (S, W, P), ``log_prob`` (S, W), ``accepted`` (W,), and
-    the metadata written by :func:`run_sampler`."""
+    the metadata written by `run_sampler`."""
 
     path: str
     chain: np.ndarray
@@ -140,7 +140,7 @@ class Chain:
         return list(self.meta["labels"])
 
     def diagnostics(self, min_tau_multiple: float | None = None) -> Diagnostics:
-        """:func:`diagnose` of the chain, against ``min_tau_multiple`` (default: the one it was sampled with)."""
+        """`diagnose` of the chain, against ``min_tau_multiple`` (default: the one it was sampled with)."""
         k = (
             min_tau_multiple
             if min_tau_multiple is not None
@@ -149,9 +149,9 @@ class Chain:
         return diagnose(self.chain, self.log_prob, self.accepted, self.labels, k)
 
     def samples(self, discard: int | None = None, *, adjusted: bool = True) -> np.ndarray:
-        """The flattened samples (n, P) after the burn-in (:func:`burn_in` unless given):
+        """The flattened samples (n, P) after the burn-in (`burn_in` unless given):
         with ``adjusted`` (the default) mapped as the chain's adjustment says (see
-        :meth:`adjusted`), else the raw draws as sampled."""
+        `adjusted`), else the raw draws as sampled."""
         if discard is None:
             discard = burn_in(autocorrelation_times(self.chain), self.chain.shape[0])
         if adjusted:
@@ -161,7 +161,7 @@ class Chain:
     @property
     def adjustment(self) -> dict[str, Any]:
         """The chain's adjustment (``method`` "affine", "temperature" or "none"; see
-        :mod:`strauss_fit.inference.adjustment`); ``{"method": "none"}`` for chains
+        `strauss_fit.inference.adjustment`); ``{"method": "none"}`` for chains
         written without one."""
         value = self.meta.get("adjustment")
         return value if isinstance(value, dict) else {"method": "none"}
@@ -207,8 +207,8 @@ class Chain:
 
 
 def load_chain(path: str | Path, *, required: bool = False) -> Chain:
-    """Read a chain file written by :func:`run_sampler` (one-line errors otherwise: see
-    :func:`read_metadata`, whose ``required`` says whether the metadata must hold what a
+    """Read a chain file written by `run_sampler` (one-line errors otherwise: see
+    `read_metadata`, whose ``required`` says whether the metadata must hold what a
     report or a resume needs; the samples must be as many as the iteration count says,
     and finite)."""
     meta = read_metadata(path, required=required)

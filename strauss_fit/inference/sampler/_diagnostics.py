@@ -1,6 +1,6 @@
 """Convergence diagnostics of a chain: autocorrelation times, burn-in, effective sample
 sizes, acceptance, and whether the chain can be trusted (the rules are under
-"Diagnostics" in :mod:`strauss_fit.inference.sampler`).
+"Diagnostics" in `strauss_fit.inference.sampler`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 #: A chain is long enough when it is this many times max τ̂ (the stopping rule's default).
 DEFAULT_MIN_TAU_MULTIPLE = 50.0
-#: Trustworthiness thresholds (see :mod:`strauss_fit.inference.sampler`).
+#: Trustworthiness thresholds (see `strauss_fit.inference.sampler`).
 MIN_ESS = 100.0
 ACCEPTANCE_RANGE = (0.1, 0.9)
 STUCK_WALKER = 0.02
@@ -22,7 +22,7 @@ STUCK_WALKER = 0.02
 
 @dataclass
 class Diagnostics:
-    """Convergence diagnostics of a chain (see :mod:`strauss_fit.inference.sampler` for the rules)."""
+    """Convergence diagnostics of a chain (see `strauss_fit.inference.sampler` for the rules)."""
 
     labels: list[str]
     steps: int

@@ -1,8 +1,8 @@
 """The chain file's layout: the names of its two HDF5 groups, the format it declares, the
-metadata group's writer, and :class:`ChainError`.
+metadata group's writer, and `ChainError`.
 
-Why a module of its own: the in-memory backend (:mod:`._backends`) writes the metadata
-group and the chain file's reader (:mod:`._chain`) checks it, and the reader also writes
+Why a module of its own: the in-memory backend (`._backends`) writes the metadata
+group and the chain file's reader (`._chain`) checks it, and the reader also writes
 through the backend; both take the layout from here so that neither imports the other
 both ways.
 """

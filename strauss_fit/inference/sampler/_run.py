@@ -1,7 +1,7 @@
-"""Running emcee: the settings (:class:`SampleSettings`), what a run reports
-(:class:`Progress`, :class:`SampleRun`), Ctrl-C handling (:func:`deferred_interrupt`), and
-:func:`run_sampler`, which samples a log-posterior into a chain file until the stopping
-rule holds ("Stopping" in :mod:`strauss_fit.inference.sampler`).
+"""Running emcee: the settings (`SampleSettings`), what a run reports
+(`Progress`, `SampleRun`), Ctrl-C handling (`deferred_interrupt`), and
+`run_sampler`, which samples a log-posterior into a chain file until the stopping
+rule holds ("Stopping" in `strauss_fit.inference.sampler`).
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ TAU_STABILITY = 0.05
 
 @dataclass(frozen=True)
 class SampleSettings:
-    """How long to sample, and with how many walkers (None: :func:`default_walkers`;
-    :func:`run_sampler` takes the number of its starting points). The defaults are the
-    ``balanced`` quality preset; :meth:`preset` gives the others."""
+    """How long to sample, and with how many walkers (None: `default_walkers`;
+    `run_sampler` takes the number of its starting points). The defaults are the
+    ``balanced`` quality preset; `preset` gives the others."""
 
     max_steps: int = 10000
     min_tau_multiple: float = DEFAULT_MIN_TAU_MULTIPLE
@@ -48,7 +48,7 @@ class SampleSettings:
     @classmethod
     def preset(cls, name: str = DEFAULT_QUALITY, **overrides: Any) -> SampleSettings:
         """The sampling settings of quality preset ``name``
-        (:data:`strauss_fit.fitting.options.QUALITY_PRESETS`: ``walkers``,
+        (`strauss_fit.fitting.options.QUALITY_PRESETS`: ``walkers``,
         ``min_tau_multiple``, ``sample_max_steps``), with ``overrides`` (a value of None
         keeps the preset's or the default)."""
         values = quality_preset(name)
@@ -76,7 +76,7 @@ class Progress:
 
 @dataclass
 class SampleRun:
-    """What one call of :func:`run_sampler` did."""
+    """What one call of `run_sampler` did."""
 
     path: str | None
     diagnostics: Diagnostics
@@ -130,7 +130,7 @@ class _Counts:
 
 def _open_backend(path: str | Path | None, resume: bool, replaces: tuple[str | Path, ...]) -> emcee.backends.Backend:
     """Where the chain goes: emcee's in-memory backend without a path, else the chain file
-    held in memory (:class:`BufferedHDFBackend`), read first when resuming; a new chain
+    held in memory (`BufferedHDFBackend`), read first when resuming; a new chain
     removes ``replaces`` when it first replaces the file."""
     if path is None:
         return emcee.backends.Backend()
@@ -297,14 +297,14 @@ def run_sampler(
     progress: Callable[[Progress], None] | None = None,
     replaces: tuple[str | Path, ...] = (),
 ) -> SampleRun:
-    """Sample until the stopping rule of :mod:`strauss_fit.inference.sampler` holds.
+    """Sample until the stopping rule of `strauss_fit.inference.sampler` holds.
 
     New chain: ``start`` (W, P) are the walkers' starting points and ``metadata`` (labels,
     prior, σ, ...) is written to the file's ``strauss_fit`` group; an existing file is
     replaced when the first steps are written. ``resume``: continue the chain in ``path``
     from its last state (``start`` is ignored). ``path=None`` keeps the chain in memory
     (tests, benchmarks). A KeyboardInterrupt is re-raised after every step so far is
-    written; a failed write (a full disk) is a :class:`ChainError` and leaves the file as
+    written; a failed write (a full disk) is a `ChainError` and leaves the file as
     the previous write left it.
     """
     started = time.perf_counter()

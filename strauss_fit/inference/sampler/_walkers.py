@@ -1,6 +1,6 @@
-"""Where the walkers start: how many (:func:`default_walkers`) and where
-(:func:`initial_walkers`, the Laplace Gaussian around the fit's optimum folded into the
-prior box; "Start" in :mod:`strauss_fit.inference.sampler`).
+"""Where the walkers start: how many (`default_walkers`) and where
+(`initial_walkers`, the Laplace Gaussian around the fit's optimum folded into the
+prior box; "Start" in `strauss_fit.inference.sampler`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def initial_walkers(
     rng: np.random.Generator,
     log_posterior: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Walkers (W, P) drawn from N(x̂, Σ) as :mod:`strauss_fit.inference.sampler` says, strictly inside the
+    """Walkers (W, P) drawn from N(x̂, Σ) as `strauss_fit.inference.sampler` says, strictly inside the
     prior box, redrawn (up to 100 times) where ``log_posterior`` is not finite."""
     x_hat = np.asarray(x_hat, dtype=np.float64)
     width = prior.upper - prior.lower

@@ -1,8 +1,8 @@
 """The whole sampling workflow, from a target and a scene to a chain file and its summary
-(:func:`sample`; :func:`run_and_summarise` is its end, shared with a capture's
-:func:`strauss_fit.inference.capture_posterior.sample_capture`), with the checks it makes
-first: a least-squares fit only (:func:`check_least_squares`; "Least squares only" in
-:mod:`strauss_fit.inference.sampler`), the noise level, and the adjustment to the fit's
+(`sample`; `run_and_summarise` is its end, shared with a capture's
+`strauss_fit.inference.capture_posterior.sample_capture`), with the checks it makes
+first: a least-squares fit only (`check_least_squares`; "Least squares only" in
+`strauss_fit.inference.sampler`), the noise level, and the adjustment to the fit's
 noise sandwich ("Adjustment" there).
 """
 
@@ -83,7 +83,7 @@ def check_least_squares(
     """Refuse a fit whose loss is not least squares (``solver.loss``; results written
     before losses existed are least squares): the chain's likelihood is, so such a fit's
     optimum is not the chain's and its noise sandwich is another estimator's spread (see
-    :mod:`strauss_fit.inference.sampler`)."""
+    `strauss_fit.inference.sampler`)."""
     loss = loss_of(fit_json)
     if loss != "linear":
         raise ChainError(
@@ -131,8 +131,8 @@ def _store_adjustment(chain: Chain) -> None:
 
 @dataclass
 class SampleResult:
-    """What :func:`sample` did: the chain file, the summary written beside it (the
-    document of :func:`strauss_fit.inference.summaries.summarise_chain` with this run's
+    """What `sample` did: the chain file, the summary written beside it (the
+    document of `strauss_fit.inference.summaries.summarise_chain` with this run's
     timings under ``run``) and the run itself."""
 
     path: Path
@@ -142,12 +142,12 @@ class SampleResult:
 
     @property
     def trustworthy(self) -> bool:
-        """Whether the chain passed every diagnostic (:func:`diagnose`)."""
+        """Whether the chain passed every diagnostic (`diagnose`)."""
         return bool(self.summary["diagnostics"]["trustworthy"])
 
 
 class SamplingInterrupted(KeyboardInterrupt):
-    """Ctrl-C while :func:`sample` was sampling: ``path`` keeps the ``steps`` stored so far."""
+    """Ctrl-C while `sample` was sampling: ``path`` keeps the ``steps`` stored so far."""
 
     def __init__(self, path: Path, steps: int):
         super().__init__(f"{path} keeps all {steps} steps sampled so far")
@@ -255,7 +255,7 @@ def _starting_fit(
     scene: str | Path,
 ) -> tuple[dict[str, Any], Problem, np.ndarray]:
     """The fit a new chain starts from, as JSON (refused unless least squares), its problem
-    and its optimum θ̂: taken from a :class:`FitResult` that holds its problem, else rebuilt
+    and its optimum θ̂: taken from a `FitResult` that holds its problem, else rebuilt
     from the result's JSON (given, or read from a path)."""
     if isinstance(fit, FitResult) and fit.problem is not None:
         fit_json = fit.to_json()
@@ -361,25 +361,25 @@ def sample(
     made first with ``fit_options`` (default: the ``quality`` preset; its loss ``"auto"`` is
     least squares here). The fit must be a least-squares one (its loss ``"linear"``): the
     likelihood sampled is, and another loss's optimum and noise sandwich are not the
-    chain's (see :mod:`strauss_fit.inference.sampler`); any other is refused. The noise level is
+    chain's (see `strauss_fit.inference.sampler`); any other is refused. The noise level is
     ``sigma``; else the target's noise as the fit found it (the root mean square of its
     per-channel level) when the fit knew it (its uncertainty is the noise sandwich), else
     estimated from the fit's residual. The prior is the default box of
-    :func:`strauss_fit.inference.posterior.default_prior` narrowed by ``priors`` (a dict
+    `strauss_fit.inference.posterior.default_prior` narrowed by ``priors`` (a dict
     ``{name: (low, high)}`` or ``NAME=LOW,HIGH`` strings). ``settings`` (see
-    :meth:`SampleSettings.preset`) says how long to sample and with how many walkers.
+    `SampleSettings.preset`) says how long to sample and with how many walkers.
 
-    ``adjust`` (:data:`strauss_fit.inference.adjustment.METHODS`) makes the chain's width
+    ``adjust`` (`strauss_fit.inference.adjustment.METHODS`) makes the chain's width
     match the fit's noise sandwich on a target the model cannot reproduce:
-    ``"affine"`` maps the draws on read (:meth:`Chain.adjusted`; the raw chain is kept),
+    ``"affine"`` maps the draws on read (`Chain.adjusted`; the raw chain is kept),
     ``"temperature"`` samples with σ√T, ``"none"`` samples the Gaussian likelihood as it is;
     ``"auto"`` is ``"affine"`` when the fit's uncertainty is the noise sandwich and its
-    verdict is a mismatch, else ``"none"`` (:mod:`strauss_fit.inference.adjustment`).
+    verdict is a mismatch, else ``"none"`` (`strauss_fit.inference.adjustment`).
 
     ``resume`` continues the chain in ``output`` (its fit, σ, prior, walkers and adjustment are kept);
     otherwise an existing ``output`` is refused unless ``force``. ``log`` receives short
-    status lines and ``progress`` a :class:`Progress` after every check. Ctrl-C while
-    sampling raises :class:`SamplingInterrupted` (a KeyboardInterrupt) after every step so
+    status lines and ``progress`` a `Progress` after every check. Ctrl-C while
+    sampling raises `SamplingInterrupted` (a KeyboardInterrupt) after every step so
     far is written.
     """
     log = log or (lambda message: None)
@@ -432,10 +432,10 @@ def run_and_summarise(
     resume: bool,
     progress: Callable[[Progress], None] | None,
 ) -> SampleResult:
-    """Run the sampler into the chain file ``out`` (:func:`run_sampler`), store an affine
+    """Run the sampler into the chain file ``out`` (`run_sampler`), store an affine
     adjustment, and write ``summarise(chain)`` with the run's figures to ``summary_path``:
     the end of ``sample`` for single images and for captures. Ctrl-C raises
-    :class:`SamplingInterrupted` after every step so far is written."""
+    `SamplingInterrupted` after every step so far is written."""
     try:
         run = run_sampler(
             log_posterior,

@@ -1,12 +1,12 @@
 """Reflectance models behind one interface, and their registry.
 
-Every model is a final subclass of :class:`ReflectanceModel` (an abstract equinox module
-without fields) with class-level :attr:`~ReflectanceModel.name`,
-:attr:`~ReflectanceModel.parameters` (:class:`Parameter`),
-:attr:`~ReflectanceModel.bounded_scale` and :attr:`~ReflectanceModel.nonlinear`; the
-registry :data:`REFLECTANCE_MODELS` maps names to instances:
+Every model is a final subclass of `ReflectanceModel` (an abstract equinox module
+without fields) with class-level `name`,
+`parameters` (`Parameter`),
+`bounded_scale` and `nonlinear`; the
+registry `REFLECTANCE_MODELS` maps names to instances:
 
-- ``"strauss"``: Strauss (1990), the project's model (:mod:`strauss_fit.models.strauss`);
+- ``"strauss"``: Strauss (1990), the project's model (`strauss_fit.models.strauss`);
 - ``"lambert"``: a perfectly diffuse surface;
 - ``"phong"``: Phong, unnormalised (the capture fitter's);
 - ``"blinn-phong"``: Blinn–Phong, energy-normalised;

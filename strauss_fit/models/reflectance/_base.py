@@ -1,13 +1,13 @@
-r"""The interface every reflectance model implements: :class:`Parameter` and :class:`ReflectanceModel`.
+r"""The interface every reflectance model implements: `Parameter` and `ReflectanceModel`.
 
 **Convention** (the project's, as in the Strauss model and the capture fitter). Radiance is
 given per unit light intensity: a light of intensity I reaching a Lambertian surface of
 albedo ρ at incidence θ gives the radiance ρ·cos θ·I. A light of intensity I therefore
-delivers the irradiance E = π·I·cos θ, and a model with the BRDF :math:`f_r` gives the
-radiance :math:`\pi f_r \cos\theta_i\, I`. The BRDF of a model is ``radiance / (π cos θ_i)``
+delivers the irradiance E = π·I·cos θ, and a model with the BRDF `f_r` gives the
+radiance `\pi f_r \cos\theta_i\, I`. The BRDF of a model is ``radiance / (π cos θ_i)``
 and its directional–hemispherical reflectance (albedo) is
-:math:`\rho(\theta_i) = \frac{1}{\pi\cos\theta_i}\int_H L(\omega_o)\cos\theta_o\,d\omega_o`
-(see :mod:`strauss_fit.models.albedo`).
+`\rho(\theta_i) = \frac{1}{\pi\cos\theta_i}\int_H L(\omega_o)\cos\theta_o\,d\omega_o`
+(see `strauss_fit.models.albedo`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from .._parameter import POSITIVE as POSITIVE
 from .._parameter import UNIT as UNIT
 from .._parameter import Parameter as Parameter
 
-#: Gauss–Legendre nodes per axis of :meth:`ReflectanceModel.albedo`'s quadrature rules.
+#: Gauss–Legendre nodes per axis of `ReflectanceModel.albedo`'s quadrature rules.
 ALBEDO_NODES = 128
 
 
@@ -51,8 +51,8 @@ def channels(value: Array, shape: tuple[int, ...]) -> Array:
 
 
 def power_lobe_width(exponent: ArrayLike) -> Array:
-    r"""The GGX width a matching a :math:`\cos^n\theta` lobe near its peak (both
-    :math:`\approx e^{-n\theta^2/2}` and :math:`e^{-2\theta^2/a^2}`: a = 2/√n), at most 1."""
+    r"""The GGX width a matching a `\cos^n\theta` lobe near its peak (both
+    `\approx e^{-n\theta^2/2}` and `e^{-2\theta^2/a^2}`: a = 2/√n), at most 1."""
     return jnp.minimum(1.0, 2.0 / jnp.sqrt(jnp.maximum(jnp.asarray(exponent), 0.0) + 4.0))
 
 
@@ -63,26 +63,26 @@ def _is_number(value: Any) -> bool:
 class ReflectanceModel(eqx.Module):
     r"""A local reflectance model: a differentiable radiance, its parameters and what a fit needs.
 
-    **Convention.** :meth:`radiance` is the outgoing radiance per unit light intensity: a
+    **Convention.** `radiance` is the outgoing radiance per unit light intensity: a
     light of intensity I reaching a Lambertian surface of albedo ρ at incidence θ gives
-    ρ·cos θ·I, so a BRDF :math:`f_r` gives :math:`\pi f_r \cos\theta_i`. Vectors are unit
+    ρ·cos θ·I, so a BRDF `f_r` gives `\pi f_r \cos\theta_i`. Vectors are unit
     vectors pointing away from the surface (N normal, L toward the light, V toward the
     viewer), shape ``(..., 3)``, broadcasting; nothing is reflected where N·L ≤ 0 or N·V ≤ 0.
 
     **Values.** A model's values are a ``dict`` from parameter names to arrays: shape () for
-    a number (shape (1,) is accepted too), (3,) for RGB. :meth:`from_dict` builds and checks
-    one from plain numbers, :meth:`to_dict` goes back, :meth:`defaults` gives the defaults.
+    a number (shape (1,) is accepted too), (3,) for RGB. `from_dict` builds and checks
+    one from plain numbers, `to_dict` goes back, `defaults` gives the defaults.
 
     **Linear starts.** Every model is linear in a per-channel RGB unknown a and one shared
-    unknown b once its :attr:`nonlinear` parameters are fixed (:meth:`linear_parts`,
-    :meth:`from_linear`); a fit solves a and b by linear least squares on a grid of
-    :meth:`start_grid`'s values.
+    unknown b once its `nonlinear` parameters are fixed (`linear_parts`,
+    `from_linear`); a fit solves a and b by linear least squares on a grid of
+    `start_grid`'s values.
 
     **Precision.** Every public method runs in the float64 scope
-    (:func:`~strauss_fit.precision.uses_float64`), as the library's other entry points do.
+    (`uses_float64`), as the library's other entry points do.
 
-    Subclasses are final and have no fields; they set the class variables :attr:`name`,
-    :attr:`parameters`, :attr:`bounded_scale` and :attr:`nonlinear`.
+    Subclasses are final and have no fields; they set the class variables `name`,
+    `parameters`, `bounded_scale` and `nonlinear`.
     """
 
     #: The registry name, e.g. ``"strauss"``.
@@ -92,7 +92,7 @@ class ReflectanceModel(eqx.Module):
     #: True when the parameters that scale the radiance are all bounded above (Strauss C ≤ 1,
     #: Cook–Torrance kd, F0 ≤ 1): an image's overall scale then needs a separate exposure.
     bounded_scale: eqx.AbstractClassVar[bool]
-    #: The parameters that :meth:`linear_parts` takes fixed (the rest are solved linearly).
+    #: The parameters that `linear_parts` takes fixed (the rest are solved linearly).
     nonlinear: eqx.AbstractClassVar[tuple[str, ...]]
 
     # --- the model ------------------------------------------------------------------------
@@ -111,25 +111,25 @@ class ReflectanceModel(eqx.Module):
         raise NotImplementedError
 
     def linear_parts(self, nonlinear: Mapping[str, ArrayLike], terms: Mapping[str, Array]) -> tuple[Array, Array]:
-        """``(per_channel, shared)``, each ``(..., 3)``, such that for the :attr:`nonlinear`
-        values given, ``a * per_channel + b * shared`` is :meth:`radiance` (times the scale
-        of :meth:`from_linear`) for a per-channel unknown a ``(3,)`` and a shared one b."""
+        """``(per_channel, shared)``, each ``(..., 3)``, such that for the `nonlinear`
+        values given, ``a * per_channel + b * shared`` is `radiance` (times the scale
+        of `from_linear`) for a per-channel unknown a ``(3,)`` and a shared one b."""
         raise NotImplementedError
 
     def from_linear(
         self, nonlinear: Mapping[str, ArrayLike], a: ArrayLike, b: ArrayLike
     ) -> tuple[dict[str, Array], Array | None]:
-        """All parameter values (clipped to their ranges) from the :attr:`nonlinear` values and
-        the linear unknowns, and the image scale (exposure) when :attr:`bounded_scale`, else
+        """All parameter values (clipped to their ranges) from the `nonlinear` values and
+        the linear unknowns, and the image scale (exposure) when `bounded_scale`, else
         ``None``."""
         raise NotImplementedError
 
     def start_grid(self) -> list[dict[str, float]]:
-        """Values of the :attr:`nonlinear` parameters to start a fit from (one dict per start)."""
+        """Values of the `nonlinear` parameters to start a fit from (one dict per start)."""
         return [{}]
 
     def _albedo_lobe(self, x: Mapping[str, Array], cos_in: Array) -> tuple[str, Array] | None:
-        """The model's highlight for :meth:`albedo`'s lobe rule: ``("mirror", a)`` for a lobe
+        """The model's highlight for `albedo`'s lobe rule: ``("mirror", a)`` for a lobe
         about the mirror direction R of L, ``("half", a)`` for one in the half vector about N,
         with a GGX width a at least as wide as the lobe; ``None`` for a model without one."""
         return None
@@ -138,17 +138,17 @@ class ReflectanceModel(eqx.Module):
 
     @uses_float64
     def albedo(self, x: Mapping[str, Array], cos_in: ArrayLike, nodes: int = ALBEDO_NODES) -> Array:
-        r"""Directional–hemispherical reflectance :math:`\rho(\theta_i)`, ``(3,)``, at the
+        r"""Directional–hemispherical reflectance `\rho(\theta_i)`, ``(3,)``, at the
         incidence ``cos_in`` = cos θ_i (a scalar in [0, 1]; 0 gives 0).
 
         Quadrature over the outgoing hemisphere: product Gauss–Legendre rules of ``nodes``²
         points, one uniform in cos θ_o (exact for a Lambertian term) and, for models with a
         highlight, one distributed as a GGX lobe of a width covering it, about the mirror
-        direction or in the half vector (:meth:`_albedo_lobe`), combined with the balance heuristic
+        direction or in the half vector (`_albedo_lobe`), combined with the balance heuristic
         of multiple importance sampling — deterministic, so ρ is a smooth function of the
         values. Both rules use the symmetry of isotropic models about the plane of
-        incidence. Accuracy at the default :data:`ALBEDO_NODES` (measured against
-        :mod:`strauss_fit.models.albedo`'s rules and brute force): about 1e-5 relative for
+        incidence. Accuracy at the default `ALBEDO_NODES` (measured against
+        `strauss_fit.models.albedo`'s rules and brute force): about 1e-5 relative for
         Phong (n > 0) and 1e-6 absolute for Strauss up to 88°, about 1e-5 for Blinn–Phong and
         Cook–Torrance; exact for Lambert. A Phong exponent of exactly 0 (a highlight that
         steps from k_s to 0 at cos β = 0) is integrated to about 6e-4 only.
@@ -201,7 +201,7 @@ class ReflectanceModel(eqx.Module):
         return tuple(p.name for p in self.parameters)
 
     def parameter(self, name: str) -> Parameter:
-        """The :class:`Parameter` called ``name``."""
+        """The `Parameter` called ``name``."""
         for p in self.parameters:
             if p.name == name:
                 return p
@@ -227,7 +227,7 @@ class ReflectanceModel(eqx.Module):
     def from_dict(self, values: Mapping[str, Any]) -> dict[str, Array]:
         """Checked values from plain numbers (a number, or a list of 3 for RGB); every
         parameter must be given, within its range. Errors are one-line
-        :class:`~strauss_fit.errors.MaterialError` messages."""
+        `MaterialError` messages."""
         if not isinstance(values, Mapping):
             raise MaterialError(f"{self.name} parameters must be a table of values, got {type(values).__name__}")
         self._check_keys(values)
@@ -257,7 +257,7 @@ class ReflectanceModel(eqx.Module):
             raise MaterialError(f"missing {self.name} parameter(s) {', '.join(missing)}")
 
     def _nonlinear_values(self, nonlinear: Mapping[str, ArrayLike]) -> dict[str, Array]:
-        """The :attr:`nonlinear` values given, the defaults for those left out."""
+        """The `nonlinear` values given, the defaults for those left out."""
         unknown = sorted(set(nonlinear) - set(self.nonlinear))
         if unknown:
             raise MaterialError(

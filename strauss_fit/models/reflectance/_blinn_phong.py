@@ -19,18 +19,18 @@ from ._lobe import DiffuseLobeModel
 @final
 class BlinnPhong(DiffuseLobeModel):
     r"""Normalised Blinn–Phong: the BRDF
-    :math:`f_r = k_d/\pi + k_s\,\frac{e + 8}{8\pi}\,(N\cdot H)^e`, H = (L + V)/|L + V|, so
+    `f_r = k_d/\pi + k_s\,\frac{e + 8}{8\pi}\,(N\cdot H)^e`, H = (L + V)/|L + V|, so
 
-    .. math::
-
-        L = k_d\cos\alpha + k_s\,\frac{e + 8}{8}\,(N\cdot H)^e\cos\alpha.
+    ```text
+    L = k_d\cos\alpha + k_s\,\frac{e + 8}{8}\,(N\cdot H)^e\cos\alpha.
+    ```
 
     Reciprocal. The factor (e + 8)/(8π) is the usual approximation of the normalisation;
-    with :math:`k_d + k_s \le 1` the albedo stays within a few per cent of 1 but is not
+    with `k_d + k_s \le 1` the albedo stays within a few per cent of 1 but is not
     bounded by it (the tests measure it). This differs from the capture fitter's
-    ``"blinn-phong"``, which is unnormalised (:math:`k_s (N\cdot H)^e`, no cos α), and from
-    :func:`~strauss_fit.models.phong.phong_shade` with ``blinn=True`` (the same, unnormalised).
-    Ambient: :math:`k_d`.
+    ``"blinn-phong"``, which is unnormalised (`k_s (N\cdot H)^e`, no cos α), and from
+    `phong_shade` with ``blinn=True`` (the same, unnormalised).
+    Ambient: `k_d`.
     """
 
     name: ClassVar[str] = "blinn-phong"

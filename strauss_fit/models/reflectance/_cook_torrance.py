@@ -19,21 +19,21 @@ from ._lambert import lit_cosines
 class CookTorrance(ReflectanceModel):
     r"""Cook–Torrance with a Lambertian base:
 
-    .. math::
-
-        f_r = \frac{k_d}{\pi} + \frac{F\,D\,G}{4\,(N\cdot L)(N\cdot V)}, \qquad
-        L = \pi f_r \cos\alpha,
+    ```text
+    f_r = \frac{k_d}{\pi} + \frac{F\,D\,G}{4\,(N\cdot L)(N\cdot V)}, \qquad
+    L = \pi f_r \cos\alpha,
+    ```
 
     with H = (L + V)/|L + V| and, for the roughness α:
 
-    - D, GGX: :math:`D = \alpha^2 / (\pi((N\cdot H)^2(\alpha^2 - 1) + 1)^2)`;
-    - G, separable Smith with GGX's Λ: :math:`G = G_1(L)\,G_1(V)`,
-      :math:`G_1 = 1/(1 + \Lambda)`, :math:`\Lambda(\theta) = (\sqrt{1 + \alpha^2\tan^2\theta} - 1)/2`;
-    - F, Schlick's, per channel: :math:`F = F_0 + (1 - F_0)(1 - V\cdot H)^5`.
+    - D, GGX: `D = \alpha^2 / (\pi((N\cdot H)^2(\alpha^2 - 1) + 1)^2)`;
+    - G, separable Smith with GGX's Λ: `G = G_1(L)\,G_1(V)`,
+      `G_1 = 1/(1 + \Lambda)`, `\Lambda(\theta) = (\sqrt{1 + \alpha^2\tan^2\theta} - 1)/2`;
+    - F, Schlick's, per channel: `F = F_0 + (1 - F_0)(1 - V\cdot H)^5`.
 
-    Evaluated as :math:`L = k_d\cos\alpha + F\,(\pi D)\,G_1(L)\,G_1(V)/(4\,N\cdot V)`, where
-    :math:`G_1(V)/(4 N\cdot V) = 1/(2(c + \sqrt{c^2 + \alpha^2(1 - c^2)}))` (c = N·V) and
-    :math:`G_1(L) = 2c'/(c' + \sqrt{c'^2 + \alpha^2(1 - c'^2)})` (c' = N·L): no division by a
+    Evaluated as `L = k_d\cos\alpha + F\,(\pi D)\,G_1(L)\,G_1(V)/(4\,N\cdot V)`, where
+    `G_1(V)/(4 N\cdot V) = 1/(2(c + \sqrt{c^2 + \alpha^2(1 - c^2)}))` (c = N·V) and
+    `G_1(L) = 2c'/(c' + \sqrt{c'^2 + \alpha^2(1 - c'^2)})` (c' = N·L): no division by a
     cosine, so value and gradient stay finite at grazing light and view. α = 0 is a delta
     lobe carrying no energy (the radiance is then the diffuse part alone; the division
     0/0 at the exact mirror direction gives 0).
@@ -80,7 +80,7 @@ class CookTorrance(ReflectanceModel):
     def terms(self, normal: ArrayLike, to_light: ArrayLike, view: ArrayLike) -> dict[str, Array]:
         """``lit``, ``cos_alpha`` (N·L), ``cos_gamma`` (N·V), ``cos_nh`` (N·H) and ``cos_vh``
         (V·H = L·H), each clamped to [0, 1] and 0 where not lit; and the parts of
-        :meth:`radiance` that do not depend on the parameters (a fit evaluates it hundreds of
+        `radiance` that do not depend on the parameters (a fit evaluates it hundreds of
         times on the same terms): ``sin2_alpha`` = 1 − (N·L)², ``sin2_gamma`` = 1 − (N·V)²,
         ``cos2_nh`` = (N·H)² and ``schlick`` = (1 − V·H)⁵."""
         normal, to_light, view = (jnp.asarray(v) for v in (normal, to_light, view))
@@ -102,11 +102,11 @@ class CookTorrance(ReflectanceModel):
         }
 
     def _specular(self, roughness: ArrayLike, terms: Mapping[str, Array]) -> tuple[Array, Array]:
-        r""":math:`(\pi D)\,G_1(L)\,G_1(V)/(4 N\cdot V)` and the Schlick weight
-        :math:`(1 - V\cdot H)^5`, each ``(...)``. The first as one quotient,
-        :math:`\alpha^2 c' / (q^2 g_L g_V)` with :math:`q = (N\cdot H)^2(\alpha^2 - 1) + 1`,
-        :math:`g_L = c' + \sqrt{c'^2 + \alpha^2(1 - c'^2)}` and
-        :math:`g_V = c + \sqrt{c^2 + \alpha^2(1 - c^2)}`: one guarded division instead of
+        r"""`(\pi D)\,G_1(L)\,G_1(V)/(4 N\cdot V)` and the Schlick weight
+        `(1 - V\cdot H)^5`, each ``(...)``. The first as one quotient,
+        `\alpha^2 c' / (q^2 g_L g_V)` with `q = (N\cdot H)^2(\alpha^2 - 1) + 1`,
+        `g_L = c' + \sqrt{c'^2 + \alpha^2(1 - c'^2)}` and
+        `g_V = c + \sqrt{c^2 + \alpha^2(1 - c^2)}`: one guarded division instead of
         three in the fits' inner loop. The denominator is 0 only where the numerator is too
         (α = 0 at the exact mirror direction, grazing light and view with α = 0, unlit): 0."""
         a2 = scalar(roughness) ** 2
@@ -136,7 +136,7 @@ class CookTorrance(ReflectanceModel):
 
     @uses_float64
     def linear_parts(self, nonlinear: Mapping[str, ArrayLike], terms: Mapping[str, Array]) -> tuple[Array, Array]:
-        r"""With α and F0 fixed (F0 a grey number or RGB), :math:`E L_c = (E k_{d,c}) \cos\alpha
+        r"""With α and F0 fixed (F0 a grey number or RGB), `E L_c = (E k_{d,c}) \cos\alpha
         + E\,F_c\,S`: per_channel cos α (a = E·kd), shared F·S with S the specular factor
         (b = E, the exposure). Exact for any F0 given; the start grid gives grey ones."""
         values = self._nonlinear_values(nonlinear)

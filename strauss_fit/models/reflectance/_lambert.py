@@ -25,7 +25,7 @@ def lit_cosines(normal: ArrayLike, to_light: ArrayLike, view: ArrayLike) -> tupl
 
 @final
 class Lambert(ReflectanceModel):
-    r""":math:`L = \rho\cos\alpha` (the BRDF ρ/π): reciprocal, and its albedo is ρ at every
+    r"""`L = \rho\cos\alpha` (the BRDF ρ/π): reciprocal, and its albedo is ρ at every
     angle, so it conserves energy for ρ ≤ 1. ρ is not bounded above (it absorbs the
     image's scale). Ambient: ρ."""
 

@@ -1,6 +1,6 @@
 r"""What Phong and Blinn–Phong share: a coloured diffuse part and one white lobe,
-:math:`L = k_d\cos\alpha + k_s\,\mathrm{lobe}_n`, linear in :math:`k_d` (per channel) and
-:math:`k_s` (shared) once the exponent n is fixed. Each subclass says what its lobe is."""
+`L = k_d\cos\alpha + k_s\,\mathrm{lobe}_n`, linear in `k_d` (per channel) and
+`k_s` (shared) once the exponent n is fixed. Each subclass says what its lobe is."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from ._base import ReflectanceModel, channels, scalar
 
 class DiffuseLobeModel(ReflectanceModel):
     """Abstract: ``diffuse`` (RGB), ``specular`` (white) and the lobe's ``exponent``;
-    subclasses give :meth:`terms`, :meth:`_lobe`, :meth:`start_grid` and :meth:`_albedo_lobe`."""
+    subclasses give `terms`, `_lobe`, `start_grid` and `_albedo_lobe`."""
 
     @abc.abstractmethod
     def _lobe(self, exponent: ArrayLike, terms: Mapping[str, Array]) -> Array:

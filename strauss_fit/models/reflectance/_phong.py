@@ -18,13 +18,13 @@ from ._lobe import DiffuseLobeModel
 
 @final
 class Phong(DiffuseLobeModel):
-    r""":math:`L = k_d\cos\alpha + k_s\max(\cos\beta, 0)^n`, cos β = R·V with R the mirror
+    r"""`L = k_d\cos\alpha + k_s\max(\cos\beta, 0)^n`, cos β = R·V with R the mirror
     direction of L: the capture fitter's Phong, and
-    :func:`~strauss_fit.models.phong.phong_shade` with :math:`k_d C_d` = ``diffuse`` and
-    :math:`k_s C_{sp}` = ``specular`` (white). Not normalised: the highlight is not
+    `phong_shade` with `k_d C_d` = ``diffuse`` and
+    `k_s C_{sp}` = ``specular`` (white). Not normalised: the highlight is not
     multiplied by cos α and its peak does not narrow with n, so the model is not reciprocal
-    (its BRDF :math:`k_s\cos^n\beta/(\pi\cos\alpha)` is not symmetric in L and V) and creates
-    energy towards grazing incidence. Ambient: :math:`k_d`.
+    (its BRDF `k_s\cos^n\beta/(\pi\cos\alpha)` is not symmetric in L and V) and creates
+    energy towards grazing incidence. Ambient: `k_d`.
     """
 
     name: ClassVar[str] = "phong"

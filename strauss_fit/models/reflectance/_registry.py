@@ -19,8 +19,8 @@ REFLECTANCE_MODELS: MappingProxyType[str, ReflectanceModel] = MappingProxyType(
 
 
 def reflectance_model(name: str) -> ReflectanceModel:
-    """The model called ``name`` (a key of :data:`REFLECTANCE_MODELS`); an unknown name is a
-    one-line :class:`~strauss_fit.errors.StraussFitError` listing the names."""
+    """The model called ``name`` (a key of `REFLECTANCE_MODELS`); an unknown name is a
+    one-line `StraussFitError` listing the names."""
     try:
         return REFLECTANCE_MODELS[name]
     except (KeyError, TypeError):

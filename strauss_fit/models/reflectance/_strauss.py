@@ -1,8 +1,8 @@
-r"""The Strauss (1990) model behind the :class:`ReflectanceModel` interface.
+r"""The Strauss (1990) model behind the `ReflectanceModel` interface.
 
-The radiance is that of :mod:`strauss_fit.models.strauss` (docs/model.md), evaluated by its
-own functions (:func:`~strauss_fit.models.strauss.angular_terms`,
-:func:`~strauss_fit.models.strauss.weights_of`, :func:`~strauss_fit.models.strauss.combine_rgb`)
+The radiance is that of `strauss_fit.models.strauss` (docs/model.md), evaluated by its
+own functions (`angular_terms`,
+`weights_of`, `combine_rgb`)
 with a white light: the local model, exact mode.
 """
 
@@ -28,16 +28,16 @@ _NARROWEST = 1e6
 
 @final
 class Strauss(ReflectanceModel):
-    r"""Strauss's model: :math:`Q_d + Q_s` of docs/model.md with a white light,
+    r"""Strauss's model: `Q_d + Q_s` of docs/model.md with a white light,
 
-    .. math::
-
-        L = (1 - ms)(1 - s^3)(1 - t)\,C\cos\alpha + r_j\cos^h\beta\,[1 + m(1 - F)(C - 1)].
+    ```text
+    L = (1 - ms)(1 - s^3)(1 - t)\,C\cos\alpha + r_j\cos^h\beta\,[1 + m(1 - F)(C - 1)].
+    ```
 
     The local reflection uses t (it scales the diffuse and the specular base by 1 − t); the
     index of refraction n enters only the transmitted light of the global model, never the
     radiance here. Not reciprocal (j and F depend on the angle of incidence alone).
-    Ambient: :math:`r_d C = (1 - s^3)(1 - t) C` (docs/model.md).
+    Ambient: `r_d C = (1 - s^3)(1 - t) C` (docs/model.md).
     """
 
     name: ClassVar[str] = "strauss"
@@ -48,7 +48,7 @@ class Strauss(ReflectanceModel):
     @uses_float64
     def terms(self, normal: ArrayLike, to_light: ArrayLike, view: ArrayLike) -> dict[str, Array]:
         """``lit``, ``cos_alpha``, ``cos_beta``, ``fresnel_alpha`` and ``j`` of
-        :func:`~strauss_fit.models.strauss.angular_terms` (exact mode)."""
+        `angular_terms` (exact mode)."""
         return angular_terms(normal, to_light, view)._asdict()
 
     def _weights(self, x: Mapping[str, ArrayLike], terms: Mapping[str, Array]):
@@ -76,8 +76,8 @@ class Strauss(ReflectanceModel):
 
     @uses_float64
     def linear_parts(self, nonlinear: Mapping[str, ArrayLike], terms: Mapping[str, Array]) -> tuple[Array, Array]:
-        r"""With the weights d, r_s, w of :class:`~strauss_fit.models.strauss.ShadeWeights`,
-        :math:`L_c = C_c (d + w) + (r_s - w)`: per_channel d + w, shared r_s − w; a = E·C and
+        r"""With the weights d, r_s, w of `ShadeWeights`,
+        `L_c = C_c (d + w) + (r_s - w)`: per_channel d + w, shared r_s − w; a = E·C and
         b = E for the exposure E."""
         w = self._weights(self._nonlinear_values(nonlinear), terms)
         shape = w.diffuse.shape

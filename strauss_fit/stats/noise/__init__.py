@@ -3,37 +3,37 @@
 NumPy + SciPy only (no JAX): it runs on the target image before any model exists.
 Four sources of a per-channel noise level:
 
-1. :func:`estimate_noise` — the standard deviation of additive white noise, per channel,
+1. `estimate_noise` — the standard deviation of additive white noise, per channel,
    estimated from the image itself with a high-pass residual and a robust, iteratively
-   clipped scale (the method is in its docstring). Returns a :class:`NoiseEstimate` with
+   clipped scale (the method is in its docstring). Returns a `NoiseEstimate` with
    the number of pixels used, a standard error, and checks that say whether the noise (and
    not the image content) sets the value.
-2. :func:`estimate_noise_model` — signal-dependent (Poisson–Gaussian) noise,
+2. `estimate_noise_model` — signal-dependent (Poisson–Gaussian) noise,
    Var[x] = a·x + b per channel (Foi et al. 2008 style), with a significance test of a.
-3. :func:`noise_from_sensor` — the per-pixel σ of the project's synthetic sensor
+3. `noise_from_sensor` — the per-pixel σ of the project's synthetic sensor
    (Var = E/gain + read_noise²).
-4. :func:`quantisation_sigma` — the per-pixel noise floor of 8-bit sRGB coding
-   (bin width in linear units / √12), and :func:`combine_with_quantisation`.
+4. `quantisation_sigma` — the per-pixel noise floor of 8-bit sRGB coding
+   (bin width in linear units / √12), and `combine_with_quantisation`.
 
-:func:`mismatch_verdict` turns a fit's residual and a noise level into χ²/dof, its
-expected spread and the decision. When the noise cannot be measured, :func:`noise_bound`
+`mismatch_verdict` turns a fit's residual and a noise level into χ²/dof, its
+expected spread and the decision. When the noise cannot be measured, `noise_bound`
 still bounds it from above (the local mean square of a second-difference residual: the
-noise plus the signal's own curvature), and :func:`one_sided_verdict` tests a residual
+noise plus the signal's own curvature), and `one_sided_verdict` tests a residual
 against that bound: too large, or too structured, for any noise up to it.
-:func:`describe_noise` chooses a target's :class:`NoiseModel`: given, from its sidecar, or
+`describe_noise` chooses a target's `NoiseModel`: given, from its sidecar, or
 estimated.
 
 Layout: one private module per estimator, all starting from the same input preparation
 (``_inputs.prepare``: the image as float, the mask, the finiteness check, the erosion, the
 kernel) and the same high-pass residual (``_highpass``) and robust scale (``_robust``):
 
-- ``_additive``: :func:`estimate_noise` (its constants in ``_calibration``);
-- ``_level_line``: :func:`estimate_noise_model`;
-- ``_sensor``: :func:`noise_from_sensor`; ``_quantisation``: the 8-bit floor;
-- ``_bound``: :func:`noise_bound`, :func:`binned_laplacian_bound`;
-- ``_verdicts``: :func:`mismatch_verdict`, :func:`one_sided_verdict`;
-- ``_model``: :class:`NoiseModel`, :func:`check_noise_level`; ``_describe``:
-  :func:`describe_noise` and the sidecar.
+- ``_additive``: `estimate_noise` (its constants in ``_calibration``);
+- ``_level_line``: `estimate_noise_model`;
+- ``_sensor``: `noise_from_sensor`; ``_quantisation``: the 8-bit floor;
+- ``_bound``: `noise_bound`, `binned_laplacian_bound`;
+- ``_verdicts``: `mismatch_verdict`, `one_sided_verdict`;
+- ``_model``: `NoiseModel`, `check_noise_level`; ``_describe``:
+  `describe_noise` and the sidecar.
 """
 
 from ._additive import NoiseEstimate as NoiseEstimate

@@ -1,5 +1,5 @@
-"""Additive white noise per channel, from the image itself: :func:`estimate_noise` (the
-method is in its docstring) and its result, :class:`NoiseEstimate`.
+"""Additive white noise per channel, from the image itself: `estimate_noise` (the
+method is in its docstring) and its result, `NoiseEstimate`.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class NoiseEstimate:
 
 @dataclass(frozen=True)
 class _Cleaning:
-    """How :func:`estimate_noise` cleans a residual of content before it takes its scale
+    """How `estimate_noise` cleans a residual of content before it takes its scale
     (its arguments of the same names): the robust scale, the clip level in σ, the dilation
     of the clipped positions, the window test's half-width, and the censored code range
     with its margin in σ."""
@@ -124,7 +124,7 @@ def _rank1_noise(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(psi, 0.0))
 
 
-#: The robust scales :func:`estimate_noise` offers (see its ``robust``).
+#: The robust scales `estimate_noise` offers (see its ``robust``).
 _ROBUST_SCALES = ("clipped", "mad", "mad_raw", "mean_abs")
 
 
@@ -162,7 +162,7 @@ def estimate_noise(
     upper bound, and ``details["sigma_rank1"]`` a content-corrected guess (one-factor
     model of the channel covariance; validated only on two-colour patterns).
 
-    Raises :class:`NoiseEstimationError` when fewer than ``min_pixels`` residual positions
+    Raises `NoiseEstimationError` when fewer than ``min_pixels`` residual positions
     are usable, or when the residual is identically zero (a constant image, or a noise-free
     image without any variation the kernel sees: its noise cannot be measured).
 
@@ -276,7 +276,7 @@ def _measurable_positions(inputs: Inputs, margin: int, min_pixels: int) -> int:
     checking that there are at least ``min_pixels`` of them and that the residual is not
     zero in any channel (a constant or linear image: no noise to measure).
 
-    Raises :class:`NoiseEstimationError` when either check fails."""
+    Raises `NoiseEstimationError` when either check fails."""
     img, usable, k = inputs.image, inputs.usable, inputs.kernel
     valid = _valid_positions(usable, k.shape) if usable.any() else np.zeros((0, 0), bool)
     n_cand = int(valid.sum())
@@ -305,7 +305,7 @@ def _kernels_agree(
     rel: float,
     min_pixels: int,
 ) -> tuple[np.ndarray, np.ndarray, str | None]:
-    """The first check of :func:`estimate_noise`: the same estimate through the other
+    """The first check of `estimate_noise`: the same estimate through the other
     kernel (d3, or d2 when d3 made ``sigma``) must agree with ``sigma`` within
     ``tolerance`` SEs of the difference plus ``rel`` times σ (smooth content leaks much less
     through d3, white noise gives both the same σ), both cleaned by ``cleaning`` (the
@@ -333,7 +333,7 @@ def _channels_independent(
     cleaning: _Cleaning,
     correlation_z: float,
 ) -> tuple[np.ndarray, dict]:
-    """The second check of :func:`estimate_noise`: the kept residuals ``res`` must not
+    """The second check of `estimate_noise`: the kept residuals ``res`` must not
     correlate across channels beyond ``correlation_z`` standard errors (independent noise
     does not, image content does).
 

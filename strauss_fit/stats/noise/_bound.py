@@ -1,6 +1,6 @@
 """The largest noise an image can hold, from the image alone, when its noise cannot be
-measured: :func:`noise_bound` per pixel (Immerkær's residual), and
-:func:`binned_laplacian_bound` per level for a capture's many images.
+measured: `noise_bound` per pixel (Immerkær's residual), and
+`binned_laplacian_bound` per level for a capture's many images.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from ._inputs import MIN_PIXELS, prepare
 from ._quantisation import quantisation_sigma
 
 #: Standard deviation, in pixels, of the Gaussian neighbourhood over which
-#: :func:`noise_bound` averages the squared high-pass residual: about 4π·4² ≈ 200 positions
+#: `noise_bound` averages the squared high-pass residual: about 4π·4² ≈ 200 positions
 #: inside the sphere, narrow enough to follow a highlight or a reflection, wide enough
 #: for a local mean square with a relative standard error of about √(κ/200) ≈ 0.19.
 BOUND_WIDTH = 4.0
@@ -31,7 +31,7 @@ BOUND_FLOOR = 1e-6
 
 @dataclass
 class NoiseBound:
-    r"""An upper bound on an image's noise, per pixel and channel (:func:`noise_bound`).
+    r"""An upper bound on an image's noise, per pixel and channel (`noise_bound`).
 
     ``variance`` (H, W, C): the bound on the noise variance at every pixel of ``used``
     (0 elsewhere); ``sigma`` (C,): the root mean square of its square root over the used
@@ -85,7 +85,9 @@ def noise_bound(
     x = s + n, s the noise-free signal and n zero-mean noise, independent between pixels,
     of variance σ²(q) at pixel q,
 
-    .. math:: E[h_p^2] = (K \star s)_p^2 + \sum_q K_q^2\,\sigma^2(p + q) \;\ge\; \sum_q K_q^2\,\sigma^2(p + q),
+    ```text
+    E[h_p^2] = (K \star s)_p^2 + \sum_q K_q^2\,\sigma^2(p + q) \;\ge\; \sum_q K_q^2\,\sigma^2(p + q),
+    ```
 
     the local mean noise variance (the weights K² sum to 1): the signal's own curvature
     only adds to it, however strong (a highlight, a reflection, a pattern).
@@ -95,11 +97,13 @@ def noise_bound(
     upper bound, in expectation, on the noise variance around i, that follows
     signal-dependent (shot) noise and a highlight's local curvature alike. Its relative
     standard error for white noise is √(κ/n_eff), n_eff = (Σw)²/Σw² (about 200 inside the
-    sphere, fewer at the rim) and κ = :func:`kernel_kappa` (7.56: neighbouring h share
+    sphere, fewer at the rim) and κ = `kernel_kappa` (7.56: neighbouring h share
     pixels), so the bound is the upper confidence limit
 
-    .. math:: U(i) = B(i)\,\bigl(1 + c\sqrt{\kappa / n_\mathrm{eff}(i)}\bigr)
-              + (\varepsilon_\mathrm{storage}\,x_i)^2 + \sigma_q(x_i)^2 + (f\,L)^2,
+    ```text
+    U(i) = B(i)\,\bigl(1 + c\sqrt{\kappa / n_\mathrm{eff}(i)}\bigr)
+                  + (\varepsilon_\mathrm{storage}\,x_i)^2 + \sigma_q(x_i)^2 + (f\,L)^2,
+    ```
 
     c = ``confidence``; plus the known floors: the file's storage precision ``storage``
     (relative), the 8-bit quantisation σ_q when ``quantised``, and ``floor`` times the
@@ -111,7 +115,7 @@ def noise_bound(
     data): noise correlated between neighbours (demosaicing, denoising, compression)
     leaks less through K, and the bound can fall below it.
 
-    Raises :class:`NoiseEstimationError` when fewer than ``min_positions`` footprints fit
+    Raises `NoiseEstimationError` when fewer than ``min_positions`` footprints fit
     inside ``used``."""
     inputs = prepare(image, used)  # no erosion: every used pixel gets a bound
     img, mask, kernel = inputs.image, inputs.usable, inputs.kernel
@@ -164,7 +168,7 @@ def noise_bound(
 
 #: Median of χ²₁: the median of z² for Gaussian z (turns a median of squares into a variance).
 MEDIAN_CHI2_1 = 0.454936423119572
-#: Level bins of :func:`binned_laplacian_bound` (quantiles of the observed values).
+#: Level bins of `binned_laplacian_bound` (quantiles of the observed values).
 LAPLACIAN_BOUND_BINS = 8
 
 
@@ -181,7 +185,7 @@ def binned_laplacian_bound(
     image at each pixel (NaN where it is not defined), ``levels`` the observed values and
     ``usable`` which enter. Noise of level σ, independent between pixels, gives the
     Laplacian a spread of √20 σ, and the picture's own curvature only adds to it (as for
-    :func:`noise_bound`, with the plain Laplacian instead of Immerkær's kernel). The values
+    `noise_bound`, with the plain Laplacian instead of Immerkær's kernel). The values
     are binned by level (quantiles, per channel), and in each bin
     σ² ≤ median(Δ²)/(20 · median χ²₁). Why the median: a few pixels of strong curvature (a
     highlight's edge) would dominate a mean; the median still only grows with curvature.

@@ -1,4 +1,4 @@
-"""The measured constants of the kernel estimator (:func:`estimate_noise`).
+"""The measured constants of the kernel estimator (`estimate_noise`).
 
 Each clipped robust scale is biased low by dropping the neighbours of clean outliers, and
 its standard error is wider than the i.i.d. one because the residuals of overlapping

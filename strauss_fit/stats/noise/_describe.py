@@ -1,4 +1,4 @@
-"""Where a target's noise model comes from (:func:`describe_noise`): the level given, else
+"""Where a target's noise model comes from (`describe_noise`): the level given, else
 the target's sidecar (a sensor or a renderer's measured noise), else an estimate from the
 image itself, remembered per image content.
 """
@@ -112,7 +112,7 @@ def describe_noise(
     given: float | tuple | None = None,
     sidecar: dict | None = None,
 ) -> NoiseModel:
-    """The noise model of a target image (see :class:`NoiseModel`): the ``given`` level if
+    """The noise model of a target image (see `NoiseModel`): the ``given`` level if
     any, else the ``sidecar``'s (read beside ``path`` when not passed; pass ``{}`` to
     ignore it), else estimated from the image over the ``usable`` pixels (the sphere's
     fully covered ones), signal-dependent when the estimate finds shot noise. An 8-bit sRGB
@@ -146,12 +146,12 @@ def describe_noise(
     return described
 
 
-#: Noise models estimated from images, by the image's content (:func:`_image_key`): a
+#: Noise models estimated from images, by the image's content (`_image_key`): a
 #: target fitted again (another loss, other free parameters, a batch's retry, a benchmark)
 #: is the same image with the same noise, and estimating it costs a third of a warm fit.
 _ESTIMATED: OrderedDict[bytes, NoiseModel] = OrderedDict()
 _ESTIMATED_LOCK = threading.Lock()  # fits may describe targets from several threads
-#: How many estimates :data:`_ESTIMATED` keeps (the least recently used go first).
+#: How many estimates `_ESTIMATED` keeps (the least recently used go first).
 ESTIMATED_KEPT = 32
 
 
@@ -167,7 +167,7 @@ def _image_key(pixels: np.ndarray, usable: np.ndarray, quantised: bool, storage:
 
 
 def _estimated_noise(pixels: np.ndarray, usable: np.ndarray, quantised: bool, storage: float) -> NoiseModel:
-    """The noise model estimated from the image itself (:func:`describe_noise`'s last case)."""
+    """The noise model estimated from the image itself (`describe_noise`'s last case)."""
     try:
         estimate = estimate_noise(pixels, usable, censor=(0.0, 1.0) if quantised else None)
     except NoiseEstimationError as exc:

@@ -41,7 +41,7 @@ def kernel_kappa(kernel: np.ndarray) -> float:
 
 @functools.lru_cache(maxsize=32)
 def _kernel_kappa(shape: tuple[int, int], data: bytes) -> float:
-    """:func:`kernel_kappa` of the kernel held in ``data`` (cached: a kernel is hashable only
+    """`kernel_kappa` of the kernel held in ``data`` (cached: a kernel is hashable only
     as bytes, and every estimate asks for the same few)."""
     kernel = np.frombuffer(data, dtype=np.float64).reshape(shape)
     kh, kw = kernel.shape

@@ -1,7 +1,7 @@
 """The input preparation every estimator starts from: one place that turns an image and a
 mask into what the high-pass residual is computed over, with the same checks and the same
-error messages for :func:`estimate_noise`, :func:`estimate_noise_model` and
-:func:`noise_bound`.
+error messages for `estimate_noise`, `estimate_noise_model` and
+`noise_bound`.
 """
 
 from __future__ import annotations
@@ -19,11 +19,11 @@ MIN_PIXELS = 50
 
 @dataclass(frozen=True)
 class Inputs:
-    """An estimator's prepared input (:func:`prepare`).
+    """An estimator's prepared input (`prepare`).
 
     ``image`` (H, W, C) float64 (a grey image gets C = 1); ``usable`` (H, W) the pixels the
     residual may read: the mask's finite pixels, eroded by the margin; ``kernel`` the
-    high-pass kernel (unit L2 norm) named ``kernel_name`` in :data:`KERNELS`."""
+    high-pass kernel (unit L2 norm) named ``kernel_name`` in `KERNELS`."""
 
     image: np.ndarray
     usable: np.ndarray
@@ -35,7 +35,7 @@ def prepare(image: np.ndarray, mask: np.ndarray | None, *, margin: int = 0, kern
     """The image as (H, W, C) float64, the ``mask`` (H, W; None: every pixel) less its
     non-finite pixels and eroded by ``margin`` pixels, and the kernel named ``kernel``.
 
-    Raises :class:`NoiseEstimationError` for an image that is not (H, W) or (H, W, C), a
+    Raises `NoiseEstimationError` for an image that is not (H, W) or (H, W, C), a
     mask of another shape, a NaN or infinite value inside the mask (the caller should mark
     it unusable: silently dropping it would hide a broken image), or an unknown kernel.
     The checks run in this order (the first failure is the one reported)."""

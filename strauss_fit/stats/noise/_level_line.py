@@ -1,5 +1,5 @@
 """Signal-dependent noise: the Poisson–Gaussian level line Var = a·x + b per channel
-(:func:`estimate_noise_model`, its result :class:`PoissonGaussian`), fitted to the
+(`estimate_noise_model`, its result `PoissonGaussian`), fitted to the
 variance of the high-pass residual in bins of the local level.
 """
 
@@ -63,10 +63,10 @@ class PoissonGaussian:
 def _fit_line(x: np.ndarray, y: np.ndarray, se: np.ndarray) -> tuple[float, float, float, float, float]:
     r"""Weighted line y = a x + b with a, b ≥ 0. Returns a, b, se_a, se_b, chi2/dof.
 
-    Solved in centred form: with :math:`\bar x = \sum w x / \sum w` and
-    :math:`S = \sum w (x - \bar x)^2`, :math:`a = \sum w (x - \bar x) y / S`,
-    :math:`b = \bar y - a \bar x`, :math:`\mathrm{var}\,a = 1/S` and
-    :math:`\mathrm{var}\,b = 1/\sum w + \bar x^2/S`. Why not the inverse of the 2 × 2
+    Solved in centred form: with `\bar x = \sum w x / \sum w` and
+    `S = \sum w (x - \bar x)^2`, `a = \sum w (x - \bar x) y / S`,
+    `b = \bar y - a \bar x`, `\mathrm{var}\,a = 1/S` and
+    `\mathrm{var}\,b = 1/\sum w + \bar x^2/S`. Why not the inverse of the 2 × 2
     normal matrix: when one bin's error is tiny (a noise-free 8-bit image has a level bin
     whose variance is all quantisation: se ~ 1e-16, a weight 10¹⁴ times the others) that
     matrix is singular in float64 and its inverse had negative variances (a math domain
@@ -138,12 +138,12 @@ def _bin_variances(
     return level[used], (variance - quantisation)[used], counts[used], quantisation[used]
 
 
-#: Relative change of (a, b) between two clipped passes of :func:`estimate_noise_model`
+#: Relative change of (a, b) between two clipped passes of `estimate_noise_model`
 #: below which the passes have reached their fixed point (the rest would repeat them).
 FIXED_POINT = 1e-12
 
 
-#: Relative change of (a, b) between two clipped passes of :func:`estimate_noise_model`
+#: Relative change of (a, b) between two clipped passes of `estimate_noise_model`
 #: below which the passes have reached their fixed point (the rest would repeat them).
 FIXED_POINT = 1e-12
 #: Fewest residual positions the level line is fitted to (and left after censoring).
@@ -152,7 +152,7 @@ _MIN_POSITIONS = 200
 
 @dataclass(frozen=True)
 class _Residuals:
-    """What every pass of :func:`estimate_noise_model` reads, on the residual grid (h, w):
+    """What every pass of `estimate_noise_model` reads, on the residual grid (h, w):
     the residual ``res`` (h, w, C), the ``level`` Σ K²·x its variance is a mean over, the
     quantisation variance ``qvar`` at that level (0 without quantisation), the box level
     ``box`` the censoring tests (None without censoring) and the ``valid`` positions."""
@@ -192,11 +192,11 @@ def estimate_noise_model(
     Var[r] = a·μ + b exactly for a smooth image). Positions are binned by μ (equal counts).
     First pass: each bin's variance from the MAD of its residuals (no clipping). Then,
     ``iterations`` times: the residuals are divided by the current model's σ(μ) and
-    cleaned exactly as in :func:`estimate_noise` (clip, dilate, window test), so bright,
+    cleaned exactly as in `estimate_noise` (clip, dilate, window test), so bright,
     noisier pixels are not rejected as content; each bin's variance is the truncated
     second moment of its kept residuals; a line is fitted by weighted least squares
     (weights from the model's predicted SE), a and b clamped ≥ 0. The passes stop early
-    once one gives the a and b of the one before (:data:`FIXED_POINT`): each pass is a
+    once one gives the a and b of the one before (`FIXED_POINT`): each pass is a
     function of the previous a and b, so the rest would repeat it.
 
     ``signal_dependent``: a / SE(a) > ``z``. ``chi2_dof`` of the line fit (> 1: the bins
@@ -204,9 +204,9 @@ def estimate_noise_model(
     then widened by √chi2_dof).
 
     ``quantisation="srgb8"``: subtract each bin's mean 8-bit quantisation variance
-    (:func:`quantisation_sigma`) before the fit (sRGB-decoded 8-bit targets).
+    (`quantisation_sigma`) before the fit (sRGB-decoded 8-bit targets).
     ``censor=(0, 1)``: leave out positions whose local level is within 2σ(level) of an end
-    of the code range (as in :func:`estimate_noise`). ``channels_independent``: the
+    of the code range (as in `estimate_noise`). ``channels_independent``: the
     normalised residuals do not correlate across channels (|z| ≤ ``correlation_z``);
     False means image content leaks into the bins.
     """
@@ -258,9 +258,9 @@ def _level_residuals(
     inputs: Inputs, censor: tuple[float, float] | None, quantisation: Literal[None, "srgb8"]
 ) -> _Residuals:
     """The residual, its level, the quantisation variance and the censoring level of
-    :func:`estimate_noise_model`, over the positions whose footprint is usable.
+    `estimate_noise_model`, over the positions whose footprint is usable.
 
-    Raises :class:`NoiseEstimationError` with fewer than 200 such positions, a residual that
+    Raises `NoiseEstimationError` with fewer than 200 such positions, a residual that
     is zero in a channel, or an unknown ``quantisation``."""
     img, k = inputs.image, inputs.kernel
     valid = _valid_positions(inputs.usable, k.shape)
@@ -295,11 +295,11 @@ def _clean_positions(
     kappa: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The positions a clipped pass keeps, and the robust scale (C,) of the residuals in
-    units of the line a, b's σ: cleaned as in :func:`estimate_noise` after the censoring
+    units of the line a, b's σ: cleaned as in `estimate_noise` after the censoring
     (positions within 2σ of an end of ``censor``), so that brighter, noisier pixels are not
     taken for content.
 
-    Raises :class:`NoiseEstimationError` when the censoring leaves fewer than 200."""
+    Raises `NoiseEstimationError` when the censoring leaves fewer than 200."""
     sd = r.model_sd(a, b)
     v = r.valid
     if r.box is not None:
@@ -323,15 +323,15 @@ def _fit_pass(
     factor: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
     """One pass of the level line over the ``kept`` positions: per channel, the residuals'
-    variance in ``n_bins`` equal-count level bins (:func:`_bin_variances`) and the line
-    fitted to them (:func:`_fit_line`). Each bin's SE comes from the previous line a, b
+    variance in ``n_bins`` equal-count level bins (`_bin_variances`) and the line
+    fitted to them (`_fit_line`). Each bin's SE comes from the previous line a, b
     once there is one (weights from the noisy bin values themselves would favour
     low-variance bins); ``first``: there is none yet.
 
     Returns the new a, b (C,), their SEs and the fit's chi²/dof (3, C), and each channel's
     bins (``scale``: the robust scale of the normalised residuals, for the record).
 
-    Raises :class:`NoiseEstimationError` when a channel has fewer than 3 populated bins."""
+    Raises `NoiseEstimationError` when a channel has fewer than 3 populated bins."""
     C = r.res.shape[-1]
     new_a, new_b, stats, bins = np.zeros(C), np.zeros(C), np.zeros((3, C)), []
     for c in range(C):

@@ -1,6 +1,6 @@
-"""The noise model a fit uses (:class:`NoiseModel`: Var = a·max(L, 0) + b per channel, plus
+"""The noise model a fit uses (`NoiseModel`: Var = a·max(L, 0) + b per channel, plus
 quantisation and storage floors), and the range of noise levels a fit accepts
-(:data:`NOISE_RANGE`, :func:`check_noise_level`).
+(`NOISE_RANGE`, `check_noise_level`).
 """
 
 from __future__ import annotations
@@ -13,23 +13,23 @@ import numpy as np
 from ...errors import StraussFitError
 from ._quantisation import quantisation_sigma
 
-#: Where :func:`describe_noise` got the level from.
+#: Where `describe_noise` got the level from.
 NOISE_SOURCES = ("given", "sensor", "image", "unknown")
 
 
 @dataclass
 class NoiseModel:
-    r"""The noise of a target image, per value: :math:`\mathrm{Var} = a·\max(L, 0) + b`
+    r"""The noise of a target image, per value: `\mathrm{Var} = a·\max(L, 0) + b`
     per channel (a: the shot-noise slope, 1/gain; b: additive noise), plus the 8-bit sRGB
     quantisation at the level L when ``quantised``, plus the storage precision
-    (``storage`` × |L|)². :meth:`sigma_at` evaluates it at a level — the fitted model's
+    (``storage`` × |L|)². `sigma_at` evaluates it at a level — the fitted model's
     radiance, the best estimate of the true one.
 
     ``source``: ``"given"`` (the user's value), ``"sensor"`` (the target's sidecar: the
     synthetic sensor that made it, or a renderer's measured noise), ``"image"`` (estimated
-    from the image itself, model-free: :func:`estimate_noise`), ``"unknown"`` (it could not
+    from the image itself, model-free: `estimate_noise`), ``"unknown"`` (it could not
     be estimated: a noise-free image, or content the estimator cannot separate from
-    noise; then :meth:`sigma_at` gives NaN). ``relative_stderr`` (3,): the level's own
+    noise; then `sigma_at` gives NaN). ``relative_stderr`` (3,): the level's own
     uncertainty (0 when given or from a sensor)."""
 
     source: str
@@ -91,8 +91,8 @@ NOISE_RANGE = (1e-100, 1e100)
 
 def check_noise_level(value: float | tuple | list | np.ndarray, what: str = "the noise level") -> np.ndarray:
     """``value``, one noise σ or three (R, G, B), as (3,) float64, or a one-line
-    :class:`~strauss_fit.errors.StraussFitError` naming ``what`` when it is not one or three
-    finite numbers within :data:`NOISE_RANGE`."""
+    `StraussFitError` naming ``what`` when it is not one or three
+    finite numbers within `NOISE_RANGE`."""
     low, high = NOISE_RANGE
     try:
         values = np.asarray(value, dtype=np.float64).reshape(-1)
@@ -109,5 +109,5 @@ def check_noise_level(value: float | tuple | list | np.ndarray, what: str = "the
 
 
 def _zero_or_in_range(sigma: float) -> bool:
-    """A noise σ of 0 (none) or within :data:`NOISE_RANGE`."""
+    """A noise σ of 0 (none) or within `NOISE_RANGE`."""
     return sigma == 0 or (math.isfinite(sigma) and NOISE_RANGE[0] <= sigma <= NOISE_RANGE[1])

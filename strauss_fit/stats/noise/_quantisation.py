@@ -1,5 +1,5 @@
-"""The noise floor of 8-bit sRGB coding: :func:`quantisation_sigma` per value, and
-:func:`combine_with_quantisation` with a noise level.
+"""The noise floor of 8-bit sRGB coding: `quantisation_sigma` per value, and
+`combine_with_quantisation` with a noise level.
 """
 
 from __future__ import annotations

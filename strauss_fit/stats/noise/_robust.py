@@ -1,5 +1,5 @@
 """The robust scale of a high-pass residual: MAD, then clipped and window-tested to a
-fixed point (see :func:`_robust_scale`), and the residuals' correlation across channels.
+fixed point (see `_robust_scale`), and the residuals' correlation across channels.
 Shared by the kernel estimator and the level line.
 """
 

@@ -1,4 +1,4 @@
-"""The per-pixel noise of the project's synthetic sensor (:func:`noise_from_sensor`): known,
+"""The per-pixel noise of the project's synthetic sensor (`noise_from_sensor`): known,
 not estimated, when a target says which sensor made it.
 """
 

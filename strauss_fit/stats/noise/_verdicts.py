@@ -1,6 +1,6 @@
-"""The verdicts a fit draws from the noise: :func:`mismatch_verdict` against a known noise
-level (χ²/dof and its spread), :func:`one_sided_verdict` against the bound of
-:func:`noise_bound` when the level is unknown (too large, or too structured, for any noise
+"""The verdicts a fit draws from the noise: `mismatch_verdict` against a known noise
+level (χ²/dof and its spread), `one_sided_verdict` against the bound of
+`noise_bound` when the level is unknown (too large, or too structured, for any noise
 up to it).
 """
 
@@ -85,7 +85,7 @@ STRUCTURE_Z = 8.0
 @dataclass
 class OneSidedVerdict:
     """The residual of a fit against the largest noise its target can hold
-    (:func:`one_sided_verdict`).
+    (`one_sided_verdict`).
 
     ``chi2_dof``: Σ(r/σ_b)²/(N − P); ``per_channel``: the same per channel;
     ``worst_tile``: the tile with the largest mean (r/σ_b)² (``chi2_per_dof``, ``pixels``
