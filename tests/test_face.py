@@ -34,7 +34,7 @@ def test_every_public_name_is_the_object_of_its_module():
     import importlib
 
     for name in sf.__all__:
-        module = importlib.import_module(sf._LAZY.get(name, ""), "strauss_fit") if name in sf._LAZY else sf
+        module = importlib.import_module(sf._LAZY[name], "strauss_fit") if name in sf._LAZY else sf
         assert getattr(module, name) is getattr(sf, name), name
 
 

@@ -17,6 +17,7 @@ import datetime as _dt
 import html
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -239,7 +240,5 @@ HTML_SUFFIXES = (".html", ".htm")
 
 def check_html_name(path: Any) -> None:
     """Refuse a report name that is not HTML, in one line, before any work."""
-    from pathlib import Path
-
     if Path(path).suffix.lower() not in HTML_SUFFIXES:
         raise StraussFitError(f"the report is HTML: give -o a .html name, got {path}")
