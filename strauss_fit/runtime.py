@@ -141,8 +141,9 @@ def available_memory() -> int | None:
 def mapping_usage() -> tuple[int, int] | None:
     """(memory mappings of this process, the kernel's limit), or None where unknown."""
     try:
-        with _MAPS.open("rb") as maps:
-            count = sum(1 for _ in maps)
+        # one line per mapping; counted in the bytes (a line-by-line loop took 2 ms of a
+        # 64² fit's 45 with a fit's ~1700 mappings)
+        count = _MAPS.read_bytes().count(b"\n")
         limit = int(_LIMIT.read_text().strip())
     except (OSError, ValueError):
         return None
