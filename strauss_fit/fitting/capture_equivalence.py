@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..capture._samples import CaptureSamples
+from ..engine import Steps, run
 from ..errors import CaptureError
 from ..models.reflectance import REFLECTANCE_MODELS
 from ..precision import float64
@@ -50,6 +51,7 @@ from .capture import (
     delta_e_mean,
     projected_lm,
 )
+from .equivalence import range_end_steps
 
 #: The default threshold: one just-noticeable difference in mean CIEDE2000.
 DEFAULT_DELTA_E = 1.0
@@ -128,6 +130,16 @@ def _ranges(
         image = np.asarray(_predict(fit.model, fit.params, jnp.asarray(x), terms))
         return delta_e_mean(image, best, usable), x
 
+    def distance_steps(k: int) -> Callable[[float, np.ndarray], Steps]:
+        """`distance` for parameter ``k`` as `range_end_steps` takes it: steps that run no
+        `Call` (the capture's inner fit is its own compiled loop) and return at once."""
+
+        def steps(v: float, warm: np.ndarray) -> Steps:
+            return distance(k, v, warm)
+            yield  # unreachable: makes this function a generator
+
+        return steps
+
     ranges: dict[str, list[float]] = {}
     for p, start in zip(fit.params, _offsets(fit.params)):
         if p.name not in material:
@@ -135,29 +147,11 @@ def _ranges(
         for k in range(start, start + p.size):
             centre = float(x_best[k])
             top = high0[k] if np.isfinite(high0[k]) else max(SCALE_MAX * centre, centre + 1.0)
-            ends = []
-            for direction, bound in ((-1.0, float(low0[k])), (1.0, float(top))):
-                inside, warm, outside = centre, x_best, None
-                step = 0.02 if p.kind == "unit" else 0.02 * max(abs(centre), 1e-6)
-                while True:
-                    v = max(centre - step, bound) if direction < 0 else min(centre + step, bound)
-                    d, x = distance(k, v, warm)
-                    if d > delta_e:
-                        outside = v
-                        break
-                    inside, warm = v, x
-                    if v == bound:
-                        break
-                    step *= 2.0
-                if outside is not None:
-                    for _ in range(BISECTIONS):
-                        middle = 0.5 * (inside + outside)
-                        d, x = distance(k, middle, warm)
-                        if d > delta_e:
-                            outside = middle
-                        else:
-                            inside, warm = middle, x
-                ends.append(inside)
+            step = 0.02 if p.kind == "unit" else 0.02 * max(abs(centre), 1e-6)
+            ends = [
+                run(range_end_steps(distance_steps(k), centre, bound, direction, step, delta_e, BISECTIONS, x_best))
+                for direction, bound in ((-1.0, float(low0[k])), (1.0, float(top)))
+            ]
             ranges[labels[k]] = [float(min(ends)), float(max(ends))]
     out: dict[str, Any] = {}
     for p, start in zip(fit.params, _offsets(fit.params)):

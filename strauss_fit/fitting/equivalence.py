@@ -28,6 +28,8 @@ scene cannot show, however precisely the data pin it statistically.
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -66,6 +68,48 @@ def _perceptual_copy(problem: Any, image: np.ndarray) -> Any:
         loss_norm=np.asarray((level + offset) ** (-2.0 / 3.0) / 3.0),
         weights=None,
     )
+
+
+def range_end_steps(
+    distance: Callable[[float, Any], Steps],
+    centre: float,
+    bound: float,
+    direction: float,
+    step: float,
+    delta_e: float,
+    bisections: int,
+    warm: Any,
+) -> Steps:
+    """Steps giving one end of an equivalence range: from ``centre`` towards ``bound``
+    (``direction`` −1: downwards, +1: upwards), the step doubled from ``step`` until the
+    distance exceeds ``delta_e`` (or ``bound`` is reached: the end is then the bound), then
+    ``bisections`` halvings of the last step. The end is the farthest value found within
+    ``delta_e``.
+
+    ``distance(v, warm)`` gives, as steps, the distance at ``v`` and the inner fit's solution
+    there, which warm-starts the next evaluation (``warm``: the first one's). The one search
+    of both equivalence ranges, a single image's (here) and a capture's
+    (`strauss_fit.fitting.capture_equivalence`, whose distance runs no `Call`)."""
+    inside, outside = centre, None
+    while True:
+        v = float(max(centre - step, bound) if direction < 0 else min(centre + step, bound))
+        d, solution = yield from distance(v, warm)
+        if d > delta_e:
+            outside = v
+            break
+        inside, warm = v, solution
+        if v == bound:
+            break
+        step *= 2.0
+    if outside is not None:
+        for _ in range(bisections):
+            middle = 0.5 * (inside + outside)
+            d, solution = yield from distance(middle, warm)
+            if d > delta_e:
+                outside = middle
+            else:
+                inside, warm = middle, solution
+    return inside
 
 
 @uses_float64
@@ -124,31 +168,14 @@ def equivalence_ranges_steps(
         top = upper[k]
         if not np.isfinite(top):
             top = IOR_MAX if name == "ior" else max(SCALE_MAX * values0[k], values0[k] + 1.0)
+        centre = values0[k]
+        step = 0.02 * max(abs(centre), 1.0) if name in ("ior", "exposure") or "intensity" in name else 0.02
         ends = []
         for direction, bound in ((-1.0, lower[k]), (1.0, top)):
-            centre = values0[k]
-            inside, warm = centre, start_theta
-            step = 0.02 * max(abs(centre), 1.0) if name in ("ior", "exposure") or "intensity" in name else 0.02
-            outside = None
-            while True:
-                v = float(max(centre - step, bound) if direction < 0 else min(centre + step, bound))
-                d, theta = yield from distance(k, v, warm)
-                if d > delta_e:
-                    outside = v
-                    break
-                inside, warm = v, theta
-                if v == bound:
-                    break
-                step *= 2.0
-            if outside is not None:
-                for _ in range(BISECTIONS):
-                    middle = 0.5 * (inside + outside)
-                    d, theta = yield from distance(k, middle, warm)
-                    if d > delta_e:
-                        outside = middle
-                    else:
-                        inside, warm = middle, theta
-            ends.append(inside)
+            end = yield from range_end_steps(
+                functools.partial(distance, k), centre, bound, direction, step, delta_e, BISECTIONS, start_theta
+            )
+            ends.append(end)
         ranges[label] = [float(min(ends)), float(max(ends))]
     out: dict[str, Any] = {}
     for name, size, offset in zip(layout.names, layout.sizes, layout.offsets):
