@@ -19,7 +19,8 @@ and then dies inside LLVM ("Cannot allocate memory", then a segmentation fault) 
 gigabytes of memory free. Measured here: about 700 mappings per configuration, so about
 90 configurations per process.
 
-`release_compiled_code_if_needed` is called before every fit: past
+`release_compiled_code_if_needed` is called before every fit (and looks at the mappings
+at most once a second, `CHECK_INTERVAL_S`): past
 `MAP_FRACTION` of the limit it clears JAX's caches (the programs are compiled again
 when next needed, which costs time, never correctness). Where ``/proc`` does not exist it
 does nothing.
@@ -45,12 +46,19 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from pathlib import Path
 
 from ._environment import turned_off
 
 #: Clear JAX's caches once the process holds this fraction of the mapping limit.
 MAP_FRACTION = 0.5
+#: Seconds between two looks at the mappings. Why not at every fit: the kernel takes about
+#: 2 ms to list a JAX process's 1,500 mappings, 5 % of a 64² fit; and a second of fits cannot
+#: approach the limit (a new configuration adds about 700 mappings, and compiling it takes
+#: seconds), with half of the limit kept in reserve (`MAP_FRACTION`).
+CHECK_INTERVAL_S = 1.0
+_last_check = -float("inf")
 _MAPS = Path("/proc/self/maps")
 _LIMIT = Path("/proc/sys/vm/max_map_count")
 
@@ -141,18 +149,22 @@ def available_memory() -> int | None:
 def mapping_usage() -> tuple[int, int] | None:
     """(memory mappings of this process, the kernel's limit), or None where unknown."""
     try:
-        # one line per mapping; counted in the bytes (a line-by-line loop took 2 ms of a
-        # 64² fit's 45 with a fit's ~1700 mappings)
-        count = _MAPS.read_bytes().count(b"\n")
+        count = _MAPS.read_bytes().count(b"\n")  # one line per mapping
         limit = int(_LIMIT.read_text().strip())
     except (OSError, ValueError):
         return None
     return count, limit
 
 
-def release_compiled_code_if_needed(fraction: float = MAP_FRACTION) -> bool:
+def release_compiled_code_if_needed(fraction: float = MAP_FRACTION, min_interval: float = CHECK_INTERVAL_S) -> bool:
     """Clear JAX's compilation caches when this process's memory mappings exceed
-    ``fraction`` of the kernel's limit; return whether it did."""
+    ``fraction`` of the kernel's limit; return whether it did. Looks at most once per
+    ``min_interval`` seconds (`CHECK_INTERVAL_S`)."""
+    global _last_check
+    now = time.monotonic()
+    if now - _last_check < min_interval:
+        return False
+    _last_check = now
     usage = mapping_usage()
     if usage is None or usage[0] <= fraction * usage[1]:
         return False
