@@ -98,11 +98,13 @@ def recorded_inputs(fit: str, given: dict[str, str | None], spelled: dict[str, s
 
 
 def _print_report(report, written) -> int:
+    from .common import escape
+
     if report.data.get("verdict"):
         print(f"fit verdict: {report.data['verdict']}", file=sys.stderr)
     for warning in report.data.get("warnings", []):
-        print(f"warning: {warning}", file=sys.stderr)
-    print(f"wrote {', '.join(str(p) for p in written)}")
+        print(f"warning: {escape(warning, newlines=True)}", file=sys.stderr)  # they quote the fit's file
+    print(escape(f"wrote {', '.join(str(p) for p in written)}", newlines=True))
     return 0
 
 
@@ -131,7 +133,7 @@ def run_capture(args: argparse.Namespace) -> int:
     (`strauss_fit.reporting.capture_report.capture_report_from_files`; with --chain
     alone, the fit its metadata holds)."""
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.io.files import check_distinct
+    from strauss_fit.io.files import check_distinct, check_outside
     from strauss_fit.reporting.capture_report import capture_report_from_files
     from strauss_fit.reporting.fit_report import report_paths
 
@@ -141,10 +143,11 @@ def run_capture(args: argparse.Namespace) -> int:
                 f"--{option} is for the fit of one image; a capture's fit result records its capture "
                 "(give --capture to read it from elsewhere)"
             )
-    page, markdown, _ = report_paths(args.output)
+    page, markdown, folder = report_paths(args.output)
     inputs = {"--fit": args.fit, "--chain": args.chain, "--lights": args.lights, "--mask": args.mask}
     inputs.update({f"--capture {path}": path for path in args.capture or []})
     check_distinct({"-o": page, "-o's Markdown": markdown}, inputs)
+    check_outside(folder, "-o", inputs)
     report, written = capture_report_from_files(
         args.fit,
         args.output,
@@ -161,7 +164,7 @@ def run_capture(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     from strauss_fit import report_from_files
     from strauss_fit.errors import StraussFitError
-    from strauss_fit.io.files import check_distinct
+    from strauss_fit.io.files import check_distinct, check_outside
     from strauss_fit.reporting.fit_report import report_paths
 
     if _is_capture_result(args.fit):
@@ -182,11 +185,11 @@ def run(args: argparse.Namespace) -> int:
             {"target": "--target", "scene": "--scene", "mask": "--mask", "encoding": "--encoding"},
         )
         args.target, args.scene, args.mask, args.encoding = (inputs[name] for name in RECORDED_INPUTS)
-    page, markdown, _ = report_paths(args.output)
-    check_distinct(
-        {"-o": page, "-o's Markdown": markdown},
-        {"--fit": args.fit, "--chain": args.chain, "--target": args.target, "--scene": args.scene, "--mask": args.mask},
-    )
+    page, markdown, folder = report_paths(args.output)
+    inputs = {"--fit": args.fit, "--chain": args.chain, "--target": args.target, "--scene": args.scene}
+    inputs["--mask"] = args.mask
+    check_distinct({"-o": page, "-o's Markdown": markdown}, inputs)
+    check_outside(folder, "-o", inputs)
 
     report, written = report_from_files(
         args.output,

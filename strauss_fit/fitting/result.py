@@ -49,6 +49,38 @@ class FitResultError(StraussFitError):
     """A JSON document is not a strauss-fit fit result."""
 
 
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_recorded(data: dict, free: list[str], lights: dict[str, float], fields: dict[str, Any]) -> None:
+    """What the readers of a fit result rely on (the report, ``sample --fit``): every freed
+    name has a value, every ± is a finite number (three for the colour), the correlation
+    matrix is square with a label per row, the exposure a positive finite number.
+    Raises `FitResultError` naming the first that is not."""
+    bad = "the fit result is not a strauss-fit fit result"
+    for name in free:
+        if name not in PARAMETER_NAMES and name != "exposure" and name not in lights:
+            raise FitResultError(f"{bad}: it frees {name!r}, of which it records no value")
+    for name, sd in (fields.get("uncertainty") or {}).items():
+        values = sd if isinstance(sd, list) else [sd]
+        if not values or not all(_finite(v) for v in values) or len(values) not in (1, 3):
+            raise FitResultError(f"{bad}: the uncertainty of {name!r} is not a finite number (or three)")
+    correlation = fields.get("correlation") or {}
+    if correlation:
+        labels, matrix = correlation.get("labels"), correlation.get("matrix")
+        if not (
+            isinstance(labels, list)
+            and isinstance(matrix, list)
+            and len(matrix) == len(labels)
+            and all(isinstance(row, list) and len(row) == len(labels) and all(map(_finite, row)) for row in matrix)
+        ):
+            raise FitResultError(f"{bad}: its correlation is not a square matrix of numbers with a label per row")
+    exposure = data.get("exposure")
+    if exposure is not None and not (_finite(exposure) and exposure > 0):
+        raise FitResultError(f"{bad}: its exposure is not a positive finite number")
+
+
 def nonfinite_entry(data: Any, where: str = "") -> tuple[str, float] | None:
     """Where the first NaN or infinite number in the JSON-like ``data`` (dicts, lists,
     numbers; NumPy values too) is, as a path (``uncertainty.color[0]``) and the value; None
@@ -213,6 +245,8 @@ class FitResult:
         if not isinstance(data, dict):
             raise FitResultError("the fit result is not a strauss-fit fit result (not a JSON object)")
         try:
+            if not isinstance(data["free"], list):  # a string would be read letter by letter
+                raise TypeError("'free' is not a list")
             free = [str(n) for n in data["free"]]
             material_values = {k: data[k] for k in PARAMETER_NAMES}
             lights = {str(k): float(v) for k, v in (data.get("lights") or {}).items()}
@@ -230,8 +264,11 @@ class FitResult:
             ):
                 if not isinstance(fields.get(name, {}), dict):
                     raise TypeError(repr(name))
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except KeyError as exc:
             raise FitResultError(f"the fit result is not a strauss-fit fit result (missing or bad {exc})") from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise FitResultError(f"the fit result is not a strauss-fit fit result (a bad value: {exc})") from None
+        _check_recorded(data, free, lights, fields)
         fields.update(free=free, lights=lights)
         extra = {k: v for k, v in data.items() if k not in _FIELDS and k not in PARAMETER_NAMES}
         return cls(material=Material.from_dict(material_values), extra=extra, **fields)

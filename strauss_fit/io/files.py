@@ -140,6 +140,21 @@ def check_distinct(paths: dict[str, str | Path | None], inputs: dict[str, str | 
                 raise StraussFitError(f"{option} {path} is the input {what}: give the output another name")
 
 
+def check_outside(folder: str | Path, option: str, inputs: dict[str, str | Path | None]) -> None:
+    """Refuse, before any work, an input that lies inside ``folder``, an output folder the
+    command fills (``option`` names it): with ``--force`` it would be overwritten."""
+    root = os.path.normcase(os.path.realpath(os.fspath(folder)))
+    for what, source in inputs.items():
+        if source is None:
+            continue
+        path = os.path.normcase(os.path.realpath(os.fspath(source)))
+        if os.path.commonpath([root, path]) == root:
+            raise StraussFitError(
+                f"the input {what} {source} lies in {folder}, which {option} writes: move it or give {option} "
+                "another name"
+            )
+
+
 # --- interrupts -------------------------------------------------------------------------------
 
 

@@ -141,6 +141,12 @@ def test_report_from_a_fit_alone_uses_the_fits_gaussian_intervals(sampled, capsy
         ("corrupt-chain", "not an HDF5 file"),
         ("not-a-fit", "is not a strauss-fit fit result"),
         ("other-mask", "give the target (and --mask) the fit was made with"),
+        # found by a hostile-user pass: these were KeyError and ValueError tracebacks
+        ("frees-unknown", "frees '<b>x</b>', of which it records no value"),
+        ("uncertainty-text", "the uncertainty of 'smoothness' is not a finite number"),
+        ("ragged-correlation", "its correlation is not a square matrix"),
+        # and --force overwrote the target where it lay in the report's own folder
+        ("target-in-report-folder", "lies in"),
     ],
 )
 def test_report_bad_inputs_are_one_line_errors(sampled, capsys, tmp_path, case, pattern):
@@ -162,7 +168,25 @@ def test_report_bad_inputs_are_one_line_errors(sampled, capsys, tmp_path, case, 
         mask[:12] = 0
         write_image(tmp_path / "mask.png", mask)
         args += ["--fit", str(folder / "fit.json"), "--mask", str(tmp_path / "mask.png")]
+    elif case in ("frees-unknown", "uncertainty-text", "ragged-correlation"):
+        data = json.loads((folder / "fit.json").read_text())
+        if case == "frees-unknown":
+            data["free"] = ["<b>x</b>"]
+        elif case == "uncertainty-text":
+            data["uncertainty"]["smoothness"] = "abc"
+        else:
+            data["correlation"] = {"labels": ["x"], "matrix": [[1, 2], [3]]}
+        (tmp_path / "bad.json").write_text(json.dumps(data))
+        args += ["--fit", str(tmp_path / "bad.json")]
+    elif case == "target-in-report-folder":
+        (tmp_path / "r_files").mkdir()
+        target = tmp_path / "r_files" / "images.exr"
+        target.write_bytes((folder / "target.exr").read_bytes())
+        before = target.read_bytes()
+        args += ["--fit", str(folder / "fit.json"), "--target", str(target), "--force"]
     code = main(args)
+    if case == "target-in-report-folder":
+        assert target.read_bytes() == before
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.startswith("strauss-fit: error: ") and err.count("\n") == 1, err
@@ -233,3 +257,25 @@ def test_report_help_names_both_kinds_of_interval(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "noise sandwich or Laplace" in text
     assert "Laplace ±" not in text and "Laplace-versus-posterior" not in text
+
+
+def test_text_quoted_from_the_fit_is_inert_in_the_markdown_and_one_line_on_the_terminal(sampled, capsys, tmp_path):
+    """A warning, a note or a held parameter's reason holding markup, an escape sequence and a
+    newline (hostile-user pass): the HTML escaped it already; the Markdown now keeps each on
+    its line with the tag escaped, and stderr shows the warning on one line."""
+    data = json.loads((sampled / "fit.json").read_text())
+    evil = "<img src=x onerror=alert(1)>|**md**\x1b[31m\n# heading"
+    data["warnings"].append({"code": "model-mismatch", "message": evil})
+    data["notes"].append(evil)
+    data["held"]["ior"]["reason"] = evil
+    (tmp_path / "evil.json").write_text(json.dumps(data))
+    out = tmp_path / "r.html"
+    assert main(["report", "--fit", str(tmp_path / "evil.json"), "-o", str(out), "--title", "<script>x</script>"]) == 0
+    err = capsys.readouterr().err
+    markdown = out.with_suffix(".md").read_text()
+    assert not re.search(r"(?<!\\)<(img|script)", markdown) and "\x1b" not in markdown
+    assert "\n# heading" not in markdown and "\\<img src=x" in markdown
+    ior_rows = [line for line in markdown.splitlines() if line.startswith("| ior |")]
+    assert ior_rows and all(line.endswith("|") for line in ior_rows)
+    assert "<img src=x" not in out.read_text()
+    assert "\x1b" not in err and not any(line.startswith("# heading") for line in err.splitlines())

@@ -48,3 +48,26 @@ def test_what_is_not_a_fit_result_is_a_one_line_error(document, pattern):
 def test_values_out_of_range_name_the_field(payload):
     with pytest.raises(sf.MaterialError, match="smoothness"):
         FitResult.from_json(dict(payload, smoothness=1.5))
+
+
+@pytest.mark.parametrize(
+    "change,pattern",
+    [
+        (dict(free=["<b>x</b>"]), r"frees '<b>x</b>', of which it records no value"),
+        (dict(free=["color", "directional_intensity_9"]), r"frees 'directional_intensity_9'"),
+        (dict(free="smoothness"), r"'free' is not a list"),
+        (dict(uncertainty={"smoothness": "abc"}), r"uncertainty of 'smoothness' is not a finite number"),
+        (dict(uncertainty={"color": [0.1, 0.2]}), r"uncertainty of 'color'"),
+        (dict(correlation={"labels": ["x"], "matrix": [[1, 2], [3]]}), r"correlation is not a square matrix"),
+        (dict(correlation={"names": ["x"]}), r"correlation is not a square matrix"),
+        (dict(exposure=float("nan")), r"exposure is not a positive finite number"),
+        (dict(exposure=-1.0), r"exposure is not a positive finite number"),
+        (dict(lights={"x": "y"}), r"a bad value: could not convert"),
+    ],
+)
+def test_what_the_readers_rely_on_is_checked_when_read(payload, change, pattern):
+    """The report and ``sample --fit`` read these fields: a bad one is a one-line error here,
+    not a traceback there (a hostile-user pass found KeyError and ValueError tracebacks)."""
+    with pytest.raises(FitResultError, match=pattern) as info:
+        FitResult.from_json(dict(payload, **change))
+    assert "\n" not in str(info.value)
