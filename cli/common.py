@@ -79,8 +79,11 @@ def finite_float(low: float | None = None, *, open_low: bool = False):
 
 # --- escaping what input files bring to the terminal -------------------------------------------
 
-_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028\u2029]")
-_CONTROL_AND_NEWLINES = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+# C0 and C1 controls, the Unicode line and paragraph separators, and the bidirectional
+# embeddings, overrides and isolates (U+202A-U+202E, U+2066-U+2069: a name holding U+202E
+# would print the rest of its line reversed)
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028-\u202e\u2066-\u2069]")
+_CONTROL_AND_NEWLINES = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028-\u202e\u2066-\u2069]")
 
 
 def _escaped(match: re.Match) -> str:
@@ -116,8 +119,8 @@ def progress_printer(quiet: bool, prefix: str = "", stream=None):
 
     def log(message: str) -> None:
         interrupts.check()
-        if not quiet:
-            print(f"{prefix}{message}", file=stream or sys.stderr, flush=True)
+        if not quiet:  # one line each, whatever the names it quotes hold
+            print(f"{prefix}{escape(message, newlines=True)}", file=stream or sys.stderr, flush=True)
 
     return log
 

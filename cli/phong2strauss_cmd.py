@@ -12,7 +12,7 @@ import sys
 from strauss_fit.io.table_formats import describe_suffixes, output_suffixes
 
 from ._options import add_force_option, add_output_option, add_quality_option, add_quiet_option
-from .common import by_quality, image_side, positive_int, progress_printer
+from .common import by_quality, escape, image_side, positive_int, progress_printer
 
 FORMATS_HELP = {
     "phong2strauss": "one Phong material as KEY=VALUE pairs (ka kd ks exponent|n|Ns diffuse_color|Cd "
@@ -97,6 +97,8 @@ def _table(results: list[dict], direction: str) -> str:
             text += f" (held: {', '.join(r['held'])})"
         res = r["residual"]
         rows.append((r["name"], "ok", text, f"{res['rms']:.3g}", f"{res['delta_e2000_mean']:.3g}"))
+    # one line per material, sized on what is printed: names and messages quote input files
+    rows = [tuple(escape(cell, newlines=True) for cell in row) for row in rows]
     widths = [min(40, max(len(row[i]) for row in rows)) for i in range(2)]
     return "\n".join(
         f"{row[0]:<{widths[0]}}  {row[1]:<{widths[1]}}  {row[3]:>8}  {row[4]:>11}  {row[2]}" for row in rows
@@ -109,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     log = progress_printer(args.quiet)
 
     def warn(message: str) -> None:
-        print(f"{args.direction}: warning: {message}", file=sys.stderr, flush=True)
+        print(f"{args.direction}: warning: {escape(message, newlines=True)}", file=sys.stderr, flush=True)
 
     try:
         document = convert_files(

@@ -8,6 +8,14 @@ report (`strauss_fit.reporting.fit_report`), the capture's report
 (`strauss_fit.reporting.study_report`) all build theirs with it, and the blocks the
 first two share (the verdict and its warnings, the held parameters, a correlation table,
 the posterior's columns, number formats) are here once.
+
+Text quoted from input files (a fit result's warnings and notes, a material's name, a
+title) reaches both renderings: the HTML escapes it (`html.escape`), and the Markdown
+(`markdown_text`) keeps it on its line and inert — a line break becomes a space (a
+newline in a warning would end a table row or start a heading), a control character is
+shown as ``\\x1b``, and a ``<`` that would open an HTML tag is escaped, so that no viewer
+of REPORT.md renders markup the report did not write. The report's own Markdown
+(``**bold**``, backquoted code) is left as it is.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +32,21 @@ from typing import Any
 import numpy as np
 
 from ..errors import StraussFitError
+
+_LINE_BREAKS = re.compile(r"\r\n|[\n\r\x0b\x0c\x85\u2028\u2029]")
+# C0 and C1 controls and the bidirectional overrides (U+202A-U+202E, U+2066-U+2069)
+_CONTROLS = re.compile(r"[\x00-\x08\x0e-\x1f\x7f-\x84\x86-\x9f\u202a-\u202e\u2066-\u2069]")
+_TAG_START = re.compile(r"<(?=[A-Za-z/!?])")
+
+
+def markdown_text(text: str) -> str:
+    """``text`` as inert Markdown on one line (see the module): line breaks as spaces,
+    control characters as ``\\xNN``/``\\uNNNN``, ``<`` before a tag name as ``\\<``."""
+    text = _LINE_BREAKS.sub(" ", text)
+    text = _CONTROLS.sub(
+        lambda m: f"\\x{ord(m.group()):02x}" if ord(m.group()) < 256 else f"\\u{ord(m.group()):04x}", text
+    )
+    return _TAG_START.sub("\\<", text)
 
 
 @dataclass
@@ -93,24 +117,25 @@ class Document:
         return "\n\n".join(self._markdown_block(block) for block in self.blocks) + "\n"
 
     def _markdown_block(self, block: _Block) -> str:
+        text = markdown_text(block.text)
         if block.kind == "heading":
-            return "#" * block.level + " " + block.text
+            return "#" * block.level + " " + text
         if block.kind == "para":
-            return block.text
+            return text
         if block.kind == "bullets":
-            return "\n".join(f"- {item}" for item in block.items)
+            return "\n".join(f"- {markdown_text(item)}" for item in block.items)
         if block.kind == "table":
 
             def cell(text: str) -> str:
-                return text.replace("|", "\\|")
+                return markdown_text(text).replace("|", "\\|")
 
-            header = [cell(h) if block.escape_header else h for h in block.header]
+            header = [cell(h) if block.escape_header else markdown_text(h) for h in block.header]
             lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(block.header)]
             lines += ["| " + " | ".join(cell(c) for c in row) + " |" for row in block.rows]
             return "\n".join(lines)
         path = f"{self.assets}/{block.name}" if self.assets else block.name
-        link = f"![{block.text}]({path})"
-        return f"{link}\n\n*{block.text}*" if block.caption else link
+        link = f"![{text}]({path})"
+        return f"{link}\n\n*{text}*" if block.caption else link
 
     def html(self, title: str, style: str, *, spaced: bool = False) -> str:
         """The self-contained HTML page titled ``title`` with the CSS ``style``; ``spaced``

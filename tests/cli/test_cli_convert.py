@@ -233,3 +233,20 @@ def test_a_held_parameter_has_an_empty_deviation_in_the_csv(tmp_path, capsys):
     assert float(row["sd_color_r"]) > 0
     assert "metalness held at 0" in row["notes"]
     assert "(held: " in out and "metalness" in out.split("(held: ")[1]  # the console table says so too
+
+
+def test_newlines_and_bidi_controls_in_a_name_stay_on_one_line(tmp_path, capsys):
+    """A name with a newline (or a right-to-left override) once broke the progress line and
+    the table over several lines (hostile-user pass): every material is one line of each."""
+    materials = tmp_path / "s.json"
+    name = "x\nnewmtl evil\u202eKd 1 0 0"
+    materials.write_text(json.dumps([{"name": name, "color": "red", "smoothness": 0.5}]))
+    code, out, err = run(capsys, "strauss2phong", materials, "-o", tmp_path / "o.mtl", "--size", SIZE)
+    assert code == 1, err  # the one material is broken: reported, the output written
+    assert "\u202e" not in out + err
+    shown = "x\\nnewmtl evil\\u202eKd 1 0 0"
+    assert [line for line in err.splitlines() if "newmtl evil" in line] == [
+        line for line in err.splitlines() if shown in line
+    ]
+    assert sum(shown in line for line in out.splitlines()) == 1
+    assert not any(line.startswith(("newmtl evil", "Kd 1 0 0")) for line in (out + err).splitlines())

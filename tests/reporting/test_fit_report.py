@@ -82,7 +82,8 @@ def test_the_document_builder_renders_markdown_and_self_contained_html():
     doc.image("plot.png", b"\x89PNG fake", "a plot")
     doc.image("missing.png", None, "left out")
     assert doc.markdown() == (
-        "# Title\n\na <b> & c\n\n- one\n- two\n\n| x\\|y | z |\n|---|---|\n| 1 | a\\|b |\n\n"
+        # text may quote input files: a tag's "<" is escaped, so no viewer renders it as markup
+        "# Title\n\na \\<b> & c\n\n- one\n- two\n\n| x\\|y | z |\n|---|---|\n| 1 | a\\|b |\n\n"
         "![a plot](assets/plot.png)\n"
     )
     page = doc.html("T & t", "p{}")
@@ -90,3 +91,12 @@ def test_the_document_builder_renders_markdown_and_self_contained_html():
     assert '<p class="ok">a &lt;b&gt; &amp; c</p>' in page and '<ul class="warn"><li>one</li>' in page
     assert page.count("data:image/png;base64,") == 1 and page.endswith("</body></html>\n")
     assert list(doc.images) == ["plot.png"]
+
+
+def test_quoted_text_stays_inert_and_on_its_line_in_the_markdown():
+    doc = Document()
+    doc.table(["name", "reason"], [["ior", "held\n# heading\x1b[31m x < 1 \u202e"]])
+    doc.bullets(["a\r\nb"])
+    assert doc.markdown() == (
+        "| name | reason |\n|---|---|\n| ior | held # heading\\x1b[31m x < 1 \\u202e |\n\n- a b\n"
+    )
