@@ -47,6 +47,8 @@ def refuse_ignored(args: argparse.Namespace, how: str, *, scene: bool = True) ->
     from strauss_fit.models.modes import DEFAULT_TABLE_SIZE
     from strauss_fit.models.reflectance import reflectance_model
 
+    if getattr(args, "model", None) is not None:
+        reflectance_model(args.model)  # an unknown model is the error, before any option it would refuse
     defaults = {
         "solver": "lm",
         "loss": "auto",

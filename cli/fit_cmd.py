@@ -123,6 +123,8 @@ def parse_fixed(items: list[str]) -> tuple[tuple[str, float | tuple[float, ...]]
         name, sep, text = item.partition("=")
         if not sep or not name:
             raise StraussFitError(f"--fix expects NAME=VALUE, got {item!r}")
+        if any(name == earlier for earlier, _ in fixed):  # not the last one silently
+            raise StraussFitError(f"--fix {name} is given twice: give each parameter one value")
         try:
             numbers = tuple(float(v) for v in text.split(","))
         except ValueError:
@@ -151,7 +153,7 @@ def fit_options(args: argparse.Namespace, fixed, **more):
         starts=args.starts,
         mode=args.mode,
         table_size=args.table_size,
-        free=tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else None,
+        free=_free_names(args.free),
         fixed=fixed,
         fit_lights=args.fit_lights,
         noise=parse_noise(getattr(args, "noise", None)),
@@ -222,6 +224,18 @@ def is_batch(args: argparse.Namespace) -> bool:
         or output.is_dir()
         or args.output.endswith(("/", "\\"))
     )
+
+
+def _free_names(text: str | None) -> tuple[str, ...] | None:
+    """``--free a,b``'s names; None (the automatic choice) when not given or empty."""
+    if not text:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        from strauss_fit.errors import StraussFitError
+
+        raise StraussFitError(f"--free {text!r} names no parameter (leave it out for the automatic choice)")
+    return names
 
 
 def check_outputs(args: argparse.Namespace) -> Path | None:

@@ -269,6 +269,9 @@ def _set_up(scene: Scene, target: Target, options: FitOptions, say: Callable[[st
             raise StraussFitError(
                 f"cannot free unknown parameter(s) {', '.join(unknown)}; known: {', '.join(candidates)}"
             )
+        both = [n for n in options.free if n in fixed]
+        if both:
+            raise StraussFitError(f"{', '.join(both)} both freed and fixed: free a parameter or fix it, not both")
     return _SetUp(scene, target, material, candidates, fixed, exposure, reduction)
 
 

@@ -115,11 +115,24 @@ def read_image(path: str | Path, encoding: Encoding = "auto") -> LoadedImage:
         return _decode(oiio, path, readable, config, encoding)
 
 
+def _readable_suffixes(oiio) -> set[str]:
+    """The file suffixes OpenImageIO has a reader for (``exr``, ``png``, ...)."""
+    suffixes = set()
+    for entry in oiio.get_string_attribute("extension_list").split(";"):
+        suffixes.update(entry.partition(":")[2].split(","))
+    return suffixes - {""}
+
+
 def _decode(oiio, path: Path, readable: str, config, encoding: Encoding) -> LoadedImage:
     """`read_image`'s decoding of the file at ``readable`` (``path``'s bytes)."""
     image_input = oiio.ImageInput.open(readable, config)
     if image_input is None:
         detail = _first_line(oiio.geterror(), "unknown format").replace(readable, str(path))
+        # OpenImageIO blames the format when a file of a format it reads is empty or cut short
+        if os.path.getsize(readable) == 0:
+            detail = "the file is empty"
+        elif "could not find a format reader" in detail and path.suffix.lower().lstrip(".") in _readable_suffixes(oiio):
+            detail = f"not a readable {path.suffix.lower()} file (damaged or truncated?)"
         raise ImageError(f"cannot read image {path}: {detail}")
     try:
         spec = image_input.spec()

@@ -113,6 +113,11 @@ def write_raw(path, pixels):
         ("bad-fix", "smoothness = 1.5 is outside its range"),
         ("bad-fix-syntax", "--fix expects NAME=VALUE"),
         ("unknown-free", "cannot free unknown parameter"),
+        # once "the scene constrains none of the candidates", which blamed the scene
+        ("free-and-fix", "smoothness both freed and fixed: free a parameter or fix it, not both"),
+        ("free-no-name", "--free ',,' names no parameter"),
+        ("fix-twice", "--fix smoothness is given twice"),
+        ("unknown-model-first", "unknown reflectance model 'foo'"),  # not "--quality is not available"
     ],
 )
 def test_fit_bad_inputs_are_one_line_errors(tmp_path, scene, capsys, case, pattern):
@@ -143,6 +148,14 @@ def test_fit_bad_inputs_are_one_line_errors(tmp_path, scene, capsys, case, patte
         extra = ["--fix", "smoothness"]
     elif case == "unknown-free":
         extra = ["--free", "roughness"]
+    elif case == "free-and-fix":
+        extra = ["--free", "smoothness", "--fix", "smoothness=0.5"]
+    elif case == "free-no-name":
+        extra = ["--free", ",,"]
+    elif case == "fix-twice":
+        extra = ["--fix", "smoothness=0.3", "--fix", "smoothness=0.4"]
+    elif case == "unknown-model-first":
+        extra = ["--model", "foo", "--quality", "fast"]
     result = tmp_path / "r.json"
     code, _, err = run(capsys, "fit", target, "--scene", scene, "-o", result, *extra)
     assert code == 2

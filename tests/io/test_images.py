@@ -29,6 +29,25 @@ def test_other_truncated_images_are_refused(tmp_path, suffix):
         read_image(path)
 
 
+@pytest.mark.parametrize(
+    "suffix,keep,message",
+    [
+        (".exr", 0, "the file is empty"),
+        (".exr", 60, "not a readable .exr file (damaged or truncated?)"),
+        (".jpg", 0, "the file is empty"),
+    ],
+)
+def test_an_empty_or_cut_short_file_is_not_blamed_on_its_format(tmp_path, suffix, keep, message):
+    """OpenImageIO says it "could not find a format reader" for an empty or cut-short file of
+    a format it reads (hostile-user pass): the message says what is wrong with the file."""
+    path = tmp_path / f"image{suffix}"
+    write_image(path, np.random.default_rng(1).random((48, 48, 3)))
+    path.write_bytes(path.read_bytes()[:keep])
+    with pytest.raises(ImageError) as info:
+        read_image(path)
+    assert str(info.value) == f"cannot read image {path}: {message}"
+
+
 def test_a_png_renamed_exr_is_decoded_as_the_png_it_is(tmp_path):
     png = tmp_path / "real.png"
     write_image(png, np.full((8, 8, 3), 0.25))
