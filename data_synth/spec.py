@@ -167,6 +167,8 @@ def _parse_group(table: Any, number: int, source: str, base_dir: Path, seen: set
     if unknown:
         raise w.error(f"unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_GROUP_KEYS))}")
     model_name = table.get("model")
+    if model_name is None:
+        raise w.error(f"missing key 'model'; one of {', '.join(MODELS)}")
     if model_name not in MODELS:
         raise w.error(f"unknown model {model_name!r}; expected one of {', '.join(MODELS)}")
     model = MODELS[model_name]

@@ -190,6 +190,14 @@ def test_registry_ranges_and_names_are_one_line_errors(tmp_path, model, paramete
     assert message in str(caught.value) and "\n" not in str(caught.value)
 
 
+def test_a_group_without_a_model_is_told_so(tmp_path):
+    write_scenes(tmp_path)
+    table = group("g", "strauss", {})
+    del table["model"]
+    with pytest.raises(SpecError, match="\\[\\[group\\]\\] 'g': missing key 'model'; one of strauss, phong"):
+        parse_spec({"group": [table]}, base_dir=tmp_path)
+
+
 def test_a_sidecar_out_of_the_registry_range_is_refused(tmp_path):
     write_scenes(tmp_path)
     spec = parse_spec({"group": [group("la", "lambert", {"albedo": [0.5, 0.5, 0.5]})]}, base_dir=tmp_path)
