@@ -6,9 +6,9 @@ bring to the terminal, progress lines. The option groups themselves are added by
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 
+from strauss_fit._escaping import escape as escape  # the one escaping, shared with the reports
 from strauss_fit.errors import StraussFitError
 from strauss_fit.fitting.options import QUALITY_PRESETS
 
@@ -78,23 +78,6 @@ def finite_float(low: float | None = None, *, open_low: bool = False):
 
 
 # --- escaping what input files bring to the terminal -------------------------------------------
-
-# C0 and C1 controls, the Unicode line and paragraph separators, and the bidirectional
-# embeddings, overrides and isolates (U+202A-U+202E, U+2066-U+2069: a name holding U+202E
-# would print the rest of its line reversed)
-_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028-\u202e\u2066-\u2069]")
-_CONTROL_AND_NEWLINES = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028-\u202e\u2066-\u2069]")
-
-
-def _escaped(match: re.Match) -> str:
-    code = ord(match.group())
-    return {9: "\\t", 10: "\\n", 13: "\\r"}.get(code) or (f"\\x{code:02x}" if code < 256 else f"\\u{code:04x}")
-
-
-def escape(text: str, *, newlines: bool = False) -> str:
-    """``text`` with control characters (an ESC sequence in a material name, say) shown as
-    ``\\x1b``; with ``newlines`` also tab, CR and LF (for one-line messages)."""
-    return (_CONTROL_AND_NEWLINES if newlines else _CONTROL).sub(_escaped, text)
 
 
 class EscapingStream:

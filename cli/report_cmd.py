@@ -186,8 +186,13 @@ def run(args: argparse.Namespace) -> int:
         )
         args.target, args.scene, args.mask, args.encoding = (inputs[name] for name in RECORDED_INPUTS)
     page, markdown, folder = report_paths(args.output)
-    inputs = {"--fit": args.fit, "--chain": args.chain, "--target": args.target, "--scene": args.scene}
-    inputs["--mask"] = args.mask
+    inputs = {
+        "--fit": args.fit,
+        "--chain": args.chain,
+        "--target": args.target,
+        "--scene": args.scene,
+        "--mask": args.mask,
+    }
     check_distinct({"-o": page, "-o's Markdown": markdown}, inputs)
     check_outside(folder, "-o", inputs)
 

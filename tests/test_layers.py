@@ -22,6 +22,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "_version",
             "_environment",
+            "_escaping",
             "errors",
             "numerics",
             "precision",

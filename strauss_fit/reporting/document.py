@@ -31,22 +31,18 @@ from typing import Any
 
 import numpy as np
 
+from .._escaping import escape
 from ..errors import StraussFitError
 
 _LINE_BREAKS = re.compile(r"\r\n|[\n\r\x0b\x0c\x85\u2028\u2029]")
-# C0 and C1 controls and the bidirectional overrides (U+202A-U+202E, U+2066-U+2069)
-_CONTROLS = re.compile(r"[\x00-\x08\x0e-\x1f\x7f-\x84\x86-\x9f\u202a-\u202e\u2066-\u2069]")
 _TAG_START = re.compile(r"<(?=[A-Za-z/!?])")
 
 
 def markdown_text(text: str) -> str:
     """``text`` as inert Markdown on one line (see the module): line breaks as spaces,
-    control characters as ``\\xNN``/``\\uNNNN``, ``<`` before a tag name as ``\\<``."""
-    text = _LINE_BREAKS.sub(" ", text)
-    text = _CONTROLS.sub(
-        lambda m: f"\\x{ord(m.group()):02x}" if ord(m.group()) < 256 else f"\\u{ord(m.group()):04x}", text
-    )
-    return _TAG_START.sub("\\<", text)
+    control characters as ``\\xNN``/``\\uNNNN`` (`strauss_fit._escaping.escape`), ``<``
+    before a tag name as ``\\<``."""
+    return _TAG_START.sub("\\<", escape(_LINE_BREAKS.sub(" ", text)))
 
 
 @dataclass
