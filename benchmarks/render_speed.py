@@ -23,6 +23,11 @@ What it measures (all in one process):
    checkerboard background at depth 4, for reference.
 4. The fixed cost of one call: the same scene at 8 x 8 pixels (dispatch, argument
    handling, casting), which bounds the speed-up reachable at any size.
+5. A precomputed plan: the opaque material over black and over a checkerboard, rendered
+   without a plan (``render`` makes its own), with ``plan_render(scene)`` (made once
+   without the material, as a caller rendering many materials would) and with
+   ``plan_render(scene, material)``, passed as ``render(..., plan=plan)``. A plan is
+   a shortcut, so a row with one must not be slower than the row without.
 
 Timing: every configuration is first called from empty caches (its compile time), then
 warmed, then the warm calls are *interleaved*: each of ``--repeats`` rounds calls every
@@ -81,7 +86,7 @@ from bench_common import machine, write_json  # noqa: E402
 from numpy_reference import arrays_from_scene, check_against_strauss_fit, render_numpy  # noqa: E402
 
 import strauss_fit  # noqa: E402
-from strauss_fit import Background, Camera, DirectionalLights, Lights, Material, Scene, render  # noqa: E402
+from strauss_fit import Background, Camera, DirectionalLights, Lights, Material, Scene, plan_render, render  # noqa: E402
 from strauss_fit.models.strauss import DEFAULT_TABLE_SIZE, MODES  # noqa: E402
 
 DTYPES = (jnp.float32, jnp.float64)
@@ -138,9 +143,9 @@ def time_interleaved(calls: dict, repeats: int) -> dict:
     }
 
 
-def jax_call(scene: Scene, mode: str, dtype):
+def jax_call(scene: Scene, mode: str, dtype, plan=None):
     def call():
-        image, mask = render(scene, mode=mode, dtype=dtype)
+        image, mask = render(scene, mode=mode, dtype=dtype, plan=plan)
         return jax.block_until_ready((image, mask))
 
     return call
@@ -184,7 +189,7 @@ def row(
 def print_table(title: str, rows: list[dict]) -> None:
     print(f"\n{title}")
     header = (
-        f"{'case':<26} {'mode':<8} {'dtype':<8} {'ms/frame':>9} {'MP/s':>8} {'x NumPy':>8} "
+        f"{'case':<38} {'mode':<8} {'dtype':<8} {'ms/frame':>9} {'MP/s':>8} {'x NumPy':>8} "
         f"{'min ms':>8} {'1st call ms':>11} {'max |err|':>10}"
     )
     print(header)
@@ -194,7 +199,7 @@ def print_table(title: str, rows: list[dict]) -> None:
         error = "" if r["max_abs_error_vs_exact_float64"] is None else f"{r['max_abs_error_vs_exact_float64']:.1e}"
         first = "" if r["first_call_ms"] is None else f"{r['first_call_ms']:.0f}"
         print(
-            f"{r['label']:<26} {r['mode']:<8} {r['dtype']:<8} {r['ms_per_frame']:>9.2f} "
+            f"{r['label']:<38} {r['mode']:<8} {r['dtype']:<8} {r['ms_per_frame']:>9.2f} "
             f"{r['megapixels_per_s']:>8.2f} {ratio:>8} {r['min_ms']:>8.2f} {first:>11} {error:>10}"
         )
 
@@ -254,6 +259,17 @@ def main(args: argparse.Namespace) -> dict:
             )
         )
 
+    opaque_checker = make_scene(size, depth=4, background=checkerboard())
+    for background, scene in (("black", local), ("checkerboard", opaque_checker)):
+        for plan_label, plan in (
+            ("no plan", None),
+            ("plan_render(scene)", plan_render(scene)),
+            ("plan_render(scene, mat.)", plan_render(scene, scene.material)),
+        ):
+            for dtype in DTYPES:
+                call = jax_call(scene, "exact", dtype, plan)
+                configs.append(("plan", f"{background}, {plan_label}", "exact", jnp.dtype(dtype).name, scene, call))
+
     # first calls, each from empty caches (the depth-4 opaque rows share one compilation
     # with the local rows, so they are compiled once here too)
     firsts = {i: (None if c[1] == "NumPy reference" else first_call(c[5])) for i, c in enumerate(configs)}
@@ -262,15 +278,15 @@ def main(args: argparse.Namespace) -> dict:
 
     # accuracy: against exact float64 of the same scene
     references = {}
-    rows = {"local": [], "global": [], "overhead": []}
-    for i, (section, label, mode, dtype_name, scene, _) in enumerate(configs):
+    rows = {"local": [], "global": [], "overhead": [], "plan": []}
+    for i, (section, label, mode, dtype_name, scene, call) in enumerate(configs):
         key = id(scene)
         if key not in references:
             references[key] = np.asarray(render(scene, mode="exact", dtype=jnp.float64)[0])
         if label == "NumPy reference":
             image = render_numpy(**numpy_args)[0]
-        else:
-            image = np.asarray(render(scene, mode=mode, dtype=jnp.dtype(dtype_name))[0], dtype=np.float64)
+        else:  # the timed call's own image (a plan row's: rendered with its plan)
+            image = np.asarray(call()[0], dtype=np.float64)
         error = None if section == "overhead" else float(np.max(np.abs(image - references[key])))
         timing = dict(timings[i], first_s=firsts[i])
         n = scene.camera.width * scene.camera.height
@@ -288,6 +304,10 @@ def main(args: argparse.Namespace) -> dict:
         rows["global"],
     )
     print_table("Fixed cost of one render() call", rows["overhead"])
+    print_table(
+        "A precomputed plan (render(..., plan=plan)): opaque material, depth 4; ratio against the NumPy local frame",
+        rows["plan"],
+    )
 
     exact32 = next(
         r for r in rows["local"] if r["mode"] == "exact" and r["dtype"] == "float32" and r["label"] != "NumPy reference"
@@ -313,6 +333,7 @@ def main(args: argparse.Namespace) -> dict:
         "local": rows["local"],
         "global": rows["global"],
         "overhead": rows["overhead"],
+        "plan": rows["plan"],
     }
     write_json(args.json, result)
     return result

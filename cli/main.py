@@ -88,6 +88,16 @@ def _error(message: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command in ``argv`` (default: the process's arguments) and return its exit
+    status. Called without ``argv`` — the ``strauss-fit`` process itself — it does not
+    return: it leaves the process with that status (`interrupts.leave_process`)."""
+    code = _run(argv)
+    if argv is None:
+        interrupts.leave_process(code)
+    return code
+
+
+def _run(argv: list[str] | None) -> int:
     from .common import EscapingStream
 
     previous = interrupts.install()

@@ -116,3 +116,36 @@ def is_traced(tree: Any) -> bool:
     such values cannot be checked or turned into NumPy numbers. A tuple such as
     ``(p[0], p[1], p[2])`` inside ``jax.grad`` is traced through its elements."""
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
+
+
+def device_array(value: Any, dtype: Any = None) -> Array:
+    """``jnp.asarray(value, dtype)`` without running a compiled program where ``value`` is
+    concrete (a Python number, a list or tuple of them, a NumPy array).
+
+    ``jnp.asarray`` of such a value runs a small XLA program (``stage``,
+    ``convert_element_type``) for each new shape and dtype it meets: on a cold start each one
+    is traced, compiled and written to the compilation cache, and every later process reads
+    it back — a dozen of them cost a command about 0.1 s before it had done anything. Here
+    the value is converted by NumPy and copied to the device (`jax.device_put`), with the
+    dtype and weak type ``jnp.asarray`` gives it (a Python number stays weakly typed, so that
+    float32 work is not promoted to float64 by it). JAX arrays and traced values go through
+    ``jnp.asarray``."""
+    if isinstance(value, jax.Array) or is_traced(value):  # (a tuple of traced numbers too)
+        return jnp.asarray(value, dtype=dtype)
+    if dtype is None and isinstance(value, (bool, int, float, complex)):
+        return jax.device_put(value)  # weakly typed, the default width: as jnp.asarray
+    array = np.asarray(value, dtype=dtype)
+    if array.dtype == object or array.dtype.kind not in "biufc":
+        return jnp.asarray(value, dtype=dtype)  # what NumPy cannot hold as numbers: JAX's own rules and errors
+    return jax.device_put(array.astype(jax.dtypes.canonicalize_dtype(array.dtype), copy=False))
+
+
+def ones_like(value: Any) -> Array:
+    """``jnp.ones_like(value)`` (same shape, dtype and weak type) without a compiled program
+    where ``value`` is concrete (see `device_array`)."""
+    if isinstance(value, jax.core.Tracer) or not isinstance(value, jax.Array):
+        return jnp.ones_like(value)
+    if value.weak_type and value.ndim == 0:  # a weakly typed number: from a Python one
+        one = jax.device_put(value.dtype.type(1).item())
+        return one if one.dtype == value.dtype else jnp.ones_like(value)
+    return jax.device_put(np.ones(value.shape, dtype=value.dtype))

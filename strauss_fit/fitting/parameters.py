@@ -23,6 +23,7 @@ import numpy as np
 from jax import Array
 
 from ..models.material import STRAUSS_PARAMETERS, Material
+from ..numerics import device_array
 from ..scene.lights import Lights
 
 #: The material parameters a fit can free, and their entries in the vector θ (the colour 3).
@@ -153,7 +154,7 @@ def material_with(base: Material, values: dict[str, Array]) -> Material:
     fields.update({k: v for k, v in values.items() if k in MATERIAL_SIZES})
     material = object.__new__(Material)
     for name, value in fields.items():
-        object.__setattr__(material, name, jnp.asarray(value))
+        object.__setattr__(material, name, device_array(value))
     return material
 
 

@@ -41,6 +41,7 @@ from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
 from ..io.targets import Target
 from ..models.material import Material
+from ..numerics import ones_like
 from ..precision import uses_float64
 from ..rendering.coverage import fully_covered, pixel_coverage, silhouette_blend
 from ..rendering.strauss import Prepared, RenderPlan, first_pixels, prepare, shade_prepared, take_pixels
@@ -357,7 +358,7 @@ def scaled(prepared: Prepared, lights: Lights) -> Prepared:
 def unit_intensity_scene(scene: Scene) -> Scene:
     """The scene with every light's intensity 1, so that prepared irradiance holds only
     the geometric attenuation and intensities can be applied (or fitted) later."""
-    ones = {k: jnp.ones_like(v) for k, v in scene.lights.intensities().items()}
+    ones = {k: ones_like(v) for k, v in scene.lights.intensities().items()}
     return eqx.tree_at(lambda s: s.lights, scene, scene.lights.with_intensities(ones))
 
 

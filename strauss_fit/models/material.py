@@ -12,7 +12,7 @@ import numpy as np
 from jax import Array
 
 from ..errors import MaterialError
-from ..numerics import is_traced
+from ..numerics import device_array, is_traced
 from ..precision import uses_float64
 from ._parameter import Parameter
 
@@ -142,7 +142,9 @@ def check_values(
 
 def _as_float(value: Any, dtype: Any) -> Array:
     """A floating-point array (integers such as ``(1, 1, 1)`` become the default float)."""
-    arr = jnp.asarray(value, dtype=dtype)
+    if dtype is None and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)  # what the conversion below would give, without a compiled program
+    arr = device_array(value, dtype)
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = arr.astype(jnp.result_type(float))
     return arr
@@ -225,4 +227,5 @@ class Material(eqx.Module):
     @uses_float64
     def astype(self, dtype: Any) -> Material:
         """The same material with every leaf cast to ``dtype``."""
-        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype=dtype), self)
+        # a material's few numbers: cast on the host where they are concrete (no compiled program)
+        return jax.tree_util.tree_map(lambda x: device_array(x if is_traced(x) else np.asarray(x), dtype), self)

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
-from ..numerics import dot, safe_arccos, safe_divide, safe_normalize
+from ..numerics import device_array, dot, safe_arccos, safe_divide, safe_normalize
 from ..precision import uses_float64
 from .camera import Rays
 
@@ -38,12 +39,12 @@ class Background(eqx.Module):
     """A background; see the module docstring for the kinds and their fields."""
 
     kind: str = eqx.field(static=True, default="color")
-    color: Array = eqx.field(default_factory=uses_float64(lambda: jnp.zeros(3)))
-    point: Array = eqx.field(default_factory=uses_float64(lambda: jnp.array([0.0, 0.0, -2.0])))
-    normal: Array = eqx.field(default_factory=uses_float64(lambda: jnp.array([0.0, 0.0, 1.0])))
-    square_size: Array = eqx.field(default_factory=uses_float64(lambda: jnp.asarray(0.5)))
-    colors: Array = eqx.field(default_factory=uses_float64(lambda: jnp.array([[0.9, 0.9, 0.9], [0.1, 0.1, 0.1]])))
-    sharpness: Array = eqx.field(default_factory=uses_float64(lambda: jnp.asarray(20.0)))
+    color: Array = eqx.field(default_factory=uses_float64(lambda: device_array(np.zeros(3))))
+    point: Array = eqx.field(default_factory=uses_float64(lambda: device_array([0.0, 0.0, -2.0])))
+    normal: Array = eqx.field(default_factory=uses_float64(lambda: device_array([0.0, 0.0, 1.0])))
+    square_size: Array = eqx.field(default_factory=uses_float64(lambda: device_array(0.5)))
+    colors: Array = eqx.field(default_factory=uses_float64(lambda: device_array([[0.9, 0.9, 0.9], [0.1, 0.1, 0.1]])))
+    sharpness: Array = eqx.field(default_factory=uses_float64(lambda: device_array(20.0)))
     image: Array | None = None
 
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..numerics import dot, safe_normalize, safe_sqrt
+from ..numerics import device_array, dot, safe_normalize, safe_sqrt
 from ..precision import uses_float64
 
 #: Height of the orthographic rays' origin plane above the sphere (any value > 1 works).
@@ -32,10 +32,10 @@ class Camera(eqx.Module):
     projection: str = eqx.field(static=True)
     width: int = eqx.field(static=True)
     height: int = eqx.field(static=True)
-    position: Array = eqx.field(default_factory=uses_float64(lambda: jnp.array([0.0, 0.0, 4.0])))
-    look_at: Array = eqx.field(default_factory=uses_float64(lambda: jnp.zeros(3)))
-    up: Array = eqx.field(default_factory=uses_float64(lambda: jnp.array([0.0, 1.0, 0.0])))
-    fov_deg: Array = eqx.field(default_factory=uses_float64(lambda: jnp.asarray(30.0)))
+    position: Array = eqx.field(default_factory=uses_float64(lambda: device_array([0.0, 0.0, 4.0])))
+    look_at: Array = eqx.field(default_factory=uses_float64(lambda: device_array(np.zeros(3))))
+    up: Array = eqx.field(default_factory=uses_float64(lambda: device_array([0.0, 1.0, 0.0])))
+    fov_deg: Array = eqx.field(default_factory=uses_float64(lambda: device_array(30.0)))
 
     def resized(self, width: int, height: int) -> Camera:
         """The same camera with another image size."""

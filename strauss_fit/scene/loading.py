@@ -33,6 +33,7 @@ import numpy as np
 from ..errors import MaterialError, SceneError, StraussFitError
 from ..io.files import check_input_file
 from ..models.material import Material
+from ..numerics import device_array
 from ..precision import uses_float64
 from .background import BACKGROUND_KINDS, Background
 from .camera import Camera
@@ -211,7 +212,7 @@ def _parse_camera(table: Any, source: str) -> Camera:
     if np.linalg.norm(np.cross(forward, up)) < 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
         raise w.error("up must not be parallel to the viewing direction")
     return Camera(
-        "perspective", width, height, jnp.asarray(position), jnp.asarray(look_at), jnp.asarray(up), jnp.asarray(fov)
+        "perspective", width, height, device_array(position), device_array(look_at), device_array(up), device_array(fov)
     )
 
 
@@ -257,21 +258,21 @@ def _parse_lights(items: Any, source: str) -> tuple[Lights, dict[tuple[str, int]
         names[("ambient", 0)] = f"[[light]] {listed} (ambient, added)" if several else f"[[light]] {listed}"
     lights = Lights(
         directional=DirectionalLights(
-            direction=jnp.asarray(np.array([d[0] for d in directional])),
-            intensity=jnp.asarray([d[1] for d in directional]),
-            color=jnp.asarray([d[2] for d in directional]),
+            direction=device_array(np.array([d[0] for d in directional])),
+            intensity=device_array([d[1] for d in directional]),
+            color=device_array([d[2] for d in directional]),
         )
         if directional
         else None,
         point=PointLights(
-            position=jnp.asarray([p[0] for p in point]),
-            intensity=jnp.asarray([p[1] for p in point]),
-            color=jnp.asarray([p[2] for p in point]),
-            attenuation=jnp.asarray([p[3] for p in point]),
+            position=device_array([p[0] for p in point]),
+            intensity=device_array([p[1] for p in point]),
+            color=device_array([p[2] for p in point]),
+            attenuation=device_array([p[3] for p in point]),
         )
         if point
         else None,
-        ambient=jnp.asarray(sum(ambient)) if ambient else None,
+        ambient=device_array(sum(ambient)) if ambient else None,
     )
     return lights, names
 
@@ -284,7 +285,7 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
     if kind not in BACKGROUND_KINDS:
         raise w.error(f"kind must be one of {', '.join(BACKGROUND_KINDS)}, got {kind!r}")
     w.keys(table, _BACKGROUND_KEYS[kind])
-    color = jnp.asarray(w.vector(table, "color", [0.0, 0.0, 0.0], low=0.0))
+    color = device_array(w.vector(table, "color", [0.0, 0.0, 0.0], low=0.0))
     if kind == "color":
         return Background("color", color)
     if kind == "checkerboard":
@@ -295,11 +296,11 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
         return Background(
             "checkerboard",
             color,
-            point=jnp.asarray(w.vector(table, "point", [0.0, 0.0, -2.0])),
-            normal=jnp.asarray(w.vector(table, "normal", [0.0, 0.0, 1.0], nonzero=True)),
-            square_size=jnp.asarray(w.number(table, "square_size", 0.5, low=0.0, open_low=True)),
-            colors=jnp.asarray(pair),
-            sharpness=jnp.asarray(w.number(table, "sharpness", 20.0, low=0.0, open_low=True)),
+            point=device_array(w.vector(table, "point", [0.0, 0.0, -2.0])),
+            normal=device_array(w.vector(table, "normal", [0.0, 0.0, 1.0], nonzero=True)),
+            square_size=device_array(w.number(table, "square_size", 0.5, low=0.0, open_low=True)),
+            colors=device_array(pair),
+            sharpness=device_array(w.number(table, "sharpness", 20.0, low=0.0, open_low=True)),
         )
     if "image" not in table or not isinstance(table["image"], str):
         raise w.error('an environment background needs image = "PATH" (latitude-longitude)')
@@ -319,7 +320,7 @@ def _parse_background(table: Any, source: str, base_dir: Path) -> Background:
     image = image * scale
     if not np.all(np.isfinite(image)):
         raise w.error(f"scale = {scale:g} makes environment image {path} overflow to infinity")
-    return Background("environment", color, image=jnp.asarray(image))
+    return Background("environment", color, image=device_array(image))
 
 
 # --- the renderer's range ------------------------------------------------------------------

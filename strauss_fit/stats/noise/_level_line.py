@@ -141,11 +141,6 @@ def _bin_variances(
 #: Relative change of (a, b) between two clipped passes of `estimate_noise_model`
 #: below which the passes have reached their fixed point (the rest would repeat them).
 FIXED_POINT = 1e-12
-
-
-#: Relative change of (a, b) between two clipped passes of `estimate_noise_model`
-#: below which the passes have reached their fixed point (the rest would repeat them).
-FIXED_POINT = 1e-12
 #: Fewest residual positions the level line is fitted to (and left after censoring).
 _MIN_POSITIONS = 200
 

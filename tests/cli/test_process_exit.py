@@ -1,0 +1,56 @@
+"""How the ``strauss-fit`` process ends (`strauss_fit_cli.interrupts.leave_process`): it
+skips the interpreter's teardown, but keeps everything a normal exit gives — the status,
+the whole of the buffered output, the exit handlers."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+# The process as the console script runs it (main() without arguments), with an exit handler
+# of its own that must still run, and its output buffered (a pipe, not a terminal).
+SCRIPT = """
+import atexit, sys
+atexit.register(lambda: print("exit handler ran"))
+sys.argv = ["strauss-fit", *sys.argv[1:]]
+from strauss_fit_cli.main import main
+main()
+print("main() returned")  # it must not: the process ends inside it
+"""
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", SCRIPT, *args], capture_output=True, text=True, timeout=300)
+
+
+def test_success_keeps_output_and_exit_handlers():
+    done = run("--version")
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("strauss-fit ") and lines[-1] == "exit handler ran"
+    assert "main() returned" not in done.stdout
+
+
+@pytest.mark.parametrize("args", [("fit", "no-such-target.exr"), ("no-such-command",)])
+def test_error_status_and_message_survive(args, tmp_path):
+    done = run(*args)
+    assert done.returncode == 2
+    assert done.stderr.startswith("strauss-fit: error: ") and len(done.stderr.strip().splitlines()) == 1
+    assert done.stdout.splitlines() == ["exit handler ran"]
+
+
+def test_a_long_buffered_output_arrives_whole():
+    # --help of every command: many kilobytes written through a pipe's buffer, flushed
+    # before the process leaves
+    in_process = "import sys; from strauss_fit_cli.main import main; sys.exit(main(['render', '--help']))"
+    expected = subprocess.run(
+        [sys.executable, "-c", in_process],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout
+    done = run("render", "--help")
+    assert done.returncode == 0
+    assert len(expected) > 1000 and done.stdout == expected + "exit handler ran\n"
