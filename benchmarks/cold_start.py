@@ -6,8 +6,11 @@ Runs the README's single-target fit (``strauss-fit fit
 data_synth/bundled/strauss-noisy-0000.exr --scene data_synth/scenes/two_lights.toml -o
 fit.json --render-fit fit.png --force``), each time in a new Python process with a fresh
 ``HOME`` (a temporary folder, so that the compilation cache and the traced kernels beside
-it start empty, in their default place ``~/.cache/strauss-fit``, and Python's bytecode of the sources in
-``PYTHONPYCACHEPREFIX`` there):
+it start empty, in their default place ``~/.cache/strauss-fit``) and a fresh copy of
+strauss-fit's sources there (first on ``PYTHONPATH``, without bytecode: the cold run
+compiles it, as a new checkout's first command does; the installed libraries' bytecode
+is used as pip wrote it). The process ends the way the ``strauss-fit`` process does
+(`strauss_fit_cli.interrupts.leave_process`):
 
 - **cold**: the first run, with the caches empty;
 - **cached**: a new process with the caches the cold run left (what every later command
@@ -83,6 +86,7 @@ def probe(stats_path: Path, calls: int) -> None:
         counts[event] = counts.get(event, 0) + 1
         seconds[event] = seconds.get(event, 0.0) + duration
 
+    assert Path(strauss_fit.__file__).is_relative_to(Path.home()), "not the fresh copy of the sources"
     jax.monitoring.register_event_listener(on_event)
     jax.monitoring.register_event_duration_secs_listener(on_duration)
     rows = []
@@ -108,6 +112,9 @@ def probe(stats_path: Path, calls: int) -> None:
             }
         )
     stats_path.write_text(json.dumps({"import_s": imported, "calls": rows}))
+    from strauss_fit_cli.interrupts import leave_process
+
+    leave_process(0)  # as the strauss-fit process ends (its wall time as the parent sees it)
 
 
 def _cache_files() -> dict[str, int]:
@@ -125,11 +132,12 @@ def run_process(home: Path, work: Path, calls: int) -> dict:
     stats = work / "stats.json"
     environment = {k: v for k, v in os.environ.items() if not k.startswith(("STRAUSS_FIT_", "JAX_", "XLA_"))}
     environment["HOME"] = str(home)
-    # Python's bytecode in that HOME too: the cold run compiles the sources as a fresh
-    # clone's first command does, later runs reuse it (whatever PYTHONDONTWRITEBYTECODE says
-    # here), and the working tree gets no __pycache__
+    # the copy of the sources in that HOME, before the editable install's: the cold run
+    # compiles their bytecode as a fresh clone's first command does, later runs reuse it
+    # (whatever PYTHONDONTWRITEBYTECODE says here)
     environment.pop("PYTHONDONTWRITEBYTECODE", None)
-    environment["PYTHONPYCACHEPREFIX"] = str(home / "pycache")
+    environment.pop("PYTHONPYCACHEPREFIX", None)
+    environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(home / "src"), environment.get("PYTHONPATH")]))
     command = [sys.executable, str(Path(__file__).resolve()), "--probe", str(stats), "--calls", str(calls)]
     began = time.perf_counter()
     finished = subprocess.run(command, cwd=work, env=environment, capture_output=True, text=True)
@@ -163,6 +171,9 @@ def main() -> None:
         try:
             work = home / "work"
             work.mkdir()
+            fresh = shutil.ignore_patterns("__pycache__")
+            shutil.copytree(ROOT / "strauss_fit", home / "src" / "strauss_fit", ignore=fresh)
+            shutil.copytree(ROOT / "cli", home / "src" / "strauss_fit_cli", ignore=fresh)
             cold = run_process(home, work, calls=1)
             cached = run_process(home, work, calls=2)
         finally:

@@ -221,7 +221,7 @@ def fit_steps(
     result = yield from _result(
         kept, outcome, setup.fixed, target, options, first.noise, sigma_ref, fits_done, started, solve_time
     )
-    result.notes.extend(note for note in (setup.reduction, first.edge_note) if note)
+    result.notes.extend(note for note in (setup.reduction, first.edge_note, first.noise.sidecar_problem) if note)
     return result
 
 
@@ -515,7 +515,8 @@ def _verdict_steps(context: _Context, kept: Round, noise: NoiseModel) -> Steps:
         say(f"the model cannot reproduce the target: fitting again with the {MISMATCH_LOSS} loss")
         robust_sigma = _image_noise(noise, target) if MISMATCH_LOSS in ROBUST_LOSSES else None
         refit = yield from _refit_with_loss(kept, target, options, MISMATCH_LOSS, robust_sigma, context.sigma_ref, say)
-        outcome = yield from _conclude(refit, target, options, noise, MISMATCH_LOSS, say)
+        # the same pixels under the same lights: what Strauss materials reach there is known
+        outcome = yield from _conclude(refit, target, options, noise, MISMATCH_LOSS, say, outcome.reachable)
         kept = refit
     return kept, outcome
 
@@ -568,6 +569,19 @@ class _Outcome:
     diagnosis: Diagnosis
     #: (N, 3) each used value's noise σ at the fitted radiance ``model``; None when unknown.
     sigma: np.ndarray | None
+    #: What Strauss materials reach at the used pixels, as far as the verdict needed it.
+    reachable: _Reachable | None = None
+
+
+@dataclass(frozen=True)
+class _Reachable:
+    """(N, 3) at the used pixels: a white matte plastic's values (`reachable_floor_steps`)
+    and, where the verdict needed it, the brightest values any material reaches
+    (`reachable_maximum_steps`; None when not computed). They depend on the pixels, the
+    lights and the exposure, not on the fit: a refit of the same round reuses them."""
+
+    white_floor: np.ndarray
+    maximum: np.ndarray | None
 
 
 def _image_noise(noise: NoiseModel, target: Target) -> np.ndarray | None:
@@ -576,9 +590,16 @@ def _image_noise(noise: NoiseModel, target: Target) -> np.ndarray | None:
 
 
 def _conclude(
-    kept: Round, target: Target, options: FitOptions, noise: NoiseModel, loss: str, say: Callable[[str], None]
+    kept: Round,
+    target: Target,
+    options: FitOptions,
+    noise: NoiseModel,
+    loss: str,
+    say: Callable[[str], None],
+    reachable: _Reachable | None = None,
 ) -> Steps:
-    """The fitted image of ``kept`` and the verdict on it (`diagnose`)."""
+    """The fitted image of ``kept`` and the verdict on it (`diagnose`); ``reachable``:
+    what an earlier conclusion on the same pixels and lights found (`_Reachable`)."""
     solved, scene, plan = kept.solved, kept.scene, kept.plan
     problem, layout = solved.problem, solved.problem.layout
     fitted_values = layout.split(solved.x)
@@ -599,9 +620,15 @@ def _conclude(
     pinned = np.asarray(problem.pinned)
     reach = None
     if not free_lights:
-        floor = np.maximum(model, problem.real((yield from reachable_floor_steps(problem))))
-        if _may_be_out_of_reach(problem.real(problem.target), floor, sigma):
-            reach = problem.real((yield from reachable_maximum_steps(problem)))
+        if reachable is None or reachable.white_floor.shape != model.shape:
+            reachable = _Reachable(problem.real((yield from reachable_floor_steps(problem))), None)
+        if _may_be_out_of_reach(problem.real(problem.target), np.maximum(model, reachable.white_floor), sigma):
+            if reachable.maximum is None:
+                maximum = problem.real((yield from reachable_maximum_steps(problem)))
+                reachable = _Reachable(reachable.white_floor, maximum)
+            reach = reachable.maximum
+    else:
+        reachable = None
     diagnosis = diagnose(
         problem,
         model,
@@ -614,7 +641,7 @@ def _conclude(
         index=kept.index,
         sigma=sigma,
     )
-    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis, sigma)
+    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis, sigma, reachable)
 
 
 def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, sigma: np.ndarray | None) -> bool:

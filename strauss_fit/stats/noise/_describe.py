@@ -74,6 +74,34 @@ def read_sidecar(path: str | None) -> dict | None:
     return data
 
 
+def unusable_sidecar(path: str | None, sidecar: dict | None) -> str | None:
+    """Why a sidecar beside the image at ``path`` gives no noise although it is there, or
+    None: a file that is not readable JSON, or a strauss-fit sample description whose
+    ``noise`` or ``sensor`` entry is not a valid noise level. Other JSON files are not
+    sidecars (a file of the user's own that shares the image's name) and give None.
+    ``sidecar``: what `read_sidecar` made of it."""
+    if not path:
+        return None
+    candidate = sidecar_path(path)
+    if sidecar is None:
+        if not candidate.is_file():
+            return None
+        import json
+
+        try:
+            json.loads(candidate.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else "not readable JSON"
+            return f"the sidecar {candidate.name} beside the target was not read ({why}); the noise is not from it"
+        return None
+    if _from_sidecar(sidecar) is None and ("noise" in sidecar or "sensor" in sidecar):
+        return (
+            f"the sidecar {candidate.name} holds no valid noise level (its 'noise' or 'sensor' entry is damaged "
+            "or out of range); the noise is not from it"
+        )
+    return None
+
+
 def _from_sidecar(sidecar: dict) -> tuple[np.ndarray, np.ndarray, str] | None:
     """(a, b, note) of a sidecar's noise: a renderer's measured per-channel noise
     (``noise.per_channel``) or the synthetic sensor (Var = E/gain + read_noise²)."""
@@ -125,12 +153,23 @@ def describe_noise(
     if given is not None:
         sigma = check_noise_level(given)
         return NoiseModel("given", np.zeros(3), sigma**2, quantised, storage, notes=["the noise level given"])
-    if sidecar is None:
+    read_here = sidecar is None
+    if read_here:
         sidecar = read_sidecar(path)
     described = _from_sidecar(sidecar) if sidecar else None
     if described is not None:
         a, b, note = described
         return NoiseModel("sensor", a, b, quantised, storage, notes=[note])
+    problem = unusable_sidecar(path, sidecar) if read_here or sidecar else None
+    model = _described_from_image(pixels, usable, quantised, storage)
+    if problem is not None:
+        model.sidecar_problem = problem
+        model.notes.insert(0, problem)
+    return model
+
+
+def _described_from_image(pixels: np.ndarray, usable: np.ndarray, quantised: bool, storage: float) -> NoiseModel:
+    """The noise model estimated from the image, once per image content (a copy)."""
     usable = np.asarray(usable, dtype=bool)
     key = _image_key(pixels, usable, quantised, storage)
     with _ESTIMATED_LOCK:

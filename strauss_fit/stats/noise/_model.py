@@ -40,6 +40,9 @@ class NoiseModel:
     relative_stderr: np.ndarray = field(default_factory=lambda: np.zeros(3))
     notes: list[str] = field(default_factory=list)
     details: dict = field(default_factory=dict)
+    #: Why the target's sidecar was not used although there is one (`unusable_sidecar`);
+    #: None when there is none, or when it was used.
+    sidecar_problem: str | None = None
 
     @property
     def known(self) -> bool:
