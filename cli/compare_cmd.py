@@ -88,19 +88,20 @@ def figure_path(output: str | Path) -> Path:
 def _target_noise(args: argparse.Namespace, samples, target):
     """σ per value of TARGET (given, else its sidecar's) and what it came from; (None, note)
     when unknown."""
-    from strauss_fit.stats.noise import describe_noise, read_sidecar
+    from strauss_fit.stats.noise import describe_noise, read_sidecar, unusable_sidecar
 
     from .fit_cmd import parse_noise
 
     given = parse_noise(args.noise)
     sidecar = None if given is not None else read_sidecar(target.path)
     if given is None and sidecar is None:
-        return None, "unknown (no --noise, no sidecar)"
+        problem = unusable_sidecar(target.path, None)  # one that is there but not readable
+        return None, f"unknown (no --noise; {problem})" if problem else "unknown (no --noise, no sidecar)"
     model = describe_noise(
         target.pixels, target.usable, encoding=target.encoding, path=target.path, given=given, sidecar=sidecar or {}
     )
     if model.source not in ("given", "sensor"):
-        return None, "unknown (the sidecar states no noise)"
+        return None, f"unknown ({model.sidecar_problem or 'the sidecar states no noise'})"
     sigma = model.sigma_at(samples.values)  # at the observed level: the same σ for every model
     if not (sigma[samples.usable] > 0).all():
         return None, "unknown (the sidecar's noise is zero: a noise-free image)"

@@ -149,15 +149,22 @@ def leave_process(code: int) -> None:
     module and of JAX's compiled programs — 0.2-0.3 s of a 1.5 s cached command on a
     2-core machine (docs/benchmarks.md#single-fit-speed), with nothing left to do: every
     output was written, closed and renamed into place before. A standard stream that
-    cannot be flushed (a closed pipe) gives status 120, as Python's own exit does."""
+    cannot be flushed gives status 120, as Python's own exit does: quietly for a closed
+    pipe (``| head``), with one line on stderr for anything else (a full disk)."""
     import atexit
+    import contextlib
 
     atexit._run_exitfuncs()  # CPython's own exit runs these the same way
-    for stream in (sys.stdout, sys.stderr):
+    for name, stream in (("output", sys.stdout), ("error", sys.stderr)):
         try:
             stream.flush()
-        except (OSError, ValueError):
+        except BrokenPipeError:
             code = code or 120
+        except (OSError, ValueError) as exc:
+            code = code or 120
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            with contextlib.suppress(OSError):  # stderr may be the stream that failed
+                os.write(2, f"strauss-fit: error: cannot write the standard {name}: {why}\n".encode())
     os._exit(code)
 
 

@@ -87,17 +87,16 @@ def _error(message: str) -> None:
     print(f"strauss-fit: error: {escape(message, newlines=True)}", file=sys.stderr)
 
 
+def console_main() -> None:
+    """The ``strauss-fit`` command (the console script): `main` on the process's arguments,
+    then the process ends with its status (`interrupts.leave_process`)."""
+    interrupts.leave_process(main())
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command in ``argv`` (default: the process's arguments) and return its exit
-    status. Called without ``argv`` — the ``strauss-fit`` process itself — it does not
-    return: it leaves the process with that status (`interrupts.leave_process`)."""
-    code = _run(argv)
-    if argv is None:
-        interrupts.leave_process(code)
-    return code
-
-
-def _run(argv: list[str] | None) -> int:
+    status. Without ``argv`` the call is taken for the ``strauss-fit`` process itself: Ctrl-C
+    is watched for also inside blocking compiled code, and an interrupt ends the process."""
     from .common import EscapingStream
 
     previous = interrupts.install()

@@ -126,26 +126,40 @@ def device_array(value: Any, dtype: Any = None) -> Array:
     ``convert_element_type``) for each new shape and dtype it meets: on a cold start each one
     is traced, compiled and written to the compilation cache, and every later process reads
     it back — a dozen of them cost a command about 0.1 s before it had done anything. Here
-    the value is converted by NumPy and copied to the device (`jax.device_put`), with the
-    dtype and weak type ``jnp.asarray`` gives it (a Python number stays weakly typed, so that
-    float32 work is not promoted to float64 by it). JAX arrays and traced values go through
-    ``jnp.asarray``."""
-    if isinstance(value, jax.Array) or is_traced(value):  # (a tuple of traced numbers too)
-        return jnp.asarray(value, dtype=dtype)
-    if dtype is None and isinstance(value, (bool, int, float, complex)):
+    the value is copied by NumPy (never shared: a later change to the caller's array must not
+    reach the device array) and put on the device (`jax.device_put`), with the dtype and
+    weak type ``jnp.asarray`` gives it (a Python number stays weakly typed, so that float32
+    work is not promoted to float64 by it). Everything else goes through ``jnp.asarray``:
+    JAX arrays, traced values, lists that hold anything but Python numbers (JAX's dtype rules
+    for mixed lists are its own), and integers that would be narrowed (JAX refuses values
+    out of range where NumPy would wrap them)."""
+    if dtype is None and isinstance(value, _PYTHON_NUMBERS):
         return jax.device_put(value)  # weakly typed, the default width: as jnp.asarray
-    array = np.asarray(value, dtype=dtype)
-    if array.dtype == object or array.dtype.kind not in "biufc":
-        return jnp.asarray(value, dtype=dtype)  # what NumPy cannot hold as numbers: JAX's own rules and errors
-    return jax.device_put(array.astype(jax.dtypes.canonicalize_dtype(array.dtype), copy=False))
+    if isinstance(value, (np.ndarray, np.generic)) or _python_numbers_only(value):
+        array = np.array(value, dtype=dtype)  # a copy
+        if array.dtype.kind in "biufc":
+            canonical = jax.dtypes.canonicalize_dtype(array.dtype)
+            if array.dtype.kind not in "iu" or canonical.itemsize >= array.dtype.itemsize:
+                return jax.device_put(array.astype(canonical, copy=False))
+    return jnp.asarray(value, dtype=dtype)
+
+
+_PYTHON_NUMBERS = (bool, int, float, complex)
+
+
+def _python_numbers_only(value: Any) -> bool:
+    """Whether ``value`` is a list or tuple (nested or not) of Python numbers only."""
+    if isinstance(value, (list, tuple)):
+        return all(isinstance(item, _PYTHON_NUMBERS) or _python_numbers_only(item) for item in value)
+    return False
 
 
 def ones_like(value: Any) -> Array:
     """``jnp.ones_like(value)`` (same shape, dtype and weak type) without a compiled program
     where ``value`` is concrete (see `device_array`)."""
-    if isinstance(value, jax.core.Tracer) or not isinstance(value, jax.Array):
+    if isinstance(value, jax.core.Tracer) or not isinstance(value, jax.Array) or (value.weak_type and value.ndim):
         return jnp.ones_like(value)
-    if value.weak_type and value.ndim == 0:  # a weakly typed number: from a Python one
+    if value.weak_type:  # a weakly typed number: from a Python one
         one = jax.device_put(value.dtype.type(1).item())
         return one if one.dtype == value.dtype else jnp.ones_like(value)
     return jax.device_put(np.ones(value.shape, dtype=value.dtype))

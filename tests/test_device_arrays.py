@@ -35,6 +35,9 @@ VALUES = [
     np.array([1, 2], np.int8),
     np.zeros((2, 3), np.float32),
     [],
+    [np.float32(1.0), 2.0],  # a mixed list: JAX's own dtype rule (float32), not NumPy's
+    [2**40, 3],  # too large for int32: JAX refuses it where NumPy would wrap it
+    np.array([2**40, 3]),
 ]
 DTYPES = [None, np.float32, np.float64, jnp.float32, float, "float32", np.int32]
 
@@ -75,8 +78,8 @@ def test_device_array_is_jnp_asarray(x64):
                 continue  # jnp.asarray warns there, and truncates as device_array does
             try:
                 expected = jnp.asarray(value, dtype=dtype)
-            except TypeError:  # a complex number as an integer: refused by both
-                with pytest.raises(TypeError):
+            except (TypeError, OverflowError) as refused:  # refused by both, the same way
+                with pytest.raises(type(refused)):
                     device_array(value, dtype)
                 continue
             assert same(device_array(value, dtype), expected), (value, dtype)
@@ -96,7 +99,14 @@ def test_device_array_compiles_nothing_for_concrete_values(x64):
 
 
 def test_ones_like_is_jnp_ones_like(x64):
-    for value in (jax.device_put(0.5), jnp.asarray(np.array([1.0, 2.0])), jnp.asarray(np.zeros((2, 2), np.int32))):
+    weak_vector = jnp.broadcast_to(jax.device_put(0.5), (3,))
+    assert weak_vector.weak_type
+    for value in (
+        jax.device_put(0.5),
+        jnp.asarray(np.array([1.0, 2.0])),
+        jnp.asarray(np.zeros((2, 2), np.int32)),
+        weak_vector,
+    ):
         assert same(ones_like(value), jnp.ones_like(value))
     with jax.enable_x64(False):
         weak32 = jax.device_put(0.5)
@@ -135,3 +145,36 @@ def test_scene_and_material_set_up_compiles_nothing(scenes_dir, name):
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["0"]
+
+
+def test_a_device_array_does_not_share_the_callers_buffer(x64):
+    # jax.device_put may use a NumPy array's memory as it is on a CPU: a material made from a
+    # row of the caller's array would change with it (the review of 2026-12-04 saw it)
+    colors = np.random.default_rng(0).random((20000, 3))
+    materials = [sf.Material(color=colors[i]) for i in range(32)]
+    arrays = [device_array(colors[i]) for i in range(32)]
+    expected = colors[:32].copy()
+    colors[:] = 0.0
+    for i in range(32):
+        np.testing.assert_array_equal(np.asarray(materials[i].color), expected[i])
+        np.testing.assert_array_equal(np.asarray(arrays[i]), expected[i])
+
+
+def test_a_material_of_integers_is_what_it_was(x64):
+    # Material(metalness=1) (a TOML "metalness = 1"): the default float, not weakly typed
+    material = sf.Material(color=(1, 0, 1), smoothness=0, metalness=1)
+    for leaf in (material.color, material.smoothness, material.metalness):
+        assert leaf.dtype == np.float64 and not leaf.weak_type
+    with jax.enable_x64(False):
+        assert sf.models.material._as_float(1, None).dtype == np.float32
+
+
+def test_astype_keeps_a_material_where_it_was_placed(x64):
+    device = jax.devices()[-1]
+    material = sf.Material(color=(0.2, 0.3, 0.4), smoothness=0.5)
+    placed = jax.tree_util.tree_map(lambda leaf: jax.device_put(leaf, device), material)
+    cast = placed.astype(np.float32)
+    for leaf in jax.tree_util.tree_leaves(cast):
+        assert leaf.dtype == np.float32 and leaf.devices() == {device} and leaf.committed
+    same = material.astype(np.float64)
+    assert same.color is material.color  # already float64, strongly typed: untouched

@@ -140,10 +140,22 @@ def check_values(
     _check_scalar("ior", ior)
 
 
+def _cast(leaf: Any, dtype: Any) -> Array:
+    """``jnp.asarray(leaf, dtype)``; a material's few numbers, where concrete and not placed
+    on a device of their own, cast on the host (no compiled program)."""
+    if is_traced(leaf) or (
+        isinstance(leaf, jax.Array) and (leaf.committed or (leaf.dtype == jnp.dtype(dtype) and not leaf.weak_type))
+    ):
+        return jnp.asarray(leaf, dtype=dtype)  # traced, placed, or already that: as before
+    return device_array(np.asarray(leaf), dtype)
+
+
 def _as_float(value: Any, dtype: Any) -> Array:
     """A floating-point array (integers such as ``(1, 1, 1)`` become the default float)."""
     if dtype is None and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)  # what the conversion below would give, without a compiled program
+        # what the conversion below gives an integer (the default float, not weakly typed),
+        # without a compiled program
+        value = np.float64(value)
     arr = device_array(value, dtype)
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = arr.astype(jnp.result_type(float))
@@ -227,5 +239,4 @@ class Material(eqx.Module):
     @uses_float64
     def astype(self, dtype: Any) -> Material:
         """The same material with every leaf cast to ``dtype``."""
-        # a material's few numbers: cast on the host where they are concrete (no compiled program)
-        return jax.tree_util.tree_map(lambda x: device_array(x if is_traced(x) else np.asarray(x), dtype), self)
+        return jax.tree_util.tree_map(lambda x: _cast(x, dtype), self)

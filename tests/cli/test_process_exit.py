@@ -9,14 +9,14 @@ import sys
 
 import pytest
 
-# The process as the console script runs it (main() without arguments), with an exit handler
-# of its own that must still run, and its output buffered (a pipe, not a terminal).
+# The process as the console script runs it (console_main), with an exit handler of its
+# own that must still run, and its output buffered (a pipe, not a terminal).
 SCRIPT = """
 import atexit, sys
 atexit.register(lambda: print("exit handler ran"))
 sys.argv = ["strauss-fit", *sys.argv[1:]]
-from strauss_fit_cli.main import main
-main()
+from strauss_fit_cli.main import console_main
+console_main()
 print("main() returned")  # it must not: the process ends inside it
 """
 
@@ -54,3 +54,47 @@ def test_a_long_buffered_output_arrives_whole():
     done = run("render", "--help")
     assert done.returncode == 0
     assert len(expected) > 1000 and done.stdout == expected + "exit handler ran\n"
+
+
+def test_main_without_arguments_returns_to_its_caller():
+    # a script or notebook calling main() itself keeps its interpreter
+    script = (
+        "import sys; sys.argv = ['strauss-fit', '--version']\n"
+        "from strauss_fit_cli.main import main\n"
+        "code = main()\n"
+        "print('returned', code)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.splitlines()[-1] == "returned 0"
+
+
+# the standard output replaced by one whose last flush fails as the given error
+FAILING_FLUSH = """
+import errno, io, sys
+from strauss_fit_cli.interrupts import leave_process
+
+class Failing(io.StringIO):
+    def flush(self):
+        raise {error}
+
+sys.stdout = Failing()
+print("a result table")
+leave_process(0)
+"""
+
+
+@pytest.mark.parametrize(
+    "error, message",
+    [
+        (
+            "OSError(errno.ENOSPC, 'No space left on device')",
+            "cannot write the standard output: No space left on device",
+        ),
+        ("BrokenPipeError(errno.EPIPE, 'Broken pipe')", None),  # `| head`: quiet, as Python's own exit
+    ],
+)
+def test_output_that_cannot_be_flushed_is_status_120(error, message):
+    script = FAILING_FLUSH.format(error=error)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 120
+    assert done.stderr == ("" if message is None else f"strauss-fit: error: {message}\n")

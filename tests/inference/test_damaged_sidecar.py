@@ -41,9 +41,18 @@ def damaged_noise_entry(text: str) -> str:
     return json.dumps(data)
 
 
+def noise_entry_of_another_type(text: str) -> str:
+    data = json.loads(text)
+    data["noise"] = "abc"  # not a table: crashed the fit (AttributeError) before 2026-12-04
+    del data["sensor"]
+    return json.dumps(data)
+
+
 CASES = {
     "not JSON": lambda text: text[: len(text) // 2],  # cut short
+    "nested too deeply": lambda text: "[" * 100000 + "]" * 100000,  # RecursionError in the parser
     "damaged noise entry": damaged_noise_entry,
+    "noise entry of another type": noise_entry_of_another_type,
 }
 
 
@@ -58,7 +67,7 @@ def test_a_sidecar_that_gives_no_noise_is_said_and_the_image_gives_it(target_cop
     np.testing.assert_array_equal(described.b, without.b)  # the same estimate as without a sidecar
     assert described.sidecar_problem is not None and f"{NAME}.json" in described.sidecar_problem
     assert described.notes[0] == described.sidecar_problem
-    assert ("not readable JSON" in described.sidecar_problem) == (case == "not JSON")
+    assert ("not readable JSON" in described.sidecar_problem) == (case in ("not JSON", "nested too deeply"))
 
 
 def test_the_intact_sidecar_and_a_json_of_the_users_own_say_nothing(target_copy):
@@ -83,3 +92,23 @@ def test_the_fit_says_it_on_the_command_line_and_in_its_result(target_copy, tmp_
     assert any(row.startswith(line) for row in printed.out.splitlines()), printed.out
     result = json.loads(out.read_text())
     assert any(note.startswith(f"the sidecar {NAME}.json") for note in result["notes"])
+
+
+def test_a_file_name_with_a_line_break_stays_on_one_line(tmp_path, capsys):
+    copy = tmp_path / "two\nlines.exr"
+    shutil.copy(BUNDLED / f"{NAME}.exr", copy)
+    sidecar_path(copy).write_text("{ not json")
+    described = noise_of(copy)
+    assert "\n" not in described.sidecar_problem and "two\\nlines.json" in described.sidecar_problem
+
+
+def test_compare_says_why_the_sidecar_gave_no_noise(target_copy, tmp_path, capsys):
+    copy, text = target_copy
+    scene = BUNDLED.parent / "scenes" / "two_lights.toml"
+    for case, expected in (("not JSON", "not readable JSON"), ("damaged noise entry", "holds no valid noise level")):
+        sidecar_path(copy).write_text(CASES[case](text))
+        out = tmp_path / f"compare-{case.replace(' ', '-')}.json"
+        code = main(["compare", str(copy), "--scene", str(scene), "-o", str(out), "--models", "strauss"])
+        printed = capsys.readouterr()
+        assert code in (0, 1), printed.err
+        assert expected in out.read_text(), case

@@ -53,6 +53,7 @@ from ._describe import describe_noise as describe_noise
 from ._describe import read_sidecar as read_sidecar
 from ._describe import sidecar_path as sidecar_path
 from ._describe import storage_precision as storage_precision
+from ._describe import unusable_sidecar as unusable_sidecar
 from ._errors import NoiseEstimationError as NoiseEstimationError
 from ._highpass import KERNELS as KERNELS
 from ._highpass import kernel_kappa as kernel_kappa
@@ -118,6 +119,7 @@ __all__ = [
     "one_sided_verdict",
     "quantisation_sigma",
     "read_sidecar",
+    "unusable_sidecar",
     "sidecar_path",
     "storage_precision",
 ]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..._escaping import escape
 from ._additive import estimate_noise
 from ._errors import NoiseEstimationError
 from ._level_line import estimate_noise_model
@@ -67,7 +68,7 @@ def read_sidecar(path: str | None) -> dict | None:
         return None
     try:
         data = json.loads(candidate.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested too deeply
         return None
     if not isinstance(data, dict) or data.get("format") != "strauss-fit synth sample":
         return None
@@ -83,6 +84,7 @@ def unusable_sidecar(path: str | None, sidecar: dict | None) -> str | None:
     if not path:
         return None
     candidate = sidecar_path(path)
+    name = escape(candidate.name, newlines=True)  # quoted in one line of the fit's output
     if sidecar is None:
         if not candidate.is_file():
             return None
@@ -90,13 +92,13 @@ def unusable_sidecar(path: str | None, sidecar: dict | None) -> str | None:
 
         try:
             json.loads(candidate.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else "not readable JSON"
-            return f"the sidecar {candidate.name} beside the target was not read ({why}); the noise is not from it"
+            return f"the sidecar {name} beside the target was not read ({why}); the noise is not from it"
         return None
     if _from_sidecar(sidecar) is None and ("noise" in sidecar or "sensor" in sidecar):
         return (
-            f"the sidecar {candidate.name} holds no valid noise level (its 'noise' or 'sensor' entry is damaged "
+            f"the sidecar {name} holds no valid noise level (its 'noise' or 'sensor' entry is damaged "
             "or out of range); the noise is not from it"
         )
     return None
@@ -105,7 +107,8 @@ def unusable_sidecar(path: str | None, sidecar: dict | None) -> str | None:
 def _from_sidecar(sidecar: dict) -> tuple[np.ndarray, np.ndarray, str] | None:
     """(a, b, note) of a sidecar's noise: a renderer's measured per-channel noise
     (``noise.per_channel``) or the synthetic sensor (Var = E/gain + read_noise²)."""
-    measured = (sidecar.get("noise") or {}).get("per_channel")
+    noise = sidecar.get("noise")
+    measured = noise.get("per_channel") if isinstance(noise, dict) else None
     if measured is not None:
         try:
             sigma = _triple(measured)
