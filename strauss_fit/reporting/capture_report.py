@@ -1226,7 +1226,11 @@ def capture_report_from_files(
         check_capture_result(result, f"the fit result in the chain {chain}")
     pages = max(1, math.ceil(int(result.get("images") or 0) / GRID_IMAGES))
     names = [f"lights-{k + 1}.png" for k in range(pages)] + ["intervals.png", "correlation.png"]
-    check_report_outputs(out, force, names + (["corner.png", "trace.png"] if loaded is not None else []))
+    inputs = {"fit": fit_json_path, "chain": chain, "lights": lights, "mask": mask}
+    if capture is not None and not isinstance(capture, Capture):
+        paths = [capture] if isinstance(capture, (str, Path)) else list(capture)
+        inputs.update({f"capture {path}": path for path in paths})
+    check_report_outputs(out, force, names + (["corner.png", "trace.png"] if loaded is not None else []), inputs)
     scene_based = bool(result.get("scene") and result.get("target") and not result.get("capture") and not capture)
     if scene_based:  # one target and its scene (fit --model): read back from them
         base = Path(fit_json_path).parent if fit_json_path is not None else loaded.meta.get("fit_base")
@@ -1244,4 +1248,4 @@ def capture_report_from_files(
     report = build_capture_report(
         result, samples, fit, held=held, title=title, assets=f"{out.stem}_files", chain=loaded
     )
-    return report, write_report(report, out, force=force)
+    return report, write_report(report, out, force=force, inputs=inputs)

@@ -34,7 +34,7 @@ from ..fitting.losses import ROBUST_LOSSES
 from ..fitting.result import FitResult
 from ..inference.sampler import Chain, Diagnostics, load_chain
 from ..inference.summaries import ChainPosterior, Laplace, chain_posterior, degeneracy_warnings, loss_warning
-from ..io.files import Outputs, check_writable, read_json
+from ..io.files import Outputs, check_distinct, check_outside, check_writable, read_json
 from ..io.targets import Target, load_target, match_scene
 from ..models.material import FRACTION_NAMES
 from ..models.strauss import DEFAULT_TABLE_SIZE
@@ -700,9 +700,16 @@ def check_report_outputs(
     html_path: str | Path,
     force: bool,
     image_names: Sequence[str] = ("images.png", "intervals.png", "correlation.png", "corner.png", "trace.png"),
+    inputs: dict[str, str | Path | None] | None = None,
 ) -> None:
-    """Refuse (before any work) to overwrite an existing report without ``force``."""
+    """Refuse (before any work) to overwrite an existing report without ``force``, and,
+    even with it, a report that would overwrite one of its ``inputs`` (``{"fit": path,
+    ...}``; None entries skipped): the page or its Markdown naming one, or one lying in
+    its ``REPORT_files/`` folder."""
     page, markdown, folder = report_paths(html_path)
+    if inputs:
+        check_distinct({"the report": page, "the report's Markdown": markdown}, inputs)
+        check_outside(folder, "the report", inputs)
     check_writable(page, force)
     check_writable(markdown, force)
     if folder.exists() and not folder.is_dir():
@@ -712,13 +719,20 @@ def check_report_outputs(
             check_writable(folder / name, force)
 
 
-def write_report(report: Report, html_path: str | Path, *, force: bool = False) -> list[Path]:
+def write_report(
+    report: Report,
+    html_path: str | Path,
+    *,
+    force: bool = False,
+    inputs: dict[str, str | Path | None] | None = None,
+) -> list[Path]:
     """Write the PNGs into REPORT_files/, REPORT.md and REPORT.html, all or none: each is
     written in full to a temporary file first, and they are renamed into place together
     (a full disk or Ctrl-C leaves no part of the report, and REPORT_files/ only if it
-    existed before)."""
+    existed before). None of them may overwrite one of the report's ``inputs``
+    (`check_report_outputs`)."""
     page, markdown, folder = report_paths(html_path)
-    check_report_outputs(page, force, list(report.images))
+    check_report_outputs(page, force, list(report.images), inputs)
     created = not folder.exists()
     try:
         folder.mkdir(exist_ok=True)
@@ -800,12 +814,15 @@ def report_from_files(
     (``chain``, of ``strauss-fit sample``) or both, and write it to ``output`` (.html;
     the Markdown and the PNG folder beside it). The target, scene, mask and encoding
     default to those the fit result or the chain recorded (a recorded relative path is
-    tried from here, then from the recording file's folder). Returns the report and the
+    tried from here, then from the recording file's folder). An input, given or recorded,
+    that the report would overwrite or that lies in its ``REPORT_files/`` folder is
+    refused, even with ``force`` (`check_report_outputs`). Returns the report and the
     files written."""
     if not fit and not chain:
         raise StraussFitError("give a fit result (--fit RESULT.json), a chain (--chain CHAIN.h5), or both")
     check_html_name(output)
-    check_report_outputs(output, force)
+    given = {"fit": fit, "chain": chain, "target": target, "scene": scene, "mask": mask}
+    check_report_outputs(output, force, inputs=given)
     loaded_chain = load_chain(chain, required=True) if chain else None
     meta = loaded_chain.meta if loaded_chain is not None else {}
     chain_base = Path(chain).parent if chain else None
@@ -849,4 +866,6 @@ def report_from_files(
         assets=f"{out.stem}_files",
         sources={"target": str(target_path), "scene": str(scene_path)},
     )
-    return report, write_report(report, out, force=force)
+    # the recorded target, scene and mask too: none of them may be overwritten either
+    inputs = {"fit": fit, "chain": chain, "target": target_path, "scene": scene_path, "mask": mask}
+    return report, write_report(report, out, force=force, inputs=inputs)

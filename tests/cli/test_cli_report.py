@@ -279,3 +279,28 @@ def test_text_quoted_from_the_fit_is_inert_in_the_markdown_and_one_line_on_the_t
     assert ior_rows and all(line.endswith("|") for line in ior_rows)
     assert "<img src=x" not in out.read_text()
     assert "\x1b" not in err and not any(line.startswith("# heading") for line in err.splitlines())
+
+
+@pytest.mark.parametrize("how", ["given", "recorded"])
+def test_the_library_refuses_to_overwrite_a_report_input_too(sampled, tmp_path, how):
+    # report_from_files called directly, with force, and a target inside the report's
+    # folder: given as an argument, or recorded in the fit result (known only once read)
+    from strauss_fit import report_from_files
+    from strauss_fit.errors import StraussFitError
+
+    folder = sampled
+    out = tmp_path / "r.html"
+    (tmp_path / "r_files").mkdir()
+    target = tmp_path / "r_files" / "images.exr"
+    target.write_bytes((folder / "target.exr").read_bytes())
+    before = target.read_bytes()
+    fit = folder / "fit.json"
+    if how == "recorded":
+        data = json.loads(fit.read_text())
+        data["target"] = str(target)
+        fit = tmp_path / "fit.json"
+        fit.write_text(json.dumps(data))
+    given = {"target": str(target)} if how == "given" else {}
+    with pytest.raises(StraussFitError, match="lies in"):
+        report_from_files(out, fit=str(fit), force=True, **given)
+    assert target.read_bytes() == before and not out.exists()
