@@ -627,8 +627,6 @@ def _conclude(
                 maximum = problem.real((yield from reachable_maximum_steps(problem)))
                 reachable = _Reachable(reachable.white_floor, maximum)
             reach = reachable.maximum
-    else:
-        reachable = None
     diagnosis = diagnose(
         problem,
         model,

@@ -59,20 +59,7 @@ def sidecar_path(path: str | Path) -> Path:
 def read_sidecar(path: str | None) -> dict | None:
     """The synth sidecar beside an image (``ID.png`` → ``ID.json``, see docs/datasets.md)
     if there is one and it is a strauss-fit sample description, else None."""
-    if not path:
-        return None
-    import json
-
-    candidate = sidecar_path(path)
-    if not candidate.is_file():  # a regular file only: reading a FIFO would block
-        return None
-    try:
-        data = json.loads(candidate.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):  # RecursionError: nested too deeply
-        return None
-    if not isinstance(data, dict) or data.get("format") != "strauss-fit synth sample":
-        return None
-    return data
+    return _sample_description(_sidecar_json(path)[0])
 
 
 def unusable_sidecar(path: str | None, sidecar: dict | None) -> str | None:
@@ -81,22 +68,40 @@ def unusable_sidecar(path: str | None, sidecar: dict | None) -> str | None:
     ``noise`` or ``sensor`` entry is not a valid noise level. Other JSON files are not
     sidecars (a file of the user's own that shares the image's name) and give None.
     ``sidecar``: what `read_sidecar` made of it."""
+    return _sidecar_problem(path, sidecar, _sidecar_json(path)[1] if sidecar is None else None)
+
+
+def _sidecar_json(path: str | None) -> tuple[object, str | None]:
+    """The JSON value in the file beside the image at ``path`` (None where there is no such
+    file or it cannot be read) and why it could not be read (None where it was, or where
+    there is none)."""
+    if not path:
+        return None, None
+    import json
+
+    candidate = sidecar_path(path)
+    if not candidate.is_file():  # a regular file only: reading a FIFO would block
+        return None, None
+    try:
+        return json.loads(candidate.read_text(encoding="utf-8")), None
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: nested too deeply
+        return None, exc.strerror if isinstance(exc, OSError) and exc.strerror else "not readable JSON"
+
+
+def _sample_description(data: object) -> dict | None:
+    """``data`` if it is a strauss-fit sample description, else None."""
+    return data if isinstance(data, dict) and data.get("format") == "strauss-fit synth sample" else None
+
+
+def _sidecar_problem(path: str | None, sidecar: dict | None, unread: str | None) -> str | None:
+    """`unusable_sidecar`'s note, from the sidecar read and why the file was not
+    (``unread``, from `_sidecar_json`)."""
     if not path:
         return None
-    candidate = sidecar_path(path)
-    name = escape(candidate.name, newlines=True)  # quoted in one line of the fit's output
-    if sidecar is None:
-        if not candidate.is_file():
-            return None
-        import json
-
-        try:
-            json.loads(candidate.read_text(encoding="utf-8"))
-        except (OSError, ValueError, RecursionError) as exc:
-            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else "not readable JSON"
-            return f"the sidecar {name} beside the target was not read ({why}); the noise is not from it"
-        return None
-    if _from_sidecar(sidecar) is None and ("noise" in sidecar or "sensor" in sidecar):
+    name = escape(sidecar_path(path).name, newlines=True)  # quoted in one line of the fit's output
+    if unread is not None:
+        return f"the sidecar {name} beside the target was not read ({unread}); the noise is not from it"
+    if sidecar and _from_sidecar(sidecar) is None and ("noise" in sidecar or "sensor" in sidecar):
         return (
             f"the sidecar {name} holds no valid noise level (its 'noise' or 'sensor' entry is damaged "
             "or out of range); the noise is not from it"
@@ -156,14 +161,15 @@ def describe_noise(
     if given is not None:
         sigma = check_noise_level(given)
         return NoiseModel("given", np.zeros(3), sigma**2, quantised, storage, notes=["the noise level given"])
-    read_here = sidecar is None
-    if read_here:
-        sidecar = read_sidecar(path)
+    unread = None
+    if sidecar is None:  # read once: the sidecar, or why the file beside the image was not read
+        data, unread = _sidecar_json(path)
+        sidecar = _sample_description(data)
     described = _from_sidecar(sidecar) if sidecar else None
     if described is not None:
         a, b, note = described
         return NoiseModel("sensor", a, b, quantised, storage, notes=[note])
-    problem = unusable_sidecar(path, sidecar) if read_here or sidecar else None
+    problem = _sidecar_problem(path, sidecar, unread)
     model = _described_from_image(pixels, usable, quantised, storage)
     if problem is not None:
         model.sidecar_problem = problem
