@@ -107,7 +107,7 @@ class Problem(eqx.Module):
         mismatched batch, linear then Huber, compiled 17 programs where a consistent one
         compiled 11: 13 s of a 46 s cold batch); as data, least squares, Huber and Cauchy
         share one program per problem shape, whose residuals are those of each loss's own
-        (`loss_residual` computes every candidate and selects one) up to the
+        (`loss_residual` runs the branch of the one ``loss_code`` names) up to the
         compiler's rounding in another program: fits moved by at most 8e-16 in their
         parameters, with the same steps, verdicts and losses (measured on 16 fits)."""
         if self.loss not in FOLDED_LOSSES:
@@ -251,8 +251,8 @@ def loss_residual(problem: Problem, model: Array, target: Array | None = None) -
       cannot reproduce (a highlight's core, an edge) then weigh less than their squares,
       while values within the noise weigh as in least squares.
 
-    A kernel form's problem (`Problem.kernel_form`) computes the linear, Huber and
-    Cauchy values and returns the one its ``loss_code`` names. ``target``: the values
+    A kernel form's problem (`Problem.kernel_form`) computes the values of the loss its
+    ``loss_code`` names (`_folded_residual`). ``target``: the values
     compared with (default the problem's own).
     """
     target = problem.target if target is None else target
@@ -292,20 +292,34 @@ def _robust_residual(psi: Callable[[Array], Array]) -> Callable[[Problem, Array,
 
 
 def _folded_residual(problem: Problem, model: Array, target: Array) -> Array:
-    """A kernel form's residual (`LOSS_BY_CODE`): every folded loss's candidate, the one
-    ``loss_code`` names selected. A select copies: the value is the one the loss's own
-    residual function computes, the same operations on the same z. The folded losses are
-    least squares and robust ones (``tests/test_registries.py`` holds it): least squares
-    needs no z, each robust loss is its ψ(z) times σ_ref."""
+    """A kernel form's residual (`LOSS_BY_CODE`): the residual of the loss ``loss_code``
+    names, computed by that loss's branch alone (``lax.switch``): the same operations on the
+    same z as the loss's own residual function. The folded losses are least squares and
+    robust ones (``tests/test_registries.py`` holds it): least squares needs no z, each robust
+    loss is its ψ(z) times σ_ref.
+
+    Why a switch rather than every candidate and a select: a select computes and, in the
+    Jacobian, differentiates every loss's ψ on every value — a least-squares residual and
+    its Jacobian cost 3-5 times the render's at 256² (1.6 and 6.3 ms against 0.56 and
+    1.2 ms). A switch whose index is one number for the whole call runs one branch; where
+    the index differs between the items of a batch (``vmap`` over problems of several
+    losses) JAX turns it into that select again."""
     difference = model - target
-    z, reference = _noise_scaled(problem, difference)
+
+    def least_squares(difference: Array) -> Array:
+        return difference
+
+    def robust(psi: Callable[[Array], Array]) -> Callable[[Array], Array]:
+        def residual(difference: Array) -> Array:
+            z, reference = _noise_scaled(problem, difference)
+            return psi(z) * reference
+
+        return residual
+
+    branches = [least_squares if name not in ROBUST_PSI else robust(ROBUST_PSI[name]) for name in FOLDED_LOSSES]
     code = problem.loss_code
-    # traced in the order of their codes, then selected from the last code back
-    candidates = [(LOSS_REGISTRY[name].code, ROBUST_PSI[name](z)) for name in FOLDED_LOSSES if name in ROBUST_PSI]
-    robust = candidates[-1][1]
-    for number, value in reversed(candidates[:-1]):
-        robust = jnp.where(code == number, value, robust)
-    return jnp.where(code == LOSS_REGISTRY[LEAST_SQUARES].code, difference, robust * reference)
+    index = sum(jnp.where(code == LOSS_REGISTRY[name].code, i, 0) for i, name in enumerate(FOLDED_LOSSES))
+    return jax.lax.switch(index, branches, difference)
 
 
 def _huber_psi(z: Array) -> Array:
