@@ -33,6 +33,7 @@ import numpy as np
 from jax import Array
 
 from ..engine import Kernel, Steps, run
+from ..numerics import value_and_jacobian_columns
 from ..precision import uses_float64
 
 #: Eigenvalues of JᵀJ below this fraction of the largest are dropped by the pseudo-inverse.
@@ -205,8 +206,10 @@ def _objective_terms_and_model_jacobian(problem: Any, x: Array) -> tuple[Array, 
     (`_weighted_model_hessian`), g′ and g″ the derivatives in mᵢ: the Hessian of ½Σg²
     by the chain rule, with the render differentiated once and twice instead of the whole
     residual (the render's batched second derivatives are what made ``jax.hessian`` slow)."""
-    model = problem.render_physical(x)
-    model_jacobian = jax.jacfwd(lambda z: problem.render_physical(z).ravel())(x)  # F, (M, P)
+    # the render and its Jacobian F (M, P) by columns, so that the many products below read
+    # two buffers instead of each evaluating the render again (`value_and_jacobian_columns`)
+    model, columns = value_and_jacobian_columns(lambda z: problem.render_physical(z).ravel(), x)
+    model, model_jacobian = model.reshape(-1, 3), columns.T
     values, slope_m, slope_y, curvature_m, cross_my = _value_derivatives(problem, model)
     jacobian = slope_m[:, None] * model_jacobian
     gauss_newton_weight = slope_m * slope_m + values * curvature_m
