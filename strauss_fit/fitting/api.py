@@ -571,6 +571,9 @@ class _Outcome:
     sigma: np.ndarray | None
     #: What Strauss materials reach at the used pixels, as far as the verdict needed it.
     reachable: _Reachable | None = None
+    #: The noise sandwich's parts at the fit (`sandwich_parts_kernel`, maybe still being
+    #: computed); None when the noise is unknown.
+    sandwich: Any = None
 
 
 @dataclass(frozen=True)
@@ -611,11 +614,20 @@ def _conclude(
     if exposure != 1.0:
         full_fit = full_fit * exposure
     model = full_fit[kept.index]  # the fitted radiance at the pixels used
+    sigma = noise.sigma_at(model) if noise.known else None  # once, for the verdict and the ±
+    # The noise sandwich's parts, dispatched now and read by `_uncertainty_steps` only: the
+    # compiled work runs while the Python below (ΔE2000, the verdict) does. A round refitted
+    # with another loss discards them (one sandwich's work, against the 20 ms its overlap
+    # saves at 256²).
+    sandwich = None
+    if sigma is not None:
+        sandwich = yield sandwich_parts_kernel.call(
+            problem, np.asarray(solved.x, dtype=np.float64), padded_noise(problem, sigma)
+        )
     delta_e = delta_e_2000(model, problem.real(problem.target))
     hit = np.asarray(kept.prepared_full.hit).reshape(-1, 1)
     full = np.where(hit, full_fit, np.asarray(kept.prepared_full.miss_radiance).reshape(-1, 3) * exposure)
     say("comparing the fit with the target's noise")
-    sigma = noise.sigma_at(model) if noise.known else None  # once, for the verdict and the ±
     free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
     pinned = np.asarray(problem.pinned)
     reach = None
@@ -639,7 +651,7 @@ def _conclude(
         index=kept.index,
         sigma=sigma,
     )
-    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis, sigma, reachable)
+    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis, sigma, reachable, sandwich)
 
 
 def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, sigma: np.ndarray | None) -> bool:
@@ -764,8 +776,7 @@ def _uncertainty_steps(solved: Solved, outcome: _Outcome, noise: NoiseModel, rss
     information = solved.information if problem.loss == "linear" else None
     parts = None
     if noise.known:
-        noise_sd = padded_noise(problem, outcome.sigma)
-        parts = yield sandwich_parts_kernel.call(problem, np.asarray(x_best, dtype=np.float64), noise_sd)
+        parts = outcome.sandwich  # dispatched by `_conclude`
         information = np.asarray(parts["information"]) if information is None else information
     laplace_sd, laplace_corr, laplace_cov = yield from problem_laplace_steps(problem, x_best, rss, None, information)
     if not noise.known:
