@@ -23,6 +23,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "_version",
             "_environment",
             "_escaping",
+            "_host_methods",
             "errors",
             "numerics",
             "precision",

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._host_methods import host_method
 from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
 from ..io.targets import Target
@@ -97,6 +98,7 @@ class Problem(eqx.Module):
     #: 0-d array, dynamic); None otherwise.
     loss_code: Array | None = None
 
+    @host_method
     def kernel_form(self) -> Problem:
         """This problem as a compiled kernel takes it (`strauss_fit.engine` asks every
         argument for it): the same residuals, with the loss as data rather than structure
@@ -124,15 +126,18 @@ class Problem(eqx.Module):
         form.__dict__.update(fields, **changes)
         return form
 
+    @host_method
     def value_count(self) -> int:
         """The number of real residual values (3 per real pixel), on the host."""
         return int(self.target.size if self.count is None else 3 * int(self.count))
 
+    @host_method
     def real(self, per_pixel: Any) -> np.ndarray:
         """A per-pixel host array (N, ...) of this problem without its padding."""
         array = np.asarray(per_pixel)
         return array if self.count is None else array[: int(self.count)]
 
+    @host_method
     def unpadded(self) -> Problem:
         """This problem on its real pixels only (itself when not padded): for code that
         evaluates one target at a time, such as the sampler, where padding buys nothing."""
@@ -156,6 +161,7 @@ class Problem(eqx.Module):
         `strauss_fit.fitting.solvers.polish`) replaced."""
         return jnp.where(self.pinned, self.pinned_values, self.layout.to_physical(theta))
 
+    @host_method
     def pin(self, mask: np.ndarray, values: np.ndarray) -> Problem:
         # NumPy, as build_problem's: jnp.asarray would dispatch a device copy for each,
         # which on a busy device waits behind the compiled work (a conversion ran ~4 per

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._host_methods import host_method
 from ..errors import MaterialError
 from ..numerics import device_array, is_traced
 from ..precision import uses_float64
@@ -228,6 +229,7 @@ class Material(eqx.Module):
                 raise MaterialError(f"material {key} must be a number, got {value!r}")
         return cls(**values, dtype=dtype)
 
+    @host_method
     def to_dict(self) -> dict[str, Any]:
         """Plain Python values (lists and floats), e.g. for JSON."""
         out: dict[str, Any] = {"color": [float(c) for c in np.asarray(self.color)]}
@@ -236,6 +238,7 @@ class Material(eqx.Module):
             out[name] = value if math.isfinite(value) else None
         return out
 
+    @host_method
     @uses_float64
     def astype(self, dtype: Any) -> Material:
         """The same material with every leaf cast to ``dtype``."""

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jax import Array
 from jax.typing import ArrayLike
 
+from .._host_methods import host_method
 from ..numerics import dot, safe_divide, safe_normalize
 from ..precision import uses_float64
 
@@ -79,6 +80,7 @@ class Lights(eqx.Module):
     point: PointLights | None = None
     ambient: Array | None = None
 
+    @host_method
     def present(self) -> tuple[DirectionalLights | PointLights, ...]:
         """The lights of the scene with a direction, kind by kind (`LIGHT_KINDS`'
         order), the kinds it does not have left out."""
@@ -90,6 +92,7 @@ class Lights(eqx.Module):
         """Number of directional and point lights (ambient not counted)."""
         return sum(lights.intensity.shape[0] for lights in self.present())
 
+    @host_method
     def intensities(self) -> dict[str, Array]:
         """The differentiable intensity arrays, by kind (only the kinds present)."""
         out: dict[str, Array] = {lights.KIND: lights.intensity for lights in self.present()}
@@ -97,6 +100,7 @@ class Lights(eqx.Module):
             out["ambient"] = self.ambient
         return out
 
+    @host_method
     @uses_float64
     def with_intensities(self, intensities: dict[str, ArrayLike]) -> Lights:
         """A copy with the intensities of `intensities` replaced."""
