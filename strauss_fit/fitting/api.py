@@ -51,7 +51,7 @@ from .diagnosis import (
     REACH_MARGIN,
     Diagnosis,
     diagnose,
-    reachable_floor_steps,
+    reachable_floor_call,
     reachable_maximum_steps,
     uncertainty_warnings,
 )
@@ -615,10 +615,15 @@ def _conclude(
         full_fit = full_fit * exposure
     model = full_fit[kept.index]  # the fitted radiance at the pixels used
     sigma = noise.sigma_at(model) if noise.known else None  # once, for the verdict and the ±
-    # The noise sandwich's parts, dispatched now and read by `_uncertainty_steps` only: the
-    # compiled work runs while the Python below (ΔE2000, the verdict) does. A round refitted
-    # with another loss discards them (one sandwich's work, against the 20 ms its overlap
-    # saves at 256²).
+    free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
+    # What a white matte plastic reflects (the verdict's floor of what Strauss materials
+    # reach), then the noise sandwich's parts (read by `_uncertainty_steps` only): both
+    # dispatched now, in the order they are read, so that their compiled work runs while
+    # the Python below (ΔE2000, the verdict) does. A round refitted with another loss
+    # discards the sandwich (its work, against the 10-20 ms the overlap saves at 256²).
+    floor = None
+    if not free_lights and (reachable is None or reachable.white_floor.shape != model.shape):
+        floor = yield reachable_floor_call(problem)
     sandwich = None
     if sigma is not None:
         sandwich = yield sandwich_parts_kernel.call(
@@ -628,12 +633,11 @@ def _conclude(
     hit = np.asarray(kept.prepared_full.hit).reshape(-1, 1)
     full = np.where(hit, full_fit, np.asarray(kept.prepared_full.miss_radiance).reshape(-1, 3) * exposure)
     say("comparing the fit with the target's noise")
-    free_lights = EXPOSURE in layout.names or any(n not in MATERIAL_SIZES for n in layout.names)
     pinned = np.asarray(problem.pinned)
     reach = None
     if not free_lights:
-        if reachable is None or reachable.white_floor.shape != model.shape:
-            reachable = _Reachable(problem.real((yield from reachable_floor_steps(problem))), None)
+        if floor is not None:
+            reachable = _Reachable(problem.real(np.asarray(floor)), None)
         if _may_be_out_of_reach(problem.real(problem.target), np.maximum(model, reachable.white_floor), sigma):
             if reachable.maximum is None:
                 maximum = problem.real((yield from reachable_maximum_steps(problem)))

@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..engine import Kernel, Steps, run
+from ..engine import Call, Kernel, Steps, run
 from ..models.material import REFLECTION_NAMES
 from ..stats.noise import (
     BOUND_CHI2,
@@ -190,8 +190,13 @@ def reachable_floor_steps(problem: Any) -> Steps:
     """(N, 3): what a white matte plastic (C = 1, s = m = t = 0) reflects at each used pixel:
     a value some Strauss material reaches, so a floor of `reachable_maximum_steps`'s
     maximum, for one render instead of its 88."""
-    row = np.asarray([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]])
-    return np.asarray((yield brightest.call(_white_probe(problem), row)))
+    return np.asarray((yield reachable_floor_call(problem)))
+
+
+def reachable_floor_call(problem: Any) -> Call:
+    """The one kernel call of `reachable_floor_steps`, for a caller that yields it early and
+    reads its result (``np.asarray``) later, doing other work while it runs."""
+    return brightest.call(_white_probe(problem), np.asarray([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]]))
 
 
 def _white_probe(problem: Any) -> Any:
