@@ -86,19 +86,25 @@ SILHOUETTE_BACKGROUND_MATCH = 0.02
 SILHOUETTE_MAX_ERROR = 0.15
 
 
-def _neighbour_mean(values: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The mean of ``values`` (H, W, 3) over each pixel's eight neighbours where ``weight``
-    (H, W) holds, and how many there were."""
+def _neighbour_mean(
+    values: np.ndarray, weight: np.ndarray, rows: np.ndarray, cols: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """At the pixels (``rows``, ``cols``): the mean of ``values`` (H, W, 3) over each one's
+    eight neighbours where ``weight`` (H, W) holds, (K, 3), and how many there were, (K,).
+    Only at the pixels asked for (the silhouette's outer edge: a ring of a few hundred
+    pixels), not over the whole image (5 ms of a 256² fit)."""
     height, width = weight.shape
-    padded_values = np.pad(values * weight[..., None], ((1, 1), (1, 1), (0, 0)))
-    padded_weight = np.pad(weight.astype(np.float64), 1)
-    total, count = np.zeros_like(values), np.zeros(weight.shape)
+    total, count = np.zeros((rows.size, values.shape[-1])), np.zeros(rows.size)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             if dy or dx:
-                total += padded_values[1 + dy : 1 + dy + height, 1 + dx : 1 + dx + width]
-                count += padded_weight[1 + dy : 1 + dy + height, 1 + dx : 1 + dx + width]
-    return total / np.maximum(count, 1)[..., None], count
+                r, c = rows + dy, cols + dx
+                inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+                r, c = np.where(inside, r, 0), np.where(inside, c, 0)
+                counted = inside & weight[r, c]
+                total += np.where(counted[:, None], values[r, c], 0.0)
+                count += counted
+    return total / np.maximum(count, 1)[:, None], count
 
 
 def silhouette_blend(
@@ -126,7 +132,10 @@ def silhouette_blend(
     outer = (coverage > 0) & ~hit & usable
     clear = (coverage == 0) & usable
     inside = hit & usable
-    neighbours, count = _neighbour_mean(pixels, inside)
+    rows, cols = np.nonzero(outer)
+    neighbours = np.zeros_like(pixels)
+    count = np.zeros(outer.shape)
+    neighbours[rows, cols], count[rows, cols] = _neighbour_mean(pixels, inside, rows, cols)
     outer &= count > 0
     if outer.sum() < SILHOUETTE_MIN_PIXELS or clear.sum() < SILHOUETTE_MIN_PIXELS:
         return None, "too few usable pixels around the sphere to check its silhouette"
