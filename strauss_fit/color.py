@@ -69,7 +69,8 @@ def ciede2000(lab1: np.ndarray, lab2: np.ndarray) -> np.ndarray:
     cos(4h̄ − 63°) taken from cos h̄ and sin h̄ by the angle-addition formulas, and the
     chromas as √(a² + b²): a fit computes this for every pixel, and the four cosines, the
     degree conversions and ``np.hypot`` were most of its time (18-20 ms → 12.6 ms at 51 000
-    pixels, 2026-12-04; equal to 1e-13 relative, the published pairs to 5e-5)."""
+    pixels, 2026-12-04; the same values to about 2e-13 absolute over 200 000 random pairs and
+    the edge cases of hue wrap-around and achromatic colours, the published pairs to 5e-5)."""
     l1, a1, b1 = np.moveaxis(np.asarray(lab1, dtype=np.float64), -1, 0)
     l2, a2, b2 = np.moveaxis(np.asarray(lab2, dtype=np.float64), -1, 0)
     # √(a² + b²) rather than np.hypot, which guards an overflow that L*a*b* values (|a|, |b|

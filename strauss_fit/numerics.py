@@ -179,6 +179,9 @@ def value_and_jacobian_columns(fn: Callable[[Array], Array], x: Array) -> tuple[
     the loop costs what ``jacfwd`` does (1.7 ms): the render's derivatives are closed-form,
     so the directions share little. ``fn`` is evaluated in every direction's pass anyway
     (it is the forward pass of the derivative); the first pass's value is returned."""
+    if x.shape[0] == 0:  # no direction: no pass to take the value from
+        value = fn(x)
+        return value, jnp.zeros((0, *value.shape), dtype=value.dtype)
     basis = jnp.eye(x.shape[0], dtype=x.dtype)
     values, columns = jax.lax.map(lambda direction: jax.jvp(fn, (x,), (direction,)), basis)
     return values[0], columns

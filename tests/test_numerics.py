@@ -29,3 +29,11 @@ def test_value_and_jacobian_columns_batch_over_points(x64):
     for point, value, column in zip(points, values, columns):
         np.testing.assert_allclose(np.asarray(value), np.asarray(_curve(point)), rtol=1e-15)
         np.testing.assert_allclose(np.asarray(column), np.asarray(jax.jacfwd(_curve)(point)).T, rtol=1e-14, atol=1e-15)
+
+
+def test_value_and_jacobian_columns_without_parameters(x64):
+    """P = 0 (a problem with nothing free): the value and an empty (0, M) Jacobian, as
+    jax.jacfwd gives (M, 0)."""
+    value, columns = value_and_jacobian_columns(lambda z: jnp.ones(6) * (1.0 + z.sum()), jnp.zeros(0))
+    np.testing.assert_array_equal(np.asarray(value), np.ones(6))
+    assert columns.shape == (0, 6)

@@ -578,7 +578,7 @@ class _Outcome:
 
 @dataclass(frozen=True)
 class _Reachable:
-    """(N, 3) at the used pixels: a white matte plastic's values (`reachable_floor_steps`)
+    """(N, 3) at the used pixels: a white matte plastic's values (`reachable_floor_call`)
     and, where the verdict needed it, the brightest values any material reaches
     (`reachable_maximum_steps`; None when not computed). They depend on the pixels, the
     lights and the exposure, not on the fit: a refit of the same round reuses them."""
@@ -602,7 +602,10 @@ def _conclude(
     reachable: _Reachable | None = None,
 ) -> Steps:
     """The fitted image of ``kept`` and the verdict on it (`diagnose`); ``reachable``:
-    what an earlier conclusion on the same pixels and lights found (`_Reachable`)."""
+    what an earlier conclusion on the same pixels and lights found (`_Reachable`). The
+    noise sandwich's kernel is dispatched here too, when the noise is known (its parts in
+    `_Outcome.sandwich`, read by `_uncertainty_steps`), so that it runs while the
+    verdict's Python does."""
     solved, scene, plan = kept.solved, kept.scene, kept.plan
     problem, layout = solved.problem, solved.problem.layout
     fitted_values = layout.split(solved.x)

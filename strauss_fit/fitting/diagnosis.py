@@ -186,16 +186,12 @@ def reachable_maximum_steps(problem: Any) -> Steps:
     return maximum
 
 
-def reachable_floor_steps(problem: Any) -> Steps:
-    """(N, 3): what a white matte plastic (C = 1, s = m = t = 0) reflects at each used pixel:
-    a value some Strauss material reaches, so a floor of `reachable_maximum_steps`'s
-    maximum, for one render instead of its 88."""
-    return np.asarray((yield reachable_floor_call(problem)))
-
-
 def reachable_floor_call(problem: Any) -> Call:
-    """The one kernel call of `reachable_floor_steps`, for a caller that yields it early and
-    reads its result (``np.asarray``) later, doing other work while it runs."""
+    """The kernel call whose result is (N, 3): what a white matte plastic (C = 1,
+    s = m = t = 0) reflects at each used pixel — a value some Strauss material reaches, so a
+    floor of `reachable_maximum_steps`'s maximum, for one render instead of its 88. A call
+    rather than steps: the fit yields it early and reads its result (``np.asarray``) later,
+    doing other work while it runs."""
     return brightest.call(_white_probe(problem), np.asarray([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]]))
 
 
