@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from . import interrupts
 
@@ -50,12 +51,30 @@ def _enable_compilation_cache() -> None:
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse, with a usage error as one line like every other error (exit status 2)."""
+    """argparse, with a usage error as one line like every other error (exit status 2), and
+    a help or version text that cannot be written an error too."""
 
     def error(self, message: str):
         from .common import escape
 
         self.exit(2, f"strauss-fit: error: {escape(message, newlines=True)} (see '{self.prog} --help')\n")
+
+    def _print_message(self, message: str, file: Any = None) -> None:
+        # argparse's own swallows an OSError of the write: `--help` or `--version` into a
+        # full disk exited 0 with nothing written. Written and flushed here, a failure is
+        # the command's one-line error (status 2); a closed pipe (`| head`) stays quiet, as
+        # Python's own exit keeps it (`interrupts.leave_process`).
+        if not message:
+            return
+        file = file or sys.stderr
+        try:
+            file.write(message)
+            file.flush()
+        except BrokenPipeError:
+            pass
+        except OSError as exc:
+            name = "output" if file is sys.stdout else "error"
+            raise OSError(exc.errno, f"cannot write the standard {name}: {exc.strerror or exc}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,6 +4,7 @@ the whole of the buffered output, the exit handlers."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -98,3 +99,20 @@ def test_output_that_cannot_be_flushed_is_status_120(error, message):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert done.returncode == 120
     assert done.stderr == ("" if message is None else f"strauss-fit: error: {message}\n")
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (a device that is always full)")
+@pytest.mark.parametrize("args", [("--version",), ("--help",), ("render", "--help")])
+def test_help_or_version_into_a_full_disk_is_an_error(args):
+    # argparse's own printing swallows the write's error: this exited 0 with nothing written
+    script = (
+        "import sys; sys.argv = ['strauss-fit', *sys.argv[1:]]\n"
+        "from strauss_fit_cli.main import console_main\n"
+        "console_main()\n"
+    )
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [sys.executable, "-c", script, *args], stdout=full, stderr=subprocess.PIPE, text=True, timeout=300
+        )
+    assert done.returncode == 2
+    assert done.stderr == "strauss-fit: error: cannot write the standard output: No space left on device\n"
