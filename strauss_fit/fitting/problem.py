@@ -302,10 +302,9 @@ def _robust_residual(psi: Callable[[Array], Array]) -> Callable[[Problem, Array,
 
 def _folded_residual(problem: Problem, model: Array, target: Array) -> Array:
     """A kernel form's residual (`LOSS_BY_CODE`): the residual of the loss ``loss_code``
-    names, computed by that loss's branch alone (``lax.switch``): the same operations on the
-    same z as the loss's own residual function. The folded losses are least squares and
-    robust ones (``tests/test_registries.py`` holds it): least squares needs no z, each robust
-    loss is its ψ(z) times σ_ref.
+    names, computed by that loss's own residual function (`LOSS_RESIDUALS`) alone, as one
+    branch of a ``lax.switch``. The folded losses are least squares and robust ones
+    (``tests/test_registries.py`` holds it).
 
     Why a switch rather than every candidate and a select: a select computes and, in the
     Jacobian, differentiates every loss's ψ on every value — a least-squares residual and
@@ -313,22 +312,10 @@ def _folded_residual(problem: Problem, model: Array, target: Array) -> Array:
     1.2 ms). A switch whose index is one number for the whole call runs one branch; where
     the index differs between the items of a batch (``vmap`` over problems of several
     losses) JAX turns it into that select again."""
-    difference = model - target
-
-    def least_squares(difference: Array) -> Array:
-        return difference
-
-    def robust(psi: Callable[[Array], Array]) -> Callable[[Array], Array]:
-        def residual(difference: Array) -> Array:
-            z, reference = _noise_scaled(problem, difference)
-            return psi(z) * reference
-
-        return residual
-
-    branches = [least_squares if name not in ROBUST_PSI else robust(ROBUST_PSI[name]) for name in FOLDED_LOSSES]
+    branches = [functools.partial(LOSS_RESIDUALS[name], problem, model, target) for name in FOLDED_LOSSES]
     code = problem.loss_code
     index = sum(jnp.where(code == LOSS_REGISTRY[name].code, i, 0) for i, name in enumerate(FOLDED_LOSSES))
-    return jax.lax.switch(index, branches, difference)
+    return jax.lax.switch(index, branches)
 
 
 def _huber_psi(z: Array) -> Array:
