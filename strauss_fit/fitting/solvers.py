@@ -51,6 +51,7 @@ from jax import Array
 
 from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
+from ..numerics import value_and_jacobian_columns
 from ..precision import uses_float64
 from .options import SOLVERS as SOLVERS  # plain data, kept with the options (the CLI reads it)
 from .options import FitOptions
@@ -207,6 +208,72 @@ def _polish_solve(
 polish_solve = Kernel(_polish_solve, "polish_solve")
 
 
+def _gauss_newton_polish(problem: Problem, x: Array, rtol: float, atol: float, max_steps: int):
+    r"""The polish's Gauss–Newton round (nothing pinned, the start converged on the
+    subsample), in physical units. At each point, the objective residual r, its Jacobian J
+    and the step `\delta = -(J^\top J)^{-1} J^\top r`; the round ends at the first point
+    whose step is within the tolerances in x and in its linear prediction of r
+    (optimistix's Cauchy test on the step: every `|\delta_i| < atol + rtol\,|x_i|`
+    and every `|(J\delta)_j| < atol + rtol\,|r_j|`), or after ``max_steps``
+    evaluations. Returns that point x, the normalised cost, the evaluations, the result
+    code (`status_name`: successful, max_steps_reached or nonfinite), Jᵀr and JᵀJ there,
+    and the cost at the start.
+
+    Why not `optimistix.GaussNewton` (what this round ran until 2026-12-04): it takes the
+    Jacobian in the unconstrained θ through a linearisation and materialises it for a QR
+    every step, takes one more step to see that the last one was small, and the caller
+    then took J and r at the end again for the errors — five evaluations at about 6 ms on
+    a 256² sphere. Here every evaluation's J serves its step and the last one's the errors
+    too, and the round stops where the next step would change nothing the tolerances see:
+    three evaluations on that sphere. The normal equations are solved scaled by their
+    diagonal (the squared condition number of a handful of columns is harmless in
+    float64); a singular JᵀJ, or a step that leaves the bounds, gives the code
+    ``nonfinite``, and the caller redoes the round with Levenberg–Marquardt, as it does
+    when the cost rose."""
+    lower = jnp.asarray(problem.layout.lower_bounds())
+    upper = jnp.asarray(problem.layout.upper_bounds())
+
+    def evaluate(point):
+        residual, columns = value_and_jacobian_columns(problem.objective_residual, point)
+        gradient, curvature = columns @ residual, columns @ columns.T
+        diagonal = jnp.diag(curvature)
+        scale = 1.0 / jnp.sqrt(jnp.where(diagonal > 0, diagonal, 1.0))
+        delta = -scale * jnp.linalg.solve(curvature * scale[:, None] * scale[None, :], gradient * scale)
+        small = jnp.all(jnp.abs(delta) < atol + rtol * jnp.abs(point)) & jnp.all(
+            jnp.abs(delta @ columns) < atol + rtol * jnp.abs(residual)
+        )
+        finite = (
+            jnp.all(jnp.isfinite(residual))
+            & jnp.all(jnp.isfinite(delta))
+            & jnp.all((point >= lower) & (point <= upper))
+        )
+        return residual, gradient, curvature, delta, small, finite
+
+    def condition(state):
+        count, _, evaluated = state
+        *_, small, finite = evaluated
+        return (count < max_steps) & ~small & finite
+
+    def step(state):
+        count, point, evaluated = state
+        point = point + evaluated[3]
+        return count + 1, point, evaluate(point)
+
+    first = evaluate(x)
+    start_cost = jnp.sum(first[0] * first[0])
+    count, x, (residual, gradient, curvature, _, small, finite) = jax.lax.while_loop(
+        condition, step, (jnp.asarray(1), x, first)
+    )
+    code = jnp.where(
+        finite, jnp.where(small, 0, RESULT_NAMES.index("max_steps_reached")), RESULT_NAMES.index("nonfinite")
+    )
+    return x, jnp.sum(residual * residual), count, code, gradient, curvature, start_cost
+
+
+#: The polish's Gauss–Newton round (`_gauss_newton_polish`); a `Kernel`.
+gauss_newton_polish = Kernel(_gauss_newton_polish, "gauss_newton_polish")
+
+
 def release_gain(information: np.ndarray, gradient: np.ndarray, pinned: np.ndarray, count: int) -> np.ndarray:
     r"""For each pinned entry i, the Newton estimate of how much χ² (at the reference noise)
     would drop if i were released and the free entries F re-optimised with it:
@@ -265,8 +332,11 @@ def polish_steps(
     count = problem.value_count()
     x = physical_values(problem, theta)
     start_theta = theta
-    start_cost = float(np.asarray((yield costs.call(problem, x[None])))[0])
     at_lower, at_upper = near_bounds(layout, x)
+    # Gauss–Newton's step would divide by the zero Jacobian column of a pinned entry
+    gauss_newton_first = near and not (at_lower | at_upper).any()
+    # (Gauss–Newton's round returns the cost at its start: no call of its own for it)
+    start_cost = None if gauss_newton_first else float(np.asarray((yield costs.call(problem, x[None])))[0])
     released = np.zeros_like(at_lower)
     total_steps = 0
     best = None
@@ -274,22 +344,23 @@ def polish_steps(
         pinned = at_lower | at_upper
         trial = problem.pin(pinned, np.where(at_lower, lower, np.where(at_upper, upper, x)))
         start = np.asarray(theta)
-        # Gauss–Newton's QR would divide by the zero Jacobian column of a pinned entry
-        gauss_newton = near and not round_ and not pinned.any()
-        theta, cost, steps, code, gradient, information = (
-            np.asarray(v)
-            for v in (
-                yield polish_solve.call(
-                    trial,
-                    start,
-                    options.rtol,
-                    options.atol,
-                    options.max_steps,
-                    "gauss-newton" if gauss_newton else "lm",
-                    reject_ratio,
+        gauss_newton = gauss_newton_first and not round_
+        if gauss_newton:
+            x_end, cost, steps, code, gradient, information, start_cost = (
+                np.asarray(v)
+                for v in (yield gauss_newton_polish.call(trial, x, options.rtol, options.atol, options.max_steps))
+            )
+            start_cost = float(start_cost)
+            theta = layout.to_unconstrained(x_end)
+        else:
+            theta, cost, steps, code, gradient, information = (
+                np.asarray(v)
+                for v in (
+                    yield polish_solve.call(
+                        trial, start, options.rtol, options.atol, options.max_steps, "lm", reject_ratio
+                    )
                 )
             )
-        )
         # (with nothing pinned the trial is the problem itself, so its start cost is start_cost)
         if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and status_name(int(code)) == "successful"):
             theta, cost, more, code, gradient, information = (

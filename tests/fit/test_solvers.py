@@ -1,6 +1,7 @@
 """The solvers of :mod:`strauss_fit.fitting.solvers`: the Levenberg–Marquardt variant reaches the
 same optimum as optimistix's stock one, in fewer steps on this model."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
@@ -14,8 +15,11 @@ from strauss_fit.fitting.solvers import (
     REJECT_RATIO,
     SOLVERS,
     STRICT_REJECT_RATIO,
+    _gauss_newton_polish,
     levenberg_marquardt,
     make_solver,
+    polish,
+    status_name,
 )
 from support import noisy_target
 
@@ -93,3 +97,53 @@ def test_make_solver_knows_every_name_and_sets_the_growth_cutoff():
     assert make_solver("lm", 1e-5, 1e-7, STRICT_REJECT_RATIO).search.low_cutoff == STRICT_REJECT_RATIO
     with pytest.raises(sf.StraussFitError, match="unknown solver 'newton'"):
         make_solver("newton", 1e-5, 1e-7)
+
+
+def _optimum(problem):
+    theta = jnp.asarray(problem.layout.to_unconstrained(np.array([0.5, 0.5, 0.5, 0.4, 0.5])))
+    solution = optx.least_squares(problem.residual, levenberg_marquardt(1e-12, 1e-14), theta, max_steps=200)
+    return np.asarray(problem.physical(solution.value))
+
+
+def test_gauss_newton_polish_reaches_the_optimum_and_returns_the_derivatives_there(key_and_fill):
+    problem = _problem(key_and_fill)
+    optimum = _optimum(problem)
+    start = optimum + np.array([2e-3, -1e-3, 1e-3, 3e-3, -2e-3])  # a subsample's optimum is this far off
+    run = jax.jit(_gauss_newton_polish, static_argnums=(2, 3, 4))
+    x, cost, count, code, gradient, curvature, start_cost = run(problem, jnp.asarray(start), 1e-6, 1e-8, 100)
+    assert status_name(int(code)) == "successful"
+    assert 2 <= int(count) <= 5  # evaluations, the start's included
+    np.testing.assert_allclose(np.asarray(x), optimum, atol=1e-6)
+    best = problem.objective_residual(jnp.asarray(optimum))
+    assert float(cost) == pytest.approx(float(jnp.sum(best**2)), rel=1e-10)
+    # the derivatives returned are those at the point returned, not at the one before it
+    jac = np.asarray(jax.jacfwd(problem.objective_residual)(x))
+    residual = np.asarray(problem.objective_residual(x))
+    np.testing.assert_allclose(np.asarray(curvature), jac.T @ jac, rtol=1e-10)
+    np.testing.assert_allclose(np.asarray(gradient), jac.T @ residual, rtol=1e-8, atol=1e-12 * np.abs(jac).max())
+    assert float(start_cost) == pytest.approx(float(jnp.sum(problem.objective_residual(jnp.asarray(start)) ** 2)))
+    assert float(start_cost) > float(cost)
+    # out of evaluations before the tolerances are met: said so
+    *_, code, _, _, _ = run(problem, jnp.asarray(start), 1e-6, 1e-8, 1)
+    assert status_name(int(code)) == "max_steps_reached"
+
+
+def test_gauss_newton_polish_reports_a_point_outside_the_bounds_and_the_polish_redoes_it(key_and_fill):
+    problem = _problem(key_and_fill)
+    optimum = _optimum(problem)
+    outside = optimum.copy()
+    outside[-1] = 1.2  # metalness above 1
+    run = jax.jit(_gauss_newton_polish, static_argnums=(2, 3, 4))
+    *_, code, _, _, _ = run(problem, jnp.asarray(outside), 1e-6, 1e-8, 100)
+    assert status_name(int(code)) == "nonfinite"
+    # the polish's Gauss-Newton round ("near") and its Levenberg-Marquardt rounds end at the
+    # same optimum, from a start Gauss-Newton takes and from one it cannot
+    options = FitOptions(rtol=1e-6, atol=1e-8, max_steps=100)
+    for start in (optimum + 1e-3, np.array([0.45, 0.5, 0.55, 0.3, 0.6])):
+        theta = problem.layout.to_unconstrained(start)
+        near_theta, near_cost, *_ = polish(problem, theta, options, near=True)
+        far_theta, far_cost, *_ = polish(problem, theta, options, near=False)
+        assert near_cost == pytest.approx(far_cost, rel=1e-9)
+        np.testing.assert_allclose(
+            problem.layout.to_physical_numpy(near_theta), problem.layout.to_physical_numpy(far_theta), atol=1e-5
+        )
