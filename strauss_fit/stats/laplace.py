@@ -164,6 +164,30 @@ def _value_derivatives(problem: Any, model: Array) -> tuple[Array, Array, Array,
     return values, slope_m, slope_y, curvature_m, cross_my
 
 
+def zero_pairs(problem: Any) -> set[tuple[int, int]]:
+    r"""The entry pairs (a ≤ b) of ``problem``'s layout where
+    `\partial^2 m/\partial x_a \partial x_b = 0` at every pixel, whatever the values:
+    where the renderer traces no transmission, each channel of the image is affine in that
+    channel of the colour and in the metalness, and bilinear in the two
+    (`strauss_fit.fitting.search`: the diffuse term, the specular tint
+    `1 + m(1 - F)(C_c - 1)`, the ambient term and the reflected background), times free
+    light intensities or an exposure if any. So the colour's pairs among themselves and the
+    metalness with itself are 0: 7 of the 15 pairs of a (C, s, m) fit. With transmission C
+    enters once per passage (a polynomial), and nothing is skipped. The tests compare the
+    skipped pairs with computed ones (``tests/fit/test_single_fit_kernels.py``)."""
+    layout = getattr(problem, "layout", None)
+    plan = getattr(problem, "plan", None)
+    if layout is None or plan is None or plan.transmit:
+        return set()
+    entries = {
+        name: range(offset, offset + size) for name, size, offset in zip(layout.names, layout.sizes, layout.offsets)
+    }
+    colour = list(entries.get("color", ()))
+    pairs = {(a, b) for a in colour for b in colour if a <= b}
+    pairs.update((a, a) for a in entries.get("metalness", ()))
+    return pairs
+
+
 def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
     r"""`\sum_i w_i \nabla^2 m_i(x)` (P, P) for the model values m (M,) of
     ``problem.render_physical``: each of the P(P + 1)/2 second derivatives
@@ -171,9 +195,11 @@ def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
     derivative, one pair after the other (``lax.map``). Why not ``jax.hessian``: the model's
     derivatives are a closed-form ``custom_jvp`` (`strauss_fit.rendering.strauss.direct_radiance`),
     and batching its second derivatives over the P × P pairs (``vmap``) cost 6-10 times the
-    pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5)."""
+    pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5). Pairs whose
+    second derivative vanishes at every pixel are not computed (`zero_pairs`)."""
     size = x.shape[0]
-    pairs = [(a, b) for a in range(size) for b in range(a, size)]
+    skipped = zero_pairs(problem)
+    pairs = [(a, b) for a in range(size) for b in range(a, size) if (a, b) not in skipped]
     if not pairs:
         return jnp.zeros((0, 0), dtype=x.dtype)
     basis = jnp.eye(size, dtype=x.dtype)

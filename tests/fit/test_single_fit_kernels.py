@@ -5,6 +5,8 @@ compiles nothing."""
 
 from __future__ import annotations
 
+import tomllib
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -13,9 +15,11 @@ import pytest
 
 import strauss_fit as sf
 import support
+from strauss_fit.fitting.parameters import light_parameter_names
 from strauss_fit.fitting.problem import build_problem
 from strauss_fit.rendering.strauss import plan_render
 from strauss_fit.stats import laplace
+from support import SCENES
 
 pytestmark = pytest.mark.usefixtures("x64")
 
@@ -122,3 +126,47 @@ def test_a_second_fit_of_a_target_traces_and_compiles_nothing(scene_and_target):
         jax.monitoring.unregister_event_duration_listener(on_duration)
     assert events == []
     assert again.uncertainty == first.uncertainty and again.residual["verdict"] == first.residual["verdict"]
+
+
+@pytest.mark.parametrize(
+    "scene_file, extra, transparent",
+    [
+        ("metal_environment.toml", "exposure", False),  # a reflected studio, depth 2
+        ("checker.toml", None, False),
+        ("key_and_fill.toml", "light", False),
+        ("glass_checkerboard.toml", None, True),
+    ],
+)
+def test_the_second_derivatives_skipped_are_zero(scene_file, extra, transparent):
+    """The pairs `zero_pairs` leaves out of the sandwich's Hessian are 0 at every pixel (the
+    image affine in each channel of C and in m, with a reflected background, a free exposure
+    or a free light intensity), and the Hessian with them left out equals jax.hessian; with
+    transmission none is left out."""
+    data = tomllib.loads((SCENES / scene_file).read_text())
+    data["camera"].update(width=20, height=20)
+    scene = sf.parse_scene(data, source=scene_file, base_dir=SCENES)
+    material = sf.Material(
+        color=(0.6, 0.4, 0.3), smoothness=0.55, metalness=0.35, transparency=0.5 if transparent else 0.0
+    )
+    image, _ = sf.render(scene, material)
+    target = sf.Target(np.asarray(image), np.ones(np.shape(image)[:2], bool), "pairs.exr", "linear", 0, 0)
+    names = ["color", "smoothness", "metalness"] + (["transparency", "ior"] if transparent else [])
+    if extra == "exposure":
+        names.append("exposure")
+    elif extra == "light":
+        names.append(light_parameter_names(scene.lights)[0])
+    plan = plan_render(scene, material, transparent=transparent)
+    problem = build_problem(scene, target, names, material, plan, sf.FitOptions(), 0.01)[0]
+    skipped = laplace.zero_pairs(problem)
+    if transparent:
+        assert plan.transmit and skipped == set()
+        return
+    assert {(0, 0), (0, 2), (1, 2), (4, 4)} <= skipped and len(skipped) == 7
+    x = jnp.asarray(np.r_[0.6, 0.4, 0.3, 0.55, 0.35, [0.8] * (problem.layout.size - 5)])
+    weights = jnp.asarray(np.random.default_rng(3).normal(size=np.asarray(problem.target).size))
+    full = np.asarray(jax.hessian(lambda z: jnp.sum(weights * problem.render_physical(z).ravel()))(x))
+    largest = np.max(np.abs(full))
+    for a, b in skipped:
+        assert abs(full[a, b]) <= 1e-12 * largest, (a, b)
+    fast = np.asarray(jax.jit(laplace._weighted_model_hessian)(problem, x, weights))
+    np.testing.assert_allclose(fast, full, rtol=1e-9, atol=1e-12 * largest)
