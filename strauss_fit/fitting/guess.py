@@ -54,12 +54,13 @@ def initial_guess(
         matte = usable & bright
     if matte.sum() < 3:
         return guess
-    ratio = np.median(target[matte] / diffuse_irradiance[matte, None], axis=0)
+    # channels as rows: a median along contiguous rows (axis 0 of (N, 3) took 1.8 ms at 256²)
+    ratio = np.median((target[matte] / diffuse_irradiance[matte, None]).T, axis=1)
     color = np.clip(ratio / max(1.0, float(ratio.max())), 0.02, 0.98)
     guess["color"] = color.tolist()
 
-    predicted = ratio[None, :] * diffuse_irradiance[:, None]
-    excess = np.mean(target - predicted, axis=-1)
+    # the mean over channels of target − ratio · irradiance, without the (N, 3) prediction
+    excess = np.mean(target, axis=-1) - float(np.mean(ratio)) * diffuse_irradiance
     near = usable & (max_cos_beta > 0.3)
     if near.sum() < 5 or np.max(excess[near], initial=0.0) <= 0:
         return guess
@@ -68,11 +69,14 @@ def initial_guess(
     if lobe.sum() >= 5:
         log_cos = np.log(max_cos_beta[lobe])
         log_excess = np.log(excess[lobe])
-        slope = np.polyfit(log_cos, log_excess, 1)[0]
-        h = max(float(slope), 3.0)
+        # the least-squares line's slope (np.polyfit's, in closed form; 0 when every cos β is equal)
+        centred = log_cos - np.mean(log_cos)
+        spread = float(np.sum(centred * centred))
+        slope = float(np.sum(centred * (log_excess - np.mean(log_excess)))) / spread if spread > 0 else 0.0
+        h = max(slope, 3.0)
         guess["smoothness"] = float(np.clip(1 - 3 / h, 0.02, 0.98))
     top = near & (excess > 0.5 * peak)
-    highlight = np.mean(target[top] - predicted[top], axis=0)
+    highlight = np.mean(target[top], axis=0) - ratio * float(np.mean(diffuse_irradiance[top]))
     if np.max(highlight) > 0:
         tint = highlight / np.max(highlight)
         base = color / np.max(color)

@@ -143,13 +143,14 @@ def silhouette_blend(
     scale = scale if scale > 0 else 1.0
     on_clear = difference[clear]
     # an offset (noise alone has none; its spread goes into σ below)
-    mismatch = float(np.max(np.abs(np.median(on_clear, axis=0))))
+    offset = np.median(on_clear, axis=0)
+    mismatch = float(np.max(np.abs(offset)))
     if mismatch > SILHOUETTE_BACKGROUND_MATCH * scale:
         return None, (
             f"the target's background differs from the scene's (by {mismatch:.3g}, "
             f"{mismatch / scale:.1%} of the sphere's brightness), so its silhouette cannot be checked"
         )
-    sigma = 1.4826 * float(np.median(np.abs(on_clear - np.median(on_clear, axis=0))))
+    sigma = 1.4826 * float(np.median(np.abs(on_clear - offset)))
     contrast = (coverage[outer][:, None] * (neighbours[outer] - background[outer])).ravel()
     information = float(np.sum(contrast**2))
     if information <= 0:

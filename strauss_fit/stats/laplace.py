@@ -201,7 +201,7 @@ def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
     skipped = zero_pairs(problem)
     pairs = [(a, b) for a in range(size) for b in range(a, size) if (a, b) not in skipped]
     if not pairs:
-        return jnp.zeros((0, 0), dtype=x.dtype)
+        return jnp.zeros((size, size), dtype=x.dtype)  # none, or every pair vanishes (the colour alone)
     basis = jnp.eye(size, dtype=x.dtype)
     first = basis[jnp.asarray([a for a, _ in pairs])]
     second = basis[jnp.asarray([b for _, b in pairs])]

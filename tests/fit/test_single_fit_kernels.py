@@ -170,3 +170,7 @@ def test_the_second_derivatives_skipped_are_zero(scene_file, extra, transparent)
         assert abs(full[a, b]) <= 1e-12 * largest, (a, b)
     fast = np.asarray(jax.jit(laplace._weighted_model_hessian)(problem, x, weights))
     np.testing.assert_allclose(fast, full, rtol=1e-9, atol=1e-12 * largest)
+    # the colour alone: every pair vanishes, and the Hessian is 3 x 3 zeros
+    colour_only = build_problem(scene, target, ["color"], material, plan, sf.FitOptions(), 0.01)[0]
+    zero = np.asarray(jax.jit(laplace._weighted_model_hessian)(colour_only, x[:3], weights))
+    np.testing.assert_array_equal(zero, np.zeros((3, 3)))
