@@ -185,3 +185,21 @@ def value_and_jacobian_columns(fn: Callable[[Array], Array], x: Array) -> tuple[
     basis = jnp.eye(x.shape[0], dtype=x.dtype)
     values, columns = jax.lax.map(lambda direction: jax.jvp(fn, (x,), (direction,)), basis)
     return values[0], columns
+
+
+def value_and_jacobian_rows(fn: Callable[[Array], Array], x: Array) -> tuple[Array, Array]:
+    r"""``fn(x)`` (a flat (M,) output) and its Jacobian at ``x`` (P,) as (P, M), like
+    `value_and_jacobian_columns`, but with the P directions vmapped (as ``jax.jacfwd``:
+    one forward pass for all of them) and the value and Jacobian then materialised
+    (``lax.optimization_barrier``), so that the products that read them read buffers.
+
+    Which to use is measured, not argued: in the polish's Gauss–Newton loop (three products
+    of one Jacobian per step) this took 16.7 ms a round against 23.7 ms by columns; in the
+    noise sandwich, whose second derivatives follow, 30 ms against 23.6 ms (256² sphere,
+    P = 5, medians of 25 alternated, 2026-12-04)."""
+    if x.shape[0] == 0:
+        value = fn(x)
+        return value, jnp.zeros((0, *value.shape), dtype=value.dtype)
+    basis = jnp.eye(x.shape[0], dtype=x.dtype)
+    value, rows = jax.vmap(lambda direction: jax.jvp(fn, (x,), (direction,)), out_axes=(None, 0))(basis)
+    return jax.lax.optimization_barrier((value, rows))

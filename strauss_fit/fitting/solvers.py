@@ -51,7 +51,7 @@ from jax import Array
 
 from ..engine import Kernel, Steps, run
 from ..errors import StraussFitError
-from ..numerics import value_and_jacobian_columns
+from ..numerics import value_and_jacobian_rows
 from ..precision import uses_float64
 from .options import SOLVERS as SOLVERS  # plain data, kept with the options (the CLI reads it)
 from .options import FitOptions
@@ -199,9 +199,10 @@ def _polish_solve(
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
     code = _result_code(solution.result)
     x = problem.physical(solution.value)
-    jac = jax.jacfwd(problem.objective_residual)(x)
-    residual = problem.objective_residual(x)  # = problem.residual(solution.value)
-    return solution.value, jnp.sum(residual**2), solution.stats["num_steps"], code, jac.T @ residual, jac.T @ jac
+    # the residual (= problem.residual(solution.value)) and its Jacobian, materialised once
+    # for the two products (`value_and_jacobian_rows`)
+    residual, rows = value_and_jacobian_rows(problem.objective_residual, x)
+    return solution.value, jnp.sum(residual**2), solution.stats["num_steps"], code, rows @ residual, rows @ rows.T
 
 
 #: One solve of the polish (`_polish_solve`); a `Kernel`.
@@ -234,7 +235,7 @@ def _gauss_newton_polish(problem: Problem, x: Array, rtol: float, atol: float, m
     upper = jnp.asarray(problem.layout.upper_bounds())
 
     def evaluate(point):
-        residual, columns = value_and_jacobian_columns(problem.objective_residual, point)
+        residual, columns = value_and_jacobian_rows(problem.objective_residual, point)
         gradient, curvature = columns @ residual, columns @ columns.T
         diagonal = jnp.diag(curvature)
         scale = 1.0 / jnp.sqrt(jnp.where(diagonal > 0, diagonal, 1.0))
