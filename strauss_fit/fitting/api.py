@@ -574,6 +574,9 @@ class _Outcome:
     #: The noise sandwich's parts at the fit (`sandwich_parts_kernel`, maybe still being
     #: computed); None when the noise is unknown.
     sandwich: Any = None
+    #: The fitted material and lights (the round's with the fitted values), as rendered.
+    material: Material | None = None
+    lights: Any = None
 
 
 @dataclass(frozen=True)
@@ -658,7 +661,17 @@ def _conclude(
         index=kept.index,
         sigma=sigma,
     )
-    return _Outcome(model, full.reshape(target.pixels.shape), delta_e, diagnosis, sigma, reachable, sandwich)
+    return _Outcome(
+        model,
+        full.reshape(target.pixels.shape),
+        delta_e,
+        diagnosis,
+        sigma,
+        reachable,
+        sandwich,
+        fitted_material,
+        fitted_lights,
+    )
 
 
 def _may_be_out_of_reach(target: np.ndarray, floor: np.ndarray, sigma: np.ndarray | None) -> bool:
@@ -688,15 +701,15 @@ def _result(
     """Steps giving the `FitResult` of the round that stands: its uncertainties
     (`_uncertainty_steps`), notes, equivalence ranges and warnings, and what the fit
     records of its residual, solver and settings."""
-    solved, scene, material = kept.solved, kept.scene, kept.material
+    solved = kept.solved
     problem, x_best = solved.problem, solved.x
     layout, pinned = problem.layout, np.asarray(solved.problem.pinned)
     residual = outcome.model - problem.real(problem.target)
     rss = float(np.sum(residual**2))
     uncertainty = yield from _uncertainty_steps(solved, outcome, noise, rss)
     fitted_values = layout.split(x_best)
-    fitted_material = material_with(material, fitted_values)
-    fitted_lights = lights_with(scene.lights, fitted_values)
+    # as `_conclude` rendered them (the same round and values: ``kept`` is the outcome's)
+    fitted_material, fitted_lights = outcome.material, outcome.lights
     exposure = float(fitted_values[EXPOSURE]) if EXPOSURE in layout.names else kept.exposure
     notes = _notes(solved, fitted_values)
     equivalence = None
@@ -866,7 +879,9 @@ def _residual_record(residual: np.ndarray, rss: float, outcome: _Outcome, noise:
     """The result's ``residual``: its size, the noise and the verdict."""
     diagnosis = outcome.diagnosis
     # NoiseModel.typical at the fitted radiance, from its σ already computed
-    noise_typical = np.sqrt(np.mean(outcome.sigma**2, axis=0)) if noise.known else None
+    # (Σ σ² per channel as a product over the rows: a mean along axis 0 of (N, 3) is strided)
+    sigma = outcome.sigma
+    noise_typical = np.sqrt(np.einsum("ij,ij->j", sigma, sigma) / len(sigma)) if noise.known else None
     return {
         "rms": float(np.sqrt(np.mean(residual**2))),
         "max_abs": float(np.max(np.abs(residual))),
