@@ -164,6 +164,16 @@ def _value_derivatives(problem: Any, model: Array) -> tuple[Array, Array, Array,
     return values, slope_m, slope_y, curvature_m, cross_my
 
 
+def _opaque_entries(problem: Any) -> dict[str, range] | None:
+    """The layout's entries by name where the renderer traces no transmission, else None."""
+    layout = getattr(problem, "layout", None)
+    plan = getattr(problem, "plan", None)
+    if layout is None or plan is None or plan.transmit:
+        return None
+    spans = zip(layout.names, layout.sizes, layout.offsets)
+    return {name: range(offset, offset + size) for name, size, offset in spans}
+
+
 def zero_pairs(problem: Any) -> set[tuple[int, int]]:
     r"""The entry pairs (a ≤ b) of ``problem``'s layout where
     `\partial^2 m/\partial x_a \partial x_b = 0` at every pixel, whatever the values:
@@ -175,17 +185,42 @@ def zero_pairs(problem: Any) -> set[tuple[int, int]]:
     metalness with itself are 0: 7 of the 15 pairs of a (C, s, m) fit. With transmission C
     enters once per passage (a polynomial), and nothing is skipped. The tests compare the
     skipped pairs with computed ones (``tests/fit/test_single_fit_kernels.py``)."""
-    layout = getattr(problem, "layout", None)
-    plan = getattr(problem, "plan", None)
-    if layout is None or plan is None or plan.transmit:
+    entries = _opaque_entries(problem)
+    if entries is None:
         return set()
-    entries = {
-        name: range(offset, offset + size) for name, size, offset in zip(layout.names, layout.sizes, layout.offsets)
-    }
     colour = list(entries.get("color", ()))
     pairs = {(a, b) for a in colour for b in colour if a <= b}
     pairs.update((a, a) for a in entries.get("metalness", ()))
     return pairs
+
+
+def _hessian_passes(problem: Any, size: int) -> list[tuple[tuple[int, ...], int, tuple[tuple[int, int], ...]]]:
+    """The second-derivative passes of `_weighted_model_hessian`: (entries summed into the
+    first direction, the second direction's entry, the pairs it gives — one per channel when
+    the first direction is the whole colour, else one).
+
+    Each channel of the image depends on its own channel of the colour only, so along the
+    colour's three entries at once the second derivative of a channel-c value in x_b is its
+    derivative in C_c and x_b: one pass gives the three pairs (C_r, b), (C_g, b), (C_b, b),
+    summed per channel. Used where no transmission is traced (as `zero_pairs`): 8 passes of
+    a (C, s, m) fit become 4."""
+    skipped = zero_pairs(problem)
+    pairs = [(a, b) for a in range(size) for b in range(a, size) if (a, b) not in skipped]
+    entries = _opaque_entries(problem)
+    colour = tuple(entries.get("color", ())) if entries is not None else ()
+    passes: list[tuple[tuple[int, ...], int, tuple[tuple[int, int], ...]]] = []
+    grouped: dict[int, list[tuple[int, int]]] = {}
+    for a, b in pairs:
+        if len(colour) == 3 and (a in colour) != (b in colour):
+            grouped.setdefault(b if a in colour else a, []).append((a, b))
+        else:
+            passes.append(((a,), b, ((a, b),)))
+    for other, found in grouped.items():
+        if len(found) == 3:
+            passes.append((colour, other, tuple(found)))  # found is in channel order
+        else:
+            passes.extend(((a,), b, ((a, b),)) for a, b in found)
+    return passes
 
 
 def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
@@ -196,28 +231,37 @@ def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
     derivatives are a closed-form ``custom_jvp`` (`strauss_fit.rendering.strauss.direct_radiance`),
     and batching its second derivatives over the P × P pairs (``vmap``) cost 6-10 times the
     pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5). Pairs whose
-    second derivative vanishes at every pixel are not computed (`zero_pairs`)."""
+    second derivative vanishes at every pixel are not computed (`zero_pairs`), and a colour
+    channel's pairs with another entry are taken for the three channels in one pass
+    (`_hessian_passes`)."""
     size = x.shape[0]
-    skipped = zero_pairs(problem)
-    pairs = [(a, b) for a in range(size) for b in range(a, size) if (a, b) not in skipped]
-    if not pairs:
+    passes = _hessian_passes(problem, size)
+    if not passes:
         return jnp.zeros((size, size), dtype=x.dtype)  # none, or every pair vanishes (the colour alone)
-    basis = jnp.eye(size, dtype=x.dtype)
-    first = basis[jnp.asarray([a for a, _ in pairs])]
-    second = basis[jnp.asarray([b for _, b in pairs])]
+    first = np.zeros((len(passes), size))
+    second = np.zeros((len(passes), size))
+    for k, (summed, other, _) in enumerate(passes):
+        first[k, list(summed)] = 1.0
+        second[k, other] = 1.0
 
     def render(z: Array) -> Array:
         return problem.render_physical(z).ravel()
 
-    def pair(directions: tuple[Array, Array]) -> Array:
+    def one_pass(directions: tuple[Array, Array]) -> Array:
         u, v = directions
         _, second_derivative = jax.jvp(lambda z: jax.jvp(render, (z,), (u,))[1], (x,), (v,))
-        return jnp.sum(weights * second_derivative)
+        return jnp.sum((weights * second_derivative).reshape(-1, 3), axis=0)  # per channel
 
-    upper = jax.lax.map(pair, (first, second))
-    rows, columns = np.array(pairs).T
-    hessian = jnp.zeros((size, size), dtype=x.dtype).at[rows, columns].set(upper)
-    return hessian.at[columns, rows].set(upper)
+    by_channel = jax.lax.map(one_pass, (jnp.asarray(first, dtype=x.dtype), jnp.asarray(second, dtype=x.dtype)))
+    values, rows, columns = [], [], []
+    for k, (_, _, found) in enumerate(passes):
+        for channel, (a, b) in enumerate(found):
+            values.append(by_channel[k, channel] if len(found) == 3 else jnp.sum(by_channel[k]))
+            rows.append(a)
+            columns.append(b)
+    upper = jnp.stack(values)
+    hessian = jnp.zeros((size, size), dtype=x.dtype).at[np.array(rows), np.array(columns)].set(upper)
+    return hessian.at[np.array(columns), np.array(rows)].set(upper)
 
 
 def _objective_terms(problem: Any, x: Array) -> tuple[Array, Array, Array, Array, Array]:

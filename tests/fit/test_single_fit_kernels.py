@@ -162,6 +162,11 @@ def test_the_second_derivatives_skipped_are_zero(scene_file, extra, transparent)
         assert plan.transmit and skipped == set()
         return
     assert {(0, 0), (0, 2), (1, 2), (4, 4)} <= skipped and len(skipped) == 7
+    # the colour's pairs with s, m (and the exposure or light) in one pass per other entry
+    passes = laplace._hessian_passes(problem, problem.layout.size)
+    assert ((0, 1, 2), 3, ((0, 3), (1, 3), (2, 3))) in passes
+    # (C, s), (C, m), (s, s), (s, m); with a sixth entry e also (C, e), (s, e), (m, e), (e, e)
+    assert len(passes) == {5: 4, 6: 8}[problem.layout.size]
     x = jnp.asarray(np.r_[0.6, 0.4, 0.3, 0.55, 0.35, [0.8] * (problem.layout.size - 5)])
     weights = jnp.asarray(np.random.default_rng(3).normal(size=np.asarray(problem.target).size))
     full = np.asarray(jax.hessian(lambda z: jnp.sum(weights * problem.render_physical(z).ravel()))(x))
