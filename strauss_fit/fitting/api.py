@@ -258,7 +258,8 @@ def _set_up(scene: Scene, target: Target, options: FitOptions, say: Callable[[st
     fixed = parse_fixed(options, candidates)
     exposure = float(fixed.get(EXPOSURE, 1.0))
     base_values = {**scene.material.to_dict(), **{k: v for k, v in fixed.items() if k in MATERIAL_SIZES}}
-    material = Material.from_dict(base_values)
+    # float64 at once: every problem of the fit casts its material to it (Material.astype), a no-op then
+    material = Material.from_dict(base_values, dtype=jnp.float64)
     light_values = {k: jnp.asarray(float(v)) for k, v in fixed.items() if k not in MATERIAL_SIZES and k != EXPOSURE}
     scene = eqx.tree_at(lambda s: s.lights, scene, lights_with(scene.lights, light_values))
     scene = eqx.tree_at(lambda s: s.material, scene, material)

@@ -532,9 +532,9 @@ def build_problem_steps(
         cache[key] = target, index, pixels  # the target is kept: its id stays its own
     extra: dict[str, Any] = {}
     rows = padded_rows(index.size) if pad else np.arange(index.size)
-    if (*key, pad) not in cache:
-        cache[(*key, pad)] = yield take_pixels_jit.call(prepared_full, index[rows])
-    prepared = cache[(*key, pad)]
+    if (*key, pad) not in cache:  # the prepared pixels and the target's, in the rows the problem takes
+        cache[(*key, pad)] = (yield take_pixels_jit.call(prepared_full, index[rows])), pixels[rows]
+    prepared, target_rows = cache[(*key, pad)]
     if pad:
         extra["valid"] = valid_rows(index.size, rows.size)
         extra["count"] = np.asarray(index.size)
@@ -551,7 +551,7 @@ def build_problem_steps(
     layout = Layout(tuple(names))
     problem = Problem(
         prepared=prepared,
-        target=pixels[rows],
+        target=target_rows,
         scene=scene,
         material=material.astype(jnp.float64),
         lights=scene.lights,
