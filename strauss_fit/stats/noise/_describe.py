@@ -205,8 +205,9 @@ ESTIMATED_KEPT = 32
 
 def _image_key(pixels: np.ndarray, usable: np.ndarray, quantised: bool, storage: float) -> bytes:
     """What decides an image's estimated noise: its values, the pixels used, the 8-bit
-    quantisation and the file's precision (a 256² image hashes in about 2 ms)."""
-    digest = hashlib.blake2b(digest_size=20)
+    quantisation and the file's precision. SHA-1 as a content key, not for security: a 256²
+    image hashes in 0.8 ms where BLAKE2b took 1.8 (2026-12-04)."""
+    digest = hashlib.sha1(usedforsecurity=False)
     for array in (pixels, usable):
         digest.update(repr((array.shape, array.dtype.str)).encode())
         digest.update(np.ascontiguousarray(array).data)
