@@ -136,7 +136,7 @@ def device_array(value: Any, dtype: Any = None) -> Array:
     out of range where NumPy would wrap them)."""
     if dtype is None and isinstance(value, _PYTHON_NUMBERS):
         return jax.device_put(value)  # weakly typed, the default width: as jnp.asarray
-    if isinstance(value, (np.ndarray, np.generic)) or _python_numbers_only(value):
+    if isinstance(value, (np.ndarray, np.generic, *_PYTHON_NUMBERS)) or _python_numbers_only(value):
         array = np.array(value, dtype=dtype)  # a copy
         if array.dtype.kind in "biufc":
             canonical = jax.dtypes.canonicalize_dtype(array.dtype)

@@ -144,10 +144,10 @@ def check_values(
 def _cast(leaf: Any, dtype: Any) -> Array:
     """``jnp.asarray(leaf, dtype)``; a material's few numbers, where concrete and not placed
     on a device of their own, cast on the host (no compiled program)."""
-    if is_traced(leaf) or (
-        isinstance(leaf, jax.Array) and (leaf.committed or (leaf.dtype == jnp.dtype(dtype) and not leaf.weak_type))
-    ):
-        return jnp.asarray(leaf, dtype=dtype)  # traced, placed, or already that: as before
+    if isinstance(leaf, jax.Array) and not is_traced(leaf) and leaf.dtype == jnp.dtype(dtype) and not leaf.weak_type:
+        return leaf  # already that (``jnp.asarray`` would run a compiled no-op conversion)
+    if is_traced(leaf) or (isinstance(leaf, jax.Array) and leaf.committed):
+        return jnp.asarray(leaf, dtype=dtype)  # traced or placed: as before
     return device_array(np.asarray(leaf), dtype)
 
 
