@@ -533,7 +533,9 @@ def build_problem_steps(
     extra: dict[str, Any] = {}
     rows = padded_rows(index.size) if pad else np.arange(index.size)
     if (*key, pad) not in cache:  # the prepared pixels and the target's, in the rows the problem takes
-        cache[(*key, pad)] = (yield take_pixels_jit.call(prepared_full, index[rows])), pixels[rows]
+        target_rows = pixels[rows]
+        target_rows.flags.writeable = False  # shared by every problem of this pixel set
+        cache[(*key, pad)] = (yield take_pixels_jit.call(prepared_full, index[rows])), target_rows
     prepared, target_rows = cache[(*key, pad)]
     if pad:
         extra["valid"] = valid_rows(index.size, rows.size)

@@ -225,9 +225,10 @@ def _hessian_passes(problem: Any, size: int) -> list[tuple[tuple[int, ...], int,
 
 def _weighted_model_hessian(problem: Any, x: Array, weights: Array) -> Array:
     r"""`\sum_i w_i \nabla^2 m_i(x)` (P, P) for the model values m (M,) of
-    ``problem.render_physical``: each of the P(P + 1)/2 second derivatives
-    `\partial^2 m/\partial x_a \partial x_b` as a forward-over-forward directional
-    derivative, one pair after the other (``lax.map``). Why not ``jax.hessian``: the model's
+    ``problem.render_physical``: the second derivatives
+    `\partial^2 m/\partial x_a \partial x_b` as forward-over-forward directional
+    derivatives, one pass after the other (``lax.map``) — every pair (a ≤ b), less those
+    that vanish and with a colour channel's pairs grouped, see the end. Why not ``jax.hessian``: the model's
     derivatives are a closed-form ``custom_jvp`` (`strauss_fit.rendering.strauss.direct_radiance`),
     and batching its second derivatives over the P × P pairs (``vmap``) cost 6-10 times the
     pairs one by one at 256² (measured: 170-300 ms against 31 ms for P = 5). Pairs whose

@@ -123,9 +123,12 @@ def test_gauss_newton_polish_reaches_the_optimum_and_returns_the_derivatives_the
     np.testing.assert_allclose(np.asarray(gradient), jac.T @ residual, rtol=1e-8, atol=1e-12 * np.abs(jac).max())
     assert float(start_cost) == pytest.approx(float(jnp.sum(problem.objective_residual(jnp.asarray(start)) ** 2)))
     assert float(start_cost) > float(cost)
-    # out of evaluations before the tolerances are met: said so
-    *_, code, _, _, _ = run(problem, jnp.asarray(start), 1e-6, 1e-8, 1)
-    assert status_name(int(code)) == "max_steps_reached"
+    # out of evaluations before the tolerances are met: said so, at the last point evaluated
+    for limit in (1, 2):
+        x_at, _, count, code, *_ = run(problem, jnp.asarray(start), 1e-6, 1e-8, limit)
+        assert status_name(int(code)) == "max_steps_reached" and int(count) == limit
+        if limit == 1:
+            np.testing.assert_array_equal(np.asarray(x_at), start)
 
 
 def test_gauss_newton_polish_reports_a_point_outside_the_bounds_and_the_polish_redoes_it(key_and_fill):
