@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..engine import Kernel, Steps, run
+from ..engine import Call, Kernel, Steps, run
 from ..errors import StraussFitError
 from ..numerics import value_and_jacobian_rows
 from ..precision import uses_float64
@@ -188,14 +188,15 @@ def _polish_solve(
     rtol: float,
     atol: float,
     max_steps: int,
-    solver_name: str,
     reject_ratio: float = REJECT_RATIO,
 ):
-    """One solve of the polish: θ, the normalised cost, the steps, the result code, and
-    the gradient Jᵀr and curvature JᵀJ of the normalised cost in physical units."""
+    """One Levenberg–Marquardt solve of the polish (`levenberg_marquardt`; the
+    Gauss–Newton round is `_gauss_newton_polish`): θ, the normalised cost, the steps, the
+    result code, and the gradient Jᵀr and curvature JᵀJ of the normalised cost in physical
+    units."""
     import optimistix as optx
 
-    solver = make_solver(solver_name, rtol, atol, reject_ratio)
+    solver = levenberg_marquardt(rtol, atol, reject_ratio=reject_ratio)
     solution = optx.least_squares(problem.residual, solver, theta, max_steps=max_steps, throw=False)
     code = _result_code(solution.result)
     x = problem.physical(solution.value)
@@ -333,6 +334,12 @@ def polish_steps(
     count = problem.value_count()
     x = physical_values(problem, theta)
     start_theta = theta
+
+    def levenberg_marquardt_round(round_problem: Problem, round_start: np.ndarray) -> Call:
+        return polish_solve.call(
+            round_problem, np.asarray(round_start), options.rtol, options.atol, options.max_steps, reject_ratio
+        )
+
     at_lower, at_upper = near_bounds(layout, x)
     # Gauss–Newton's step would divide by the zero Jacobian column of a pinned entry
     gauss_newton_first = near and not (at_lower | at_upper).any()
@@ -355,22 +362,12 @@ def polish_steps(
             theta = layout.to_unconstrained(x_end)
         else:
             theta, cost, steps, code, gradient, information = (
-                np.asarray(v)
-                for v in (
-                    yield polish_solve.call(
-                        trial, start, options.rtol, options.atol, options.max_steps, "lm", reject_ratio
-                    )
-                )
+                np.asarray(v) for v in (yield levenberg_marquardt_round(trial, start))
             )
         # (with nothing pinned the trial is the problem itself, so its start cost is start_cost)
         if gauss_newton and not (np.isfinite(cost) and cost <= start_cost and status_name(int(code)) == "successful"):
             theta, cost, more, code, gradient, information = (
-                np.asarray(v)
-                for v in (
-                    yield polish_solve.call(
-                        trial, start, options.rtol, options.atol, options.max_steps, "lm", reject_ratio
-                    )
-                )
+                np.asarray(v) for v in (yield levenberg_marquardt_round(trial, start))
             )
             steps = steps + more
         total_steps += int(steps)
@@ -394,18 +391,7 @@ def polish_steps(
         # quadratic (s just below 1, where the highlight's exponent 3/(1 − s) explodes):
         # pinning must never end above the cost the polish started from.
         theta, cost, steps, code, _, information = (
-            np.asarray(v)
-            for v in (
-                yield polish_solve.call(
-                    problem,
-                    np.asarray(start_theta),
-                    options.rtol,
-                    options.atol,
-                    options.max_steps,
-                    "lm",
-                    reject_ratio,
-                )
-            )
+            np.asarray(v) for v in (yield levenberg_marquardt_round(problem, start_theta))
         )
         total_steps += int(steps)
         trial = problem
