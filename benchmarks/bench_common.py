@@ -27,6 +27,8 @@ from strauss_fit.io.files import write_json as _write_json
 # the CPU devices the command line runs on (strauss_fit.runtime.use_cpu_cores): every benchmark
 # imports this module before any JAX work, so that it measures what `strauss-fit` does
 sf.use_cpu_cores()
+# and its allocator setting (strauss_fit.runtime.keep_freed_memory), for SciPy and NumPy as for JAX
+sf.keep_freed_memory()
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Two directional lights (a key and a fill) and ambient light over black.

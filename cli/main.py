@@ -36,9 +36,10 @@ def _load_numeric_libraries() -> None:
     compiled modules' imports, it would come back wrapped in an ImportError with a
     traceback in its message. First, the CPU devices: the command's process is its own, so it
     asks JAX for one per core before JAX starts (docs/commands/index.md#cpu-devices)."""
-    from strauss_fit.runtime import use_cpu_cores
+    from strauss_fit.runtime import keep_freed_memory, use_cpu_cores
 
     use_cpu_cores()
+    keep_freed_memory()
     import jax.numpy  # noqa: F401
     import numpy  # noqa: F401
 

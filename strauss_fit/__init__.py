@@ -29,7 +29,9 @@ Precision: importing the package does not touch ``jax_enable_x64``; the library 
 own computations in float64 inside a scope (`strauss_fit.precision`, and
 `float64` for your code). Nor does it touch JAX's CPU device count:
 `use_cpu_cores` asks for one device per core (the command line and the first batch
-call it; see `strauss_fit.runtime`).
+call it; see `strauss_fit.runtime`). The fitting functions set the C library's allocator to
+keep freed memory for their next call (`keep_freed_memory`, once per process; see
+`strauss_fit.runtime`).
 
 Every public name is listed once, in `_PUBLIC` (name → module), and imported on first
 use, so that ``import strauss_fit`` stays light: no JAX until something needs it (the
@@ -49,6 +51,7 @@ from .errors import MaterialError as MaterialError
 from .errors import OutputExistsError as OutputExistsError
 from .errors import SceneError as SceneError
 from .errors import StraussFitError as StraussFitError
+from .runtime import keep_freed_memory as keep_freed_memory
 from .runtime import use_cpu_cores as use_cpu_cores
 
 if TYPE_CHECKING:
@@ -153,6 +156,7 @@ __all__ = [
     "OutputExistsError",
     "SceneError",
     "StraussFitError",
+    "keep_freed_memory",
     "use_cpu_cores",
     *_LAZY,
 ]

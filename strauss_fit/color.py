@@ -121,10 +121,25 @@ def ciede2000(lab1: np.ndarray, lab2: np.ndarray) -> np.ndarray:
     return np.sqrt((d_l / s_l) ** 2 + (d_c / s_c) ** 2 + (d_h / s_h) ** 2 + r_t * (d_c / s_c) * (d_h / s_h))
 
 
+def display_scale(reference: np.ndarray) -> float:
+    """The exposure `delta_e_2000` divides by: the larger of 1 and the 99th percentile of
+    ``reference`` (NumPy's linear interpolation), 1 when it is empty. The percentile is
+    taken only when more than 1 % of the values exceed 1: else the order statistic above
+    the interpolated position is at most 1, and so is the percentile (a count instead of a
+    partial sort, 0.05 against 1.7 ms at 256²)."""
+    values = np.asarray(reference, dtype=np.float64).ravel()
+    if values.size == 0:
+        return 1.0
+    upper = math.ceil(0.99 * (values.size - 1))  # the higher of the two ranks interpolated
+    if np.count_nonzero(values > 1.0) <= values.size - 1 - upper:
+        return 1.0
+    return max(1.0, float(np.percentile(values, 99)))
+
+
 def delta_e_2000(rgb: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Per-pixel ΔE2000 between ``rgb`` and ``reference`` (shapes (..., 3), linear; see the
     module docstring for the exposure)."""
     rgb = np.asarray(rgb, dtype=np.float64)
     reference = np.asarray(reference, dtype=np.float64)
-    scale = max(1.0, float(np.percentile(reference, 99))) if reference.size else 1.0
+    scale = display_scale(reference)
     return ciede2000(linear_to_lab(np.clip(rgb / scale, 0.0, 1.0)), linear_to_lab(np.clip(reference / scale, 0.0, 1.0)))

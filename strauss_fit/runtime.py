@@ -40,10 +40,26 @@ program of your own, call `use_cpu_cores` right after importing the package (bef
 any JAX work) for the same; without it everything runs on JAX's one default CPU device,
 with the same results, batches slower. A count you chose (``JAX_NUM_CPU_DEVICES``,
 ``XLA_FLAGS``' host device count, ``jax.config``'s ``jax_num_cpu_devices``) is kept.
+
+Freed memory (`keep_freed_memory`): XLA:CPU allocates every buffer of a program anew at
+each call and frees it after, through the C library's ``malloc``. glibc gives blocks of a few
+megabytes (a 256² fit's Jacobian is 6.6 MB) fresh pages from the kernel and hands them back
+when freed, so every call of a kernel pays a page fault per 4 KiB it touches: the noise
+sandwich of a 256² fit spent half its time there (23 against 12 ms, 2026-12-05; NumPy's own
+large temporaries pay the same). `keep_freed_memory` sets glibc's thresholds
+(``mallopt``) so that blocks under `MMAP_THRESHOLD` come from the heap and up to
+`TRIM_THRESHOLD` of freed memory stays with the process for the next call. The fitting
+functions (`strauss_fit.fit`, `strauss_fit.fit_many`, folders and captures) and the command
+line call it once per process; the cost is memory the process keeps (at most
+`TRIM_THRESHOLD` beyond what it uses, per allocator arena). It does nothing where the C
+library is not glibc, where ``STRAUSS_FIT_KEEP_FREED_MEMORY=off``, or where the process's
+allocator was tuned already (``MALLOC_*_`` settings or ``GLIBC_TUNABLES`` naming
+``glibc.malloc``): yours are kept.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import sys
 import time
@@ -101,6 +117,47 @@ def use_cpu_cores() -> bool:
     except RuntimeError:  # JAX's backends are running: batches use the devices there are
         return False
     return True
+
+
+#: Blocks under this many bytes come from the heap once `keep_freed_memory` ran (glibc's
+#: own threshold moves between 128 KiB and 32 MiB as blocks are freed).
+MMAP_THRESHOLD = 64 * 2**20
+#: Freed memory at the top of a heap the process keeps, in bytes, once `keep_freed_memory` ran.
+TRIM_THRESHOLD = 256 * 2**20
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt's parameter numbers (glibc's malloc.h)
+#: The environment settings by which glibc's allocator is tuned at a process's start.
+_ALLOCATOR_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_", "MALLOC_MMAP_MAX_")
+_kept_freed_memory: bool | None = None
+
+
+def keep_freed_memory() -> bool:
+    """Set glibc's allocator to keep freed memory for the next call (see the module
+    docstring), once per process; whether it is set. Nothing where the C library is not
+    glibc, where ``STRAUSS_FIT_KEEP_FREED_MEMORY=off``, or where the allocator was tuned
+    through the environment already."""
+    global _kept_freed_memory
+    if _kept_freed_memory is None:
+        _kept_freed_memory = _set_allocator_thresholds()
+    return _kept_freed_memory
+
+
+def _set_allocator_thresholds() -> bool:
+    if turned_off(os.environ.get("STRAUSS_FIT_KEEP_FREED_MEMORY")):
+        return False
+    if any(name in os.environ for name in _ALLOCATOR_SETTINGS) or "glibc.malloc." in os.environ.get(
+        "GLIBC_TUNABLES", ""
+    ):
+        return False
+    try:
+        if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
+            return False
+        mallopt = ctypes.CDLL(None).mallopt  # the process's own C library
+    except (AttributeError, OSError, ValueError, TypeError):  # not glibc, not Unix
+        return False
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    mallopt.restype = ctypes.c_int
+    # the threshold first: setting either ends glibc's moving thresholds (mallopt(3))
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
 
 
 def cache_folder() -> Path | None:

@@ -67,3 +67,22 @@ def test_ciede2000_matches_the_published_test_pairs():
     ]
     for one, two, expected in pairs:
         assert float(ciede2000(np.array(one), np.array(two))) == pytest.approx(expected, abs=5e-5)
+
+
+@pytest.mark.parametrize("size", [1, 2, 99, 100, 101, 1000, 1001])
+def test_the_display_scale_is_the_99th_percentile_or_1_with_or_without_the_shortcut(size):
+    """`display_scale` skips the percentile when few values exceed 1: for every count of
+    values above 1 around the cut, and values exactly at 1, it equals max(1, percentile)."""
+    from strauss_fit.color import display_scale
+
+    rng = np.random.default_rng(size)
+    for above in sorted({0, 1, size // 100, size // 100 + 1, size // 100 + 2, size // 2, size}):
+        above = min(above, size)
+        for high in (1.0 + 1e-12, 1.5, 40.0):
+            values = np.concatenate([rng.uniform(0.0, 1.0, size - above), np.full(above, high)])
+            if above < size:
+                values[0] = 1.0  # a value exactly at 1 among those not above it
+            rng.shuffle(values)
+            expected = max(1.0, float(np.percentile(values, 99)))
+            assert display_scale(values.reshape(-1, 1)) == expected
+    assert display_scale(np.zeros((0, 3))) == 1.0

@@ -56,3 +56,56 @@ def test_without_proc_nothing_is_counted_or_cleared(monkeypatch, tmp_path):
     monkeypatch.setattr(runtime, "_MAPS", tmp_path / "missing")
     assert runtime.mapping_usage() is None
     assert runtime.release_compiled_code_if_needed(fraction=0.0, min_interval=0.0) is False
+
+
+_FREED_MEMORY_PROBE = """
+import ctypes, os, sys
+from strauss_fit import runtime
+kept = runtime.keep_freed_memory()
+libc = ctypes.CDLL(None)
+libc.malloc.restype = ctypes.c_void_p
+libc.malloc.argtypes = (ctypes.c_size_t,)
+libc.free.argtypes = (ctypes.c_void_p,)
+def resident():
+    return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+size = 40 * 2**20  # over glibc's largest moving threshold (32 MiB): mapped and unmapped by default
+before = resident()
+block = libc.malloc(size)
+ctypes.memset(block, 1, size)
+libc.free(block)
+print(kept, (resident() - before) / size)
+"""
+
+
+def _freed_memory_probe(**settings: str) -> tuple[str, float]:
+    """In a new process (the allocator's settings are the process's): whether
+    `keep_freed_memory` set them, and how much of a 40 MiB block, written and freed, the
+    process still holds (in blocks)."""
+    import os
+    import subprocess
+    import sys
+
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    environment.pop("STRAUSS_FIT_KEEP_FREED_MEMORY", None)
+    done = subprocess.run(
+        [sys.executable, "-c", _FREED_MEMORY_PROBE],
+        env={**environment, **settings},
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    kept, held = done.stdout.split()
+    return kept, float(held)
+
+
+@pytest.mark.skipif(
+    not (hasattr(runtime.os, "confstr") and (runtime.os.confstr("CS_GNU_LIBC_VERSION") or "").startswith("glibc")),
+    reason="glibc's allocator",
+)
+def test_keep_freed_memory_keeps_a_freed_block_for_the_next_call_and_leaves_a_tuned_allocator_alone():
+    kept, held = _freed_memory_probe()
+    assert kept == "True" and held > 0.9  # written, freed and still the process's: no new page faults
+    kept, held = _freed_memory_probe(STRAUSS_FIT_KEEP_FREED_MEMORY="off")
+    assert kept == "False" and held < 0.1  # glibc's default: handed back at once
+    kept, held = _freed_memory_probe(MALLOC_TOP_PAD_="0")  # the user's own tuning is kept
+    assert kept == "False" and held < 0.1

@@ -42,7 +42,7 @@ from ..io.targets import Target, reduce_target
 from ..models.material import PARAMETER_NAMES, Material
 from ..precision import uses_float64
 from ..rendering.strauss import Prepared, RenderPlan, plan_render
-from ..runtime import release_compiled_code_if_needed
+from ..runtime import keep_freed_memory, release_compiled_code_if_needed
 from ..scene.loading import Scene
 from ..stats import laplace
 from ..stats.laplace import padded_noise, problem_laplace_steps, sandwich_from_parts, sandwich_parts_kernel
@@ -170,6 +170,7 @@ def fit(
         >>> round(float(result.material.smoothness), 3), round(float(result.material.metalness), 3)
         (0.6, 0.3)
     """
+    keep_freed_memory()
     release_compiled_code_if_needed()
     return run(fit_steps(scene, target, options, progress=progress))
 

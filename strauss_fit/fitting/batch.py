@@ -28,7 +28,7 @@ from ..engine import run_batched
 from ..errors import StraussFitError
 from ..io.targets import Target, load_target, match_scene
 from ..precision import uses_float64
-from ..runtime import release_compiled_code_if_needed, use_cpu_cores
+from ..runtime import keep_freed_memory, release_compiled_code_if_needed, use_cpu_cores
 from ..scene.loading import Scene, load_scene
 from .api import fit_steps
 from .options import FitOptions
@@ -135,6 +135,7 @@ def fit_chunk(
     """Fit ``jobs`` in this process, advancing together (see the module docstring); in
     order, each a `FitResult` or a `FitFailure`.
     ``on_result(index, result)`` is called as each finishes."""
+    keep_freed_memory()
     release_compiled_code_if_needed()
     scenes: dict[str, Scene] = {}
     cache: dict = {}  # prepared scenes, shared by the targets of one scene

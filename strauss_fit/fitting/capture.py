@@ -40,6 +40,7 @@ from ..color import delta_e_2000
 from ..errors import CaptureError
 from ..models.reflectance import REFLECTANCE_MODELS, reflectance_model
 from ..precision import float64
+from ..runtime import keep_freed_memory
 from ..stats.laplace import sandwich
 from .solvers import STRICT_REJECT_RATIO, _result_code, levenberg_marquardt, status_name
 
@@ -421,6 +422,7 @@ class CaptureFit:
 def fit_capture_samples(samples: CaptureSamples, options: CaptureFitOptions | None = None) -> CaptureFit:
     """Fit one material to every usable value of ``samples`` (see the module docstring)."""
     options = options or CaptureFitOptions()
+    keep_freed_memory()
     with float64():
         return _fit(samples, options)
 

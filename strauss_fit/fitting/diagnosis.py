@@ -221,6 +221,32 @@ def pixel_regions(prepared: Any) -> dict[str, np.ndarray]:
     return {"highlight": core, "highlight wings": wings, "rim": rim, "body": ~(core | wings | rim)}
 
 
+def _region_statistics(
+    regions: dict[str, np.ndarray], z: np.ndarray, per_pixel: np.ndarray, total: float
+) -> dict[str, dict[str, Any]]:
+    """Each non-empty region's pixels, χ²/dof (the mean of z² over its values), share of
+    the whole χ² ``total`` and mean z per channel, from the standardized residuals ``z``
+    (N, 3) and their per-pixel sums of squares ``per_pixel`` (N,). As sums over a
+    membership matrix (regions × pixels) rather than one boolean selection per region and
+    statistic (12 copies of the selected values: 3.6 of a 256² fit's 6.7 ms of verdict)."""
+    names = [name for name, mask in regions.items() if mask.any()]
+    if not names:
+        return {}
+    membership = np.stack([regions[name] for name in names]).astype(z.dtype)
+    pixels = membership.sum(axis=1)
+    sums = membership @ per_pixel
+    mean_z = (membership @ z) / pixels[:, None]
+    return {
+        name: {
+            "pixels": int(pixels[k]),
+            "chi2_per_dof": float(sums[k] / (pixels[k] * z.shape[-1])),
+            "share_of_chi2": float(sums[k] / total) if total > 0 else 0.0,
+            "mean_z": mean_z[k].round(4).tolist(),
+        }
+        for k, name in enumerate(names)
+    }
+
+
 def diagnose(
     problem: Any,
     model: np.ndarray,
@@ -274,20 +300,14 @@ def diagnose(
         z2 = z**2
         chi2, dof, spread, zscore = chi2_statistics(z2, parameters, noise.relative_stderr)
         diagnosis.chi2_per_dof, diagnosis.expected_sd, diagnosis.z = chi2, spread, zscore
-        diagnosis.standardized = np.sqrt(np.mean(z2, axis=-1))
+        per_pixel = z2.sum(axis=-1)
+        diagnosis.standardized = np.sqrt(per_pixel / z2.shape[-1])
         diagnosis.per_channel = [
             {"channel": c, "chi2_per_dof": float(np.sum(z2[:, i]) / max(z2.shape[0] - parameters / 3, 1))}
             for i, c in enumerate("rgb")
         ]
-        total = float(np.sum(z2))
-        for name, mask in regions.items():
-            if mask.any():
-                diagnosis.regions[name] = {
-                    "pixels": int(mask.sum()),
-                    "chi2_per_dof": float(np.mean(z2[mask])),
-                    "share_of_chi2": float(np.sum(z2[mask]) / total) if total > 0 else 0.0,
-                    "mean_z": np.mean(z[mask], axis=0).round(4).tolist(),
-                }
+        total = float(np.sum(per_pixel))
+        diagnosis.regions.update(_region_statistics(regions, z, per_pixel, total))
         diagnosis.verdict = "mismatch" if zscore > MISMATCH_Z else "consistent"
         if diagnosis.verdict == "mismatch":
             diagnosis.warn("model-mismatch", _mismatch_message(diagnosis, regions, delta_e_mean))
