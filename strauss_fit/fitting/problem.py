@@ -591,10 +591,8 @@ def resolve_edge_pixels_steps(
     height, width = target.pixels.shape[:2]
     hit = np.asarray(prepared_full.hit).reshape(height, width)
     background = np.asarray(prepared_full.miss_radiance, dtype=np.float64).reshape(height, width, 3) * exposure
-    coverage_key = ("coverage", geometry_key(scene, plan, options))
-    if coverage_key not in cache:  # a property of the camera: once per scene, not per target
-        cache[coverage_key] = pixel_coverage(scene.camera)
-    blended, why = silhouette_blend(target.pixels, target.usable, hit, cache[coverage_key], background)
+    coverage = pixel_coverage(scene.camera)  # a property of the camera: kept per camera
+    blended, why = silhouette_blend(target.pixels, target.usable, hit, coverage, background)
     if blended is False:
         return "include", f"edge pixels used: {why}"
     return "exclude", f"edge pixels (partly covered by the sphere) left out: {why}"

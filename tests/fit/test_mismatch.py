@@ -403,3 +403,19 @@ def test_the_reachable_maximum_is_rendered_only_where_a_pixel_may_be_out_of_reac
     gold_scene, gold, _ = mitsuba_case("mitsuba-roughconductor-0000")
     assert "highlight-out-of-reach" in codes(sf.fit(gold_scene, gold))
     assert envelopes  # once per round concluded (least squares, then Huber on the visible mismatch)
+
+
+def test_pixel_coverage_is_kept_per_camera_by_value_and_read_only(scenes_dir):
+    """`pixel_coverage` is computed once per camera: an equal camera built anew gets the
+    same (read-only) array, a resized one its own, equal to a fresh computation."""
+    from strauss_fit.rendering import coverage as coverage_module
+
+    scene = sf.load_scene(scenes_dir / "two_lights.toml")
+    first = pixel_coverage(scene.camera)
+    again = pixel_coverage(sf.load_scene(scenes_dir / "two_lights.toml").camera)
+    assert again is first and not first.flags.writeable
+    other = pixel_coverage(scene.camera.resized(17, 13))
+    assert other.shape == (13, 17)
+    np.testing.assert_array_equal(other, coverage_module._pixel_coverage(scene.camera.resized(17, 13), 8))
+    fresh = coverage_module._pixel_coverage(scene.camera, coverage_module.COVERAGE_SAMPLES)
+    np.testing.assert_array_equal(first, fresh)
