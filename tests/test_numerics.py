@@ -77,5 +77,11 @@ def test_high_percentile_is_numpys_percentile_exactly():
     with_nan, with_inf = rng.random(n), rng.random(n)
     with_nan[3], with_inf[5] = np.nan, np.inf
     assert np.isnan(high_percentile(with_nan, 98))
-    for q in (98, 100):  # NumPy's own answers (NaN at 100: inf − inf in its interpolation)
-        np.testing.assert_equal(high_percentile(with_inf, q), np.percentile(with_inf, q))
+    with np.errstate(invalid="ignore"):  # NumPy's own answers (NaN at 100: inf − inf)
+        for q in (98, 100):
+            np.testing.assert_equal(high_percentile(with_inf, q), np.percentile(with_inf, q))
+    single = rng.random(n).astype(np.float32)  # NumPy interpolates float32 in float32
+    assert high_percentile(single, 98) == np.percentile(single, 98)
+    for q in (101, -1, float("nan")):
+        with pytest.raises(ValueError):
+            high_percentile(rng.random(n), q)

@@ -68,7 +68,7 @@ libc.malloc.argtypes = (ctypes.c_size_t,)
 libc.free.argtypes = (ctypes.c_void_p,)
 def resident():
     return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-size = 40 * 2**20  # over glibc's largest moving threshold (32 MiB): mapped and unmapped by default
+size = 24 * 2**20  # over glibc's first threshold (128 KiB): mapped and unmapped by default
 before = resident()
 block = libc.malloc(size)
 ctypes.memset(block, 1, size)
@@ -79,7 +79,7 @@ print(kept, (resident() - before) / size)
 
 def _freed_memory_probe(**settings: str) -> tuple[str, float]:
     """In a new process (the allocator's settings are the process's): whether
-    `keep_freed_memory` set them, and how much of a 40 MiB block, written and freed, the
+    `keep_freed_memory` set them, and how much of a 24 MiB block, written and freed, the
     process still holds (in blocks)."""
     import os
     import subprocess

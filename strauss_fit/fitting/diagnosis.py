@@ -233,10 +233,15 @@ def _region_statistics(
     names = [name for name, mask in regions.items() if mask.any()]
     if not names:
         return {}
-    membership = np.stack([regions[name] for name in names]).astype(z.dtype)
+    membership = np.stack([regions[name] for name in names])
     pixels = membership.sum(axis=1)
-    sums = membership @ per_pixel
-    mean_z = (membership @ z) / pixels[:, None]
+    if np.isfinite(per_pixel).all():
+        weights = membership.astype(z.dtype)
+        sums = weights @ per_pixel
+        mean_z = (weights @ z) / pixels[:, None]
+    else:  # 0 × inf is NaN in a product: a non-finite value stays in its own regions
+        sums = np.array([np.sum(per_pixel[mask]) for mask in membership])
+        mean_z = np.array([np.mean(z[mask], axis=0) for mask in membership])
     return {
         name: {
             "pixels": int(pixels[k]),

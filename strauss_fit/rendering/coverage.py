@@ -30,6 +30,8 @@ fully covered pixels are used. The measurements are ``benchmarks/silhouette.py``
 
 from __future__ import annotations
 
+import threading
+
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -175,6 +177,7 @@ def silhouette_blend(
 #: shares (2 ms at 256², a fifth of a warm fit's Python before its solve).
 _COVERAGE: dict[tuple, np.ndarray] = {}
 _COVERAGE_KEPT = 8
+_COVERAGE_LOCK = threading.Lock()  # fits may run in several threads
 
 
 def pixel_coverage(camera: Camera, samples: int = COVERAGE_SAMPLES) -> np.ndarray:
@@ -192,14 +195,15 @@ def pixel_coverage(camera: Camera, samples: int = COVERAGE_SAMPLES) -> np.ndarra
         *(np.asarray(v, dtype=np.float64).tobytes() for v in (camera.position, camera.look_at, camera.up)),
         float(camera.fov_deg),
     )
-    coverage = _COVERAGE.pop(key, None)
-    if coverage is None:
-        coverage = _pixel_coverage(camera, samples)
-        coverage.setflags(write=False)  # shared by every caller
-        while len(_COVERAGE) >= _COVERAGE_KEPT:
-            _COVERAGE.pop(next(iter(_COVERAGE)))
-    _COVERAGE[key] = coverage  # the most recent last
-    return coverage
+    with _COVERAGE_LOCK:
+        coverage = _COVERAGE.pop(key, None)
+        if coverage is None:
+            coverage = _pixel_coverage(camera, samples)
+            coverage.setflags(write=False)  # shared by every caller
+            while len(_COVERAGE) >= _COVERAGE_KEPT:
+                _COVERAGE.pop(next(iter(_COVERAGE)))
+        _COVERAGE[key] = coverage  # the most recent last
+        return coverage
 
 
 def _pixel_coverage(camera: Camera, samples: int) -> np.ndarray:

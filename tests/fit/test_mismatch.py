@@ -419,3 +419,32 @@ def test_pixel_coverage_is_kept_per_camera_by_value_and_read_only(scenes_dir):
     np.testing.assert_array_equal(other, coverage_module._pixel_coverage(scene.camera.resized(17, 13), 8))
     fresh = coverage_module._pixel_coverage(scene.camera, coverage_module.COVERAGE_SAMPLES)
     np.testing.assert_array_equal(first, fresh)
+
+
+def test_region_statistics_are_the_per_region_selections_and_a_non_finite_value_stays_in_its_regions():
+    """The verdict's region statistics (`_region_statistics`, one membership product) are
+    what a boolean selection per region gives; with one infinite z (σ = 0 somewhere) only
+    the regions holding that pixel are non-finite, and an empty region is left out."""
+    from strauss_fit.fitting.diagnosis import _region_statistics
+
+    rng = np.random.default_rng(3)
+    z = rng.normal(size=(500, 3))
+    regions = {"a": rng.random(500) < 0.3, "b": rng.random(500) < 0.6, "empty": np.zeros(500, bool)}
+    regions["b"][0] = False
+    per_pixel = np.sum(z**2, axis=-1)
+    total = float(np.sum(per_pixel))
+    stats = _region_statistics(regions, z, per_pixel, total)
+    assert set(stats) == {"a", "b"}
+    for name in ("a", "b"):
+        mask = regions[name]
+        assert stats[name]["pixels"] == int(mask.sum())
+        assert stats[name]["chi2_per_dof"] == pytest.approx(float(np.mean(z[mask] ** 2)), rel=1e-12)
+        assert stats[name]["share_of_chi2"] == pytest.approx(float(np.sum(z[mask] ** 2)) / total, rel=1e-12)
+        assert stats[name]["mean_z"] == np.mean(z[mask], axis=0).round(4).tolist()
+    regions["a"][0] = True
+    z[0] = np.inf
+    per_pixel = np.sum(z**2, axis=-1)
+    with np.errstate(invalid="ignore"):  # inf / inf: the share of an infinite total
+        stats = _region_statistics(regions, z, per_pixel, float(np.sum(per_pixel)))
+    assert not math.isfinite(stats["a"]["chi2_per_dof"])
+    assert math.isfinite(stats["b"]["chi2_per_dof"]) and all(math.isfinite(v) for v in stats["b"]["mean_z"])
