@@ -47,7 +47,8 @@ megabytes (a 256² fit's Jacobian is 6.6 MB) fresh pages from the kernel and han
 when freed, so every call of a kernel pays a page fault per 4 KiB it touches: the noise
 sandwich of a 256² fit spent half its time there (23 against 12 ms, 2026-12-05; NumPy's own
 large temporaries pay the same). `keep_freed_memory` sets glibc's thresholds
-(``mallopt``) so that blocks under `MMAP_THRESHOLD` (32 MiB) come from the heap and up to
+(``mallopt``) so that blocks under `MMAP_THRESHOLD` (64 MiB; 32 MiB on a glibc before 2.35,
+which refuses more) come from the heap and up to
 `TRIM_THRESHOLD` of freed memory stays with the process for the next call. The fitting
 functions (`strauss_fit.fit`, `strauss_fit.fit_many`, folders and captures) and the command
 line call it once per process; the cost is memory the process keeps (at most
@@ -121,9 +122,11 @@ def use_cpu_cores() -> bool:
 
 
 #: Blocks under this many bytes come from the heap once `keep_freed_memory` ran (glibc's
-#: own threshold moves between 128 KiB and 32 MiB as blocks are freed; 32 MiB is also the
-#: most a glibc before 2.35 accepts).
-MMAP_THRESHOLD = 32 * 2**20
+#: own threshold moves between 128 KiB and 32 MiB as blocks are freed). Not 32 MiB: a 256²
+#: fit's noise sandwich has a 33 MB temporary, and with 32 MiB it took 22-23 ms, not 14-15.
+MMAP_THRESHOLD = 64 * 2**20
+#: What a glibc before 2.35 accepts at most (it refuses `MMAP_THRESHOLD`).
+_OLD_GLIBC_MMAP_THRESHOLD = 32 * 2**20
 #: Freed memory at the top of a heap the process keeps, in bytes, once `keep_freed_memory` ran.
 TRIM_THRESHOLD = 256 * 2**20
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt's parameter numbers (glibc's malloc.h)
@@ -159,7 +162,7 @@ def _set_allocator_thresholds() -> bool:
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int
     # both, each on its own (setting either ends glibc's moving thresholds, mallopt(3))
-    mapped = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)
+    mapped = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) or mallopt(_M_MMAP_THRESHOLD, _OLD_GLIBC_MMAP_THRESHOLD)
     trimmed = mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD)
     return bool(mapped) and bool(trimmed)
 
