@@ -12,6 +12,7 @@ preset.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any
 
@@ -211,6 +212,16 @@ class FitOptions:
             raise StraussFitError(f"search must be one of {', '.join(SEARCHES)}, got {self.search!r}")
         if self.edge_pixels not in EDGE_PIXELS:
             raise StraussFitError(f"edge_pixels must be one of {', '.join(EDGE_PIXELS)}, got {self.edge_pixels!r}")
+        # the solvers' settings, as the command line's parsers check them (a step limit of 0
+        # ran the Gauss-Newton loop, which then reported one evaluation)
+        steps = self.max_steps
+        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
+            raise StraussFitError(f"the solver step limit (max_steps) must be a whole number ≥ 1, got {steps!r}")
+        for name in ("rtol", "atol"):
+            value = getattr(self, name)
+            number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+            if not (number and math.isfinite(value) and value >= 0):
+                raise StraussFitError(f"the solver tolerance {name} must be a finite number ≥ 0, got {value!r}")
         if self.noise is not None:  # within NOISE_RANGE: beyond, σ² or 1/σ² leaves float64's range
             check_noise_level(self.noise, "the noise level (--noise)")
         if not (math.isfinite(float(self.equivalence_de)) and self.equivalence_de > 0):

@@ -81,3 +81,30 @@ def test_noise_levels_at_the_ends_of_the_range_are_accepted():
         FitOptions(noise=value).validate()
     FitOptions(reference_noise=1e-100).validate()
     FitOptions(reference_noise=1e100).validate()
+
+
+@pytest.mark.parametrize(
+    "fields,message",
+    [
+        (dict(max_steps=0), r"the solver step limit \(max_steps\) must be a whole number ≥ 1, got 0"),
+        (dict(max_steps=-3), r"step limit \(max_steps\) must be a whole number ≥ 1, got -3"),
+        (dict(max_steps=2.5), r"step limit \(max_steps\) must be a whole number ≥ 1, got 2.5"),
+        (dict(max_steps=True), r"step limit \(max_steps\) must be a whole number ≥ 1, got True"),
+        (dict(rtol=-1e-6), r"the solver tolerance rtol must be a finite number ≥ 0, got -1e-06"),
+        (dict(atol=float("nan")), r"the solver tolerance atol must be a finite number ≥ 0, got nan"),
+        (dict(rtol="1e-6"), r"the solver tolerance rtol must be a finite number ≥ 0, got '1e-6'"),
+    ],
+)
+def test_the_solver_settings_are_checked_in_one_line(fields, message):
+    """The library refuses what the command line's parsers refuse: a step limit below 1 (the
+    Gauss–Newton loop then reported one evaluation) and a negative or non-finite tolerance."""
+    with pytest.raises(sf.StraussFitError, match=message) as raised:
+        FitOptions(**fields).validate()
+    assert "\n" not in str(raised.value)
+
+
+def test_the_solver_settings_at_their_ends_are_accepted():
+    import numpy as np
+
+    FitOptions(max_steps=1, rtol=0.0, atol=0.0).validate()
+    FitOptions(max_steps=np.int64(5), rtol=np.float64(1e-9)).validate()

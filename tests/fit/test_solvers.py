@@ -26,7 +26,7 @@ from support import noisy_target
 pytestmark = pytest.mark.usefixtures("x64")
 
 
-def _problem(scene):
+def _problem(scene, pad=False):
     truth = sf.Material(color=(0.7, 0.4, 0.2), smoothness=0.6, metalness=0.3)
     target = noisy_target(scene, truth, noise=0.01, seed=1)
     plan = plan_render(scene, scene.material)
@@ -34,7 +34,14 @@ def _problem(scene):
     # pixel rule, is under test)
     options = FitOptions(edge_pixels="include")
     problem, _, _ = build_problem(
-        scene, target, ["color", "smoothness", "metalness"], scene.material, plan, options, reference_noise=0.01
+        scene,
+        target,
+        ["color", "smoothness", "metalness"],
+        scene.material,
+        plan,
+        options,
+        reference_noise=0.01,
+        pad=pad,
     )
     return problem
 
@@ -129,6 +136,20 @@ def test_gauss_newton_polish_reaches_the_optimum_and_returns_the_derivatives_the
         assert status_name(int(code)) == "max_steps_reached" and int(count) == limit
         if limit == 1:
             np.testing.assert_array_equal(np.asarray(x_at), start)
+
+
+def test_gauss_newton_polish_converges_with_a_zero_absolute_tolerance_on_a_padded_pixel_set(key_and_fill):
+    """A padded pixel set's padding has a zero residual and a zero Jacobian row: the test
+    |Jδ| ≤ atol + rtol |r| holds there with equality, so with ``atol = 0`` a strict test
+    never passed and the round always ran out of steps (and was redone with LM)."""
+    problem = _problem(key_and_fill, pad=True)
+    assert problem.valid is not None and float(jnp.min(problem.valid)) == 0.0  # there is padding
+    optimum = _optimum(problem)
+    start = optimum + np.array([2e-3, -1e-3, 1e-3, 3e-3, -2e-3])
+    run = jax.jit(_gauss_newton_polish, static_argnums=(2, 3, 4))
+    x, _, count, code, *_ = run(problem, jnp.asarray(start), 1e-6, 0.0, 100)
+    assert status_name(int(code)) == "successful" and int(count) <= 6
+    np.testing.assert_allclose(np.asarray(x), optimum, atol=1e-6)
 
 
 def test_gauss_newton_polish_reports_a_point_outside_the_bounds_and_the_polish_redoes_it(key_and_fill):
