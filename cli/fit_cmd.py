@@ -227,8 +227,10 @@ def is_batch(args: argparse.Namespace) -> bool:
 
 
 def _free_names(text: str | None) -> tuple[str, ...] | None:
-    """``--free a,b``'s names; None (the automatic choice) when not given or empty."""
-    if not text:
+    """``--free a,b``'s names; None (the automatic choice) when not given. Given but naming
+    nothing (``--free ''``, ``--free ,``) is refused: a script whose variable came out empty
+    meant some parameters, not the automatic choice."""
+    if text is None:
         return None
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     if not names:

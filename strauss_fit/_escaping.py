@@ -10,6 +10,9 @@ import re
 # would print the rest of its line reversed)
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u2028-\u202e\u2066-\u2069]")
 _CONTROL_AND_NEWLINES = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028-\u202e\u2066-\u2069]")
+#: Every character `escape` (with ``newlines``) shows escaped: what a name written into a
+#: file must not hold (`strauss_fit.io.material_tables`).
+CONTROL_CHARACTERS = _CONTROL_AND_NEWLINES
 
 
 def _escaped(match: re.Match) -> str:

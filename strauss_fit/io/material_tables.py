@@ -30,12 +30,12 @@ import csv
 import io
 import json
 import math
-import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .._escaping import CONTROL_CHARACTERS, escape
 from ..errors import MaterialError, StraussFitError
 from ..models import phong as phong_values
 from ..models.material import COLOR_RANGE, PARAMETER_NAMES, PARAMETER_RANGES, Material
@@ -705,14 +705,6 @@ def format_csv(results: list[dict[str, Any]], direction: str) -> str:
     return buffer.getvalue()
 
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
-
-
-def _escape(text: str) -> str:
-    """Control characters as ``\\xNN`` (for comments in a written file)."""
-    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
-
-
 def _mtl_name(name: str, used: set[str]) -> tuple[str, str | None]:
     """The name under which a material is written to a ``.mtl``: the name itself
     (``newmtl`` takes the rest of the line, spaces and ``#`` included), so that the
@@ -722,7 +714,7 @@ def _mtl_name(name: str, used: set[str]) -> tuple[str, str | None]:
     reason = None
     if not name.strip():
         reason = "it is empty"
-    elif _CONTROL.search(name):
+    elif CONTROL_CHARACTERS.search(name):
         reason = "it holds control characters"
     elif name != name.strip():
         reason = "it starts or ends with spaces, which a .mtl reader drops"
@@ -731,7 +723,7 @@ def _mtl_name(name: str, used: set[str]) -> tuple[str, str | None]:
     if reason is None:
         used.add(name)
         return name, None
-    base = _CONTROL.sub("_", name).strip() or "material"
+    base = CONTROL_CHARACTERS.sub("_", name).strip() or "material"
     candidate, k = base, 2
     while candidate in used:
         candidate, k = f"{base}_{k}", k + 1
@@ -745,7 +737,8 @@ def format_results_mtl(results: list[dict[str, Any]]) -> tuple[str, list[str]]:
     blocks, used, renamed = [], set(), []
     for result in results:
         if result["status"] != "ok":
-            blocks.append(f"# {_escape(result['name'])}: not converted: {_escape(result.get('message', ''))}\n")
+            shown, message = escape(result["name"], newlines=True), escape(result.get("message", ""), newlines=True)
+            blocks.append(f"# {shown}: not converted: {message}\n")
             continue
         residual = result["residual"]
         name, reason = _mtl_name(result["name"], used)
@@ -754,7 +747,7 @@ def format_results_mtl(results: list[dict[str, Any]]) -> tuple[str, list[str]]:
             f"residual: RMS {residual['rms']:.3g}, CIEDE2000 mean {residual['delta_e2000_mean']:.3g}"
         )
         if reason is not None:
-            comment += f"\nrenamed from {_escape(repr(result['name']))}: {reason}"
+            comment += f"\nrenamed from {escape(repr(result['name']), newlines=True)}: {reason}"
             renamed.append(
                 f"material {result['name']!r} is written as {name!r} ({reason}): "
                 "usemtl lines naming the old name will not find it"

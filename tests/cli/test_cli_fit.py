@@ -116,6 +116,7 @@ def write_raw(path, pixels):
         # once "the scene constrains none of the candidates", which blamed the scene
         ("free-and-fix", "smoothness both freed and fixed: free a parameter or fix it, not both"),
         ("free-no-name", "--free ',,' names no parameter"),
+        ("free-empty", "--free '' names no parameter"),  # once the automatic choice, silently
         ("fix-twice", "--fix smoothness is given twice"),
         ("unknown-model-first", "unknown reflectance model 'foo'"),  # not "--quality is not available"
     ],
@@ -152,6 +153,8 @@ def test_fit_bad_inputs_are_one_line_errors(tmp_path, scene, capsys, case, patte
         extra = ["--free", "smoothness", "--fix", "smoothness=0.5"]
     elif case == "free-no-name":
         extra = ["--free", ",,"]
+    elif case == "free-empty":
+        extra = ["--free", ""]
     elif case == "fix-twice":
         extra = ["--fix", "smoothness=0.3", "--fix", "smoothness=0.4"]
     elif case == "unknown-model-first":

@@ -150,3 +150,15 @@ def test_names_the_format_cannot_hold_are_renamed_loudly():
     assert names == ["a", "a_2", "bad_name", "padded"]
     assert len(renamed) == 3 and "same name" in renamed[0] and "control characters" in renamed[1]
     assert "\x1b" not in text
+
+
+def test_text_quoted_into_a_written_library_is_escaped_as_everywhere_else():
+    """A name or message with a right-to-left override (which would print the rest of its
+    line reversed) or a line break is renamed or escaped, as the command line escapes it
+    (`strauss_fit._escaping.escape`): every comment stays one line."""
+    failed = {"name": "evil\u202eliam\nnewmtl fake", "status": "failed", "message": "bad\nvalue \u202e"}
+    text, renamed = format_results_mtl([fake_result("ok\u202ename"), failed])
+    assert "\u202e" not in text and [m.name for m in parse_mtl(text).materials] == ["ok_name"]
+    assert "control characters" in renamed[0]
+    comment = [line for line in text.splitlines() if "not converted" in line]
+    assert comment == ["# evil\\u202eliam\\nnewmtl fake: not converted: bad\\nvalue \\u202e"]
