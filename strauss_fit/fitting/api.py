@@ -882,10 +882,8 @@ def _free_covariance_steps(
 def _residual_record(residual: np.ndarray, rss: float, outcome: _Outcome, noise: NoiseModel) -> dict[str, Any]:
     """The result's ``residual``: its size, the noise and the verdict."""
     diagnosis = outcome.diagnosis
-    # NoiseModel.typical at the fitted radiance, from its σ already computed
-    # (Σ σ² per channel as a product over the rows: a mean along axis 0 of (N, 3) is strided)
-    sigma = outcome.sigma
-    noise_typical = np.sqrt(np.einsum("ij,ij->j", sigma, sigma) / len(sigma)) if noise.known else None
+    # at the fitted radiance, from its σ already computed
+    noise_typical = noise.typical(outcome.model, sigma=outcome.sigma) if noise.known else None
     return {
         "rms": float(np.sqrt(np.mean(residual**2))),
         "max_abs": float(np.max(np.abs(residual))),

@@ -67,7 +67,7 @@ from ..io.files import Outputs, check_input_file, check_replaceable, read_json
 from ..io.images import add_image, read_image
 from ..io.journal import file_digest, pytree_digest, run_key
 from ..io.targets import Target
-from ..runtime import keep_freed_memory, release_compiled_code_if_needed
+from ..runtime import release_compiled_code_if_needed
 from ..scene.loading import Scene, load_scene
 from ..stats.noise import sidecar_path
 from .batch import DEFAULT_CHUNK, BatchProgress, FitFailure, FitJob, _failure, _loaded, fit_many
@@ -433,7 +433,6 @@ class ModelFit:
         scenes: dict[str, Scene] = {}
         started = time.perf_counter()
         failed = 0
-        keep_freed_memory()
         for index, job in enumerate(jobs):
             release_compiled_code_if_needed()
             try:

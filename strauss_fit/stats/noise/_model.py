@@ -62,9 +62,12 @@ class NoiseModel:
             variance = variance + quantisation_sigma(np.clip(level, 0.0, 1.0)) ** 2
         return np.sqrt(variance)
 
-    def typical(self, level: np.ndarray) -> np.ndarray:
-        """(3,) the root-mean-square σ per channel over the values ``level`` (N, 3)."""
-        return np.sqrt(np.mean(self.sigma_at(level) ** 2, axis=0))
+    def typical(self, level: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+        """(3,) the root-mean-square σ per channel over the values ``level`` (N, 3);
+        ``sigma``: σ there when already computed (``sigma_at(level)``)."""
+        sigma = self.sigma_at(level) if sigma is None else np.asarray(sigma)
+        # Σ σ² per channel as a product over the rows: a mean along axis 0 of (N, 3) is strided
+        return np.sqrt(np.einsum("ij,ij->j", sigma, sigma) / len(sigma))
 
     def to_dict(self) -> dict:
         return {
